@@ -1,0 +1,7 @@
+#!/usr/bin/env bash
+# Renders with hytrace: `scripts/render.sh [ARGS...]` runs `hytrace render ARGS...` (release
+# build) in the caller's directory, so relative paths in ARGS mean what they say. Builds without
+# the `embree` feature: it needs neither Embree nor any Debian package.
+set -euo pipefail
+REPO_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd -P)"
+exec cargo run --release --manifest-path "$REPO_ROOT/Cargo.toml" -- render "$@"

@@ -1,0 +1,166 @@
+//! Small geometric types shared by every stage: axis-aligned boxes, rays and affine maps.
+
+use glam::{Affine3A, Vec3};
+
+/// An axis-aligned bounding box; components may be infinite for unbounded shapes (planes,
+/// infinite repetition). An empty box has `min > max`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Aabb {
+    /// Lower corner.
+    pub min: Vec3,
+    /// Upper corner.
+    pub max: Vec3,
+}
+
+impl Aabb {
+    /// The box containing nothing.
+    pub const EMPTY: Aabb = Aabb {
+        min: Vec3::splat(f32::INFINITY),
+        max: Vec3::splat(f32::NEG_INFINITY),
+    };
+    /// The box containing everything.
+    pub const INFINITE: Aabb = Aabb {
+        min: Vec3::splat(f32::NEG_INFINITY),
+        max: Vec3::splat(f32::INFINITY),
+    };
+
+    /// A box from its corners.
+    pub fn new(min: Vec3, max: Vec3) -> Self {
+        Aabb { min, max }
+    }
+
+    /// The box [−h, h].
+    pub fn symmetric(half_extents: Vec3) -> Self {
+        Aabb::new(-half_extents, half_extents)
+    }
+
+    /// Whether every component of both corners is finite.
+    pub fn is_finite(&self) -> bool {
+        self.min.is_finite() && self.max.is_finite()
+    }
+
+    /// Whether the box contains no point.
+    pub fn is_empty(&self) -> bool {
+        self.min.cmpgt(self.max).any()
+    }
+
+    /// The smallest box containing both.
+    pub fn union(&self, other: &Aabb) -> Aabb {
+        Aabb::new(self.min.min(other.min), self.max.max(other.max))
+    }
+
+    /// The overlap of both boxes (possibly empty).
+    pub fn intersection(&self, other: &Aabb) -> Aabb {
+        Aabb::new(self.min.max(other.min), self.max.min(other.max))
+    }
+
+    /// The box grown by `r` on every side.
+    pub fn expand(&self, r: f32) -> Aabb {
+        Aabb::new(self.min - Vec3::splat(r), self.max + Vec3::splat(r))
+    }
+
+    /// Centre of a finite box.
+    pub fn center(&self) -> Vec3 {
+        0.5 * (self.min + self.max)
+    }
+
+    /// Length of the diagonal (infinite for unbounded boxes).
+    pub fn diagonal(&self) -> f32 {
+        (self.max - self.min).length()
+    }
+
+    /// The eight corners of a finite box.
+    pub fn corners(&self) -> [Vec3; 8] {
+        let (a, b) = (self.min, self.max);
+        [
+            Vec3::new(a.x, a.y, a.z),
+            Vec3::new(b.x, a.y, a.z),
+            Vec3::new(a.x, b.y, a.z),
+            Vec3::new(b.x, b.y, a.z),
+            Vec3::new(a.x, a.y, b.z),
+            Vec3::new(b.x, a.y, b.z),
+            Vec3::new(a.x, b.y, b.z),
+            Vec3::new(b.x, b.y, b.z),
+        ]
+    }
+
+    /// The bounds of this box after an affine map (infinite boxes stay infinite).
+    pub fn transformed(&self, m: &Affine3A) -> Aabb {
+        if self.is_empty() {
+            return *self;
+        }
+        if !self.is_finite() {
+            return Aabb::INFINITE;
+        }
+        self.corners().iter().fold(Aabb::EMPTY, |acc, &c| {
+            let p = m.transform_point3(c);
+            Aabb::new(acc.min.min(p), acc.max.max(p))
+        })
+    }
+
+    /// Signed distance from `p` to the box surface (negative inside): exact (Quilez `sdBox`).
+    pub fn signed_distance(&self, p: Vec3) -> f32 {
+        let q = (p - self.center()).abs() - 0.5 * (self.max - self.min);
+        q.max(Vec3::ZERO).length() + q.max_element().min(0.0)
+    }
+
+    /// The parametric interval [t0, t1] in which the ray is inside the box, clipped to
+    /// [tmin, tmax]; `None` when it misses. Slab method (Kay & Kajiya 1986) with the IEEE
+    /// infinities of 1/d handling axis-parallel rays.
+    pub fn ray_interval(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<(f32, f32)> {
+        let inv = ray.direction.recip();
+        let t_a = (self.min - ray.origin) * inv;
+        let t_b = (self.max - ray.origin) * inv;
+        // NaN arises from 0·∞ when the origin lies on a slab plane of a parallel ray;
+        // glam's min/max follow f32::min/max, which drop NaN in favour of the other operand.
+        let t_near = t_a.min(t_b).max_element().max(tmin);
+        let t_far = t_a.max(t_b).min_element().min(tmax);
+        (t_near <= t_far).then_some((t_near, t_far))
+    }
+}
+
+/// A ray origin + t·direction; `direction` is unit length everywhere in the tracer.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ray {
+    /// Where the ray starts.
+    pub origin: Vec3,
+    /// Unit direction.
+    pub direction: Vec3,
+}
+
+impl Ray {
+    /// A ray with the direction normalised.
+    pub fn new(origin: Vec3, direction: Vec3) -> Self {
+        Ray {
+            origin,
+            direction: direction.normalize(),
+        }
+    }
+
+    /// The point at parameter t.
+    pub fn at(&self, t: f32) -> Vec3 {
+        self.origin + t * self.direction
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn slab_interval_of_unit_box() {
+        let b = Aabb::symmetric(Vec3::ONE);
+        let r = Ray::new(Vec3::new(0.0, 0.0, -5.0), Vec3::Z);
+        assert_eq!(b.ray_interval(&r, 0.0, 100.0), Some((4.0, 6.0)));
+        let miss = Ray::new(Vec3::new(2.0, 0.0, -5.0), Vec3::Z);
+        assert_eq!(b.ray_interval(&miss, 0.0, 100.0), None);
+        let inside = Ray::new(Vec3::ZERO, Vec3::X);
+        assert_eq!(b.ray_interval(&inside, 0.0, 100.0), Some((0.0, 1.0)));
+    }
+
+    #[test]
+    fn infinite_box_contains_every_ray() {
+        let r = Ray::new(Vec3::new(3.0, 1.0, 2.0), Vec3::new(1.0, 2.0, 3.0));
+        assert_eq!(Aabb::INFINITE.ray_interval(&r, 0.0, 50.0), Some((0.0, 50.0)));
+    }
+}

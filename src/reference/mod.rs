@@ -1,0 +1,2 @@
+//! Ground truth: closed-form ray intersections (and, behind the `embree` feature, Embree 4).
+pub mod analytic;

@@ -1,0 +1,107 @@
+//! Render backends and what they share: options, the framebuffer, sample positions and output.
+
+pub mod cpu;
+pub mod output;
+
+use glam::Vec3;
+
+/// What to render, beyond the scene itself.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RenderOptions {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Samples per pixel.
+    pub samples: u32,
+    /// Worker threads (None: all cores).
+    pub threads: Option<usize>,
+    /// Show a progress bar on the terminal.
+    pub progress: bool,
+}
+
+/// Side of the square tiles the image is cut into.
+pub const TILE: u32 = 32;
+
+/// A linear-RGB image.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Framebuffer {
+    /// Width.
+    pub width: u32,
+    /// Height.
+    pub height: u32,
+    /// Row-major pixels.
+    pub pixels: Vec<Vec3>,
+}
+
+impl Framebuffer {
+    /// The pixel at (x, y).
+    pub fn get(&self, x: u32, y: u32) -> Vec3 {
+        self.pixels[(y * self.width + x) as usize]
+    }
+}
+
+/// One tile of the image: its corner and size.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Tile {
+    /// Left column.
+    pub x0: u32,
+    /// Top row.
+    pub y0: u32,
+    /// Width.
+    pub w: u32,
+    /// Height.
+    pub h: u32,
+}
+
+/// The image cut into tiles of side [`TILE`], row by row.
+pub fn tiles(width: u32, height: u32) -> Vec<Tile> {
+    let mut v = Vec::new();
+    for y0 in (0..height).step_by(TILE as usize) {
+        for x0 in (0..width).step_by(TILE as usize) {
+            v.push(Tile {
+                x0,
+                y0,
+                w: TILE.min(width - x0),
+                h: TILE.min(height - y0),
+            });
+        }
+    }
+    v
+}
+
+/// Sub-pixel position of sample `s` of `n` in pixel (x, y): stratified on a ⌈√n⌉² grid with
+/// a jitter inside each stratum drawn from a hash of (pixel, sample), so every run and every
+/// thread count and backend produce the same positions. One sample sits at the pixel centre.
+pub fn sample_offset(x: u32, y: u32, s: u32, n: u32) -> (f32, f32) {
+    if n <= 1 {
+        return (0.5, 0.5);
+    }
+    let side = (n as f32).sqrt().ceil() as u32;
+    let (cx, cy) = (s % side, (s / side) % side);
+    let h = hash3(x, y, s);
+    let jx = (h & 0xffff) as f32 / 65536.0;
+    let jy = (h >> 16) as f32 / 65536.0;
+    (
+        (cx as f32 + jx) / side as f32,
+        (cy as f32 + jy) / side as f32,
+    )
+}
+
+/// A 32-bit integer hash of three values (PCG-style output permutation; Jarzynski & Olano,
+/// "Hash functions for GPU rendering", JCGT 2020, pcg3d reduced to one output).
+pub fn hash3(x: u32, y: u32, z: u32) -> u32 {
+    let mut v = [
+        x.wrapping_mul(1664525).wrapping_add(1013904223),
+        y.wrapping_mul(1664525).wrapping_add(1013904223),
+        z.wrapping_mul(1664525).wrapping_add(1013904223),
+    ];
+    v[0] = v[0].wrapping_add(v[1].wrapping_mul(v[2]));
+    v[1] = v[1].wrapping_add(v[2].wrapping_mul(v[0]));
+    v[2] = v[2].wrapping_add(v[0].wrapping_mul(v[1]));
+    v[0] ^= v[0] >> 16;
+    v[1] ^= v[1] >> 16;
+    v[2] ^= v[2] >> 16;
+    v[0] = v[0].wrapping_add(v[1].wrapping_mul(v[2]));
+    v[0]
+}

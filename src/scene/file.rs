@@ -1,0 +1,221 @@
+//! The scene file format (RON): what a user writes, field by field, with defaults.
+//!
+//! Every field is documented in `docs/scene-format.md`; unknown fields are errors. Values are
+//! validated while parsing (see [`super::values`]), so errors carry line and column.
+
+use super::values::{Color, Direction, FiniteVec3, NonNegative, Positive, Unit};
+use crate::sdf::SdfNode;
+use serde::Deserialize;
+use std::collections::BTreeMap;
+
+/// A whole scene file.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, rename = "Scene")]
+pub struct SceneFile {
+    /// Output image settings.
+    #[serde(default)]
+    pub image: ImageDesc,
+    /// The camera.
+    pub camera: CameraDesc,
+    /// Light sources.
+    #[serde(default)]
+    pub lights: Vec<LightDesc>,
+    /// Named materials, referenced by objects and `Material` nodes.
+    #[serde(default)]
+    pub materials: BTreeMap<String, MaterialDesc>,
+    /// The objects.
+    #[serde(default)]
+    pub objects: Vec<ObjectDesc>,
+    /// Sphere-tracing parameters.
+    #[serde(default)]
+    pub tracer: TracerDesc,
+}
+
+/// Image size, sampling and background.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ImageDesc {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Samples per pixel.
+    pub samples: u32,
+    /// Radiance of rays that hit nothing (linear RGB).
+    pub background: Color,
+}
+
+impl Default for ImageDesc {
+    fn default() -> Self {
+        ImageDesc {
+            width: 800,
+            height: 600,
+            samples: 1,
+            background: Color(glam::Vec3::new(0.05, 0.06, 0.08)),
+        }
+    }
+}
+
+/// Camera models.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub enum CameraDesc {
+    /// Pinhole camera.
+    Perspective {
+        /// Eye position.
+        position: FiniteVec3,
+        /// Point the camera looks at.
+        look_at: FiniteVec3,
+        /// Up direction (default +y).
+        #[serde(default)]
+        up: Option<Direction>,
+        /// Vertical field of view in degrees (default 45).
+        #[serde(default)]
+        fov: Option<Positive>,
+    },
+    /// Orthographic camera: parallel rays.
+    Orthographic {
+        /// Centre of the image plane.
+        position: FiniteVec3,
+        /// Point the camera looks at (sets the direction).
+        look_at: FiniteVec3,
+        /// Up direction (default +y).
+        #[serde(default)]
+        up: Option<Direction>,
+        /// Height of the view in world units.
+        height: Positive,
+    },
+}
+
+/// Light sources.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub enum LightDesc {
+    /// Point light; radiance falls off with the squared distance.
+    Point {
+        /// Position.
+        position: FiniteVec3,
+        /// Colour (default white).
+        #[serde(default)]
+        color: Color,
+        /// Intensity (radiant intensity multiplier).
+        intensity: NonNegative,
+    },
+    /// Directional light (sun), travelling along `direction`.
+    Directional {
+        /// Direction in which the light travels.
+        direction: Direction,
+        /// Colour (default white).
+        #[serde(default)]
+        color: Color,
+        /// Irradiance multiplier.
+        intensity: NonNegative,
+    },
+    /// Constant ambient light.
+    Ambient {
+        /// Colour (default white).
+        #[serde(default)]
+        color: Color,
+        /// Intensity.
+        intensity: NonNegative,
+    },
+}
+
+/// A material: Lambert diffuse + Phong specular, plus reflection and refraction parameters.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MaterialDesc {
+    /// Base (albedo) colour, linear RGB.
+    pub color: Color,
+    /// Diffuse weight.
+    pub diffuse: NonNegative,
+    /// Phong specular colour.
+    pub specular: Color,
+    /// Phong exponent.
+    pub shininess: Positive,
+    /// Mirror reflectance at normal incidence (0 = none).
+    pub reflectivity: Unit,
+    /// Fraction of light transmitted (0 = opaque).
+    pub transparency: Unit,
+    /// Index of refraction.
+    pub ior: Positive,
+}
+
+impl Default for MaterialDesc {
+    fn default() -> Self {
+        MaterialDesc {
+            color: Color(glam::Vec3::splat(0.8)),
+            diffuse: NonNegative(1.0),
+            specular: Color(glam::Vec3::ZERO),
+            shininess: Positive(32.0),
+            reflectivity: Unit(0.0),
+            transparency: Unit(0.0),
+            ior: Positive(1.5),
+        }
+    }
+}
+
+/// One object: an SDF tree placed in the world.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObjectDesc {
+    /// Optional name, shown in errors and `info`.
+    #[serde(default)]
+    pub name: Option<String>,
+    /// The SDF tree.
+    pub shape: SdfNode,
+    /// Translation.
+    #[serde(default)]
+    pub translate: Option<FiniteVec3>,
+    /// Euler rotation in degrees (about x, then y, then z).
+    #[serde(default)]
+    pub rotate: Option<FiniteVec3>,
+    /// Uniform scale.
+    #[serde(default)]
+    pub scale: Option<Positive>,
+    /// Material name (default: the built-in grey).
+    #[serde(default)]
+    pub material: Option<String>,
+}
+
+/// How normals are estimated from the field.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default, clap::ValueEnum)]
+pub enum NormalMethod {
+    /// Central differences: 6 evaluations.
+    #[default]
+    Central,
+    /// Tetrahedral 4-tap estimate (Quilez, "normals for an SDF").
+    Tetrahedral,
+}
+
+/// Sphere-tracing parameters (Hart 1996).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TracerDesc {
+    /// Hit threshold at t = 0.
+    pub epsilon: Positive,
+    /// Growth of the hit threshold per unit of distance (a pixel-footprint cone): ε(t) =
+    /// epsilon + epsilon_per_unit·t.
+    pub epsilon_per_unit: NonNegative,
+    /// Rays stop after this distance.
+    pub max_distance: Positive,
+    /// Rays stop after this many steps (counted as a miss).
+    pub max_steps: u32,
+    /// Normal estimator.
+    pub normals: NormalMethod,
+    /// Hard shadows from point and directional lights.
+    pub shadows: bool,
+}
+
+impl Default for TracerDesc {
+    fn default() -> Self {
+        TracerDesc {
+            epsilon: Positive(1e-4),
+            epsilon_per_unit: NonNegative(1e-4),
+            max_distance: Positive(100.0),
+            max_steps: 256,
+            normals: NormalMethod::Central,
+            shadows: true,
+        }
+    }
+}

@@ -1,0 +1,383 @@
+//! Scene description: loading a RON scene file into validated, ready-to-trace form.
+//!
+//! [`Scene::load`] parses the file ([`file`]), checks every value while parsing ([`values`]),
+//! resolves material names and lowers each object's SDF tree into tapes ([`crate::sdf`]).
+//! Every error names the file, line and column.
+
+pub mod camera;
+pub mod file;
+pub mod locate;
+pub mod values;
+
+use crate::geom::Aabb;
+use crate::sdf::{self, LoweredSdf, SdfNode};
+use crate::shade::material::MaterialParams;
+use camera::{Camera, Projection};
+use file::{CameraDesc, LightDesc, NormalMethod, SceneFile};
+use glam::Vec3;
+use std::path::{Path, PathBuf};
+
+/// The largest accepted image side, in pixels.
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+/// The largest accepted number of pixels (width × height).
+pub const MAX_PIXELS: u64 = 64 * 1024 * 1024;
+/// The largest accepted samples per pixel.
+pub const MAX_SAMPLES: u32 = 1024;
+
+/// A scene error, always with the file it concerns and, where known, the place in it.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneError {
+    /// The file could not be read.
+    #[error("{file}: cannot read: {source}")]
+    Io {
+        /// The file.
+        file: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// Syntax or value error, or an invalid setting, at a place in the file.
+    #[error("{file}:{line}:{column}: {message}")]
+    At {
+        /// The file.
+        file: PathBuf,
+        /// Line, from 1.
+        line: usize,
+        /// Column, from 1.
+        column: usize,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// Image settings after validation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImageSettings {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Samples per pixel.
+    pub samples: u32,
+    /// Background radiance.
+    pub background: Vec3,
+}
+
+/// Sphere-tracing settings after validation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TracerSettings {
+    /// Hit threshold at t = 0.
+    pub epsilon: f32,
+    /// Growth of the hit threshold per unit distance.
+    pub epsilon_per_unit: f32,
+    /// Maximum ray distance.
+    pub max_distance: f32,
+    /// Maximum steps per ray.
+    pub max_steps: u32,
+    /// Normal estimator.
+    pub normals: NormalMethod,
+    /// Hard shadows on or off.
+    pub shadows: bool,
+}
+
+/// A light source.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Light {
+    /// Point light at `position`.
+    Point {
+        /// Position.
+        position: Vec3,
+        /// Colour × intensity.
+        radiance: Vec3,
+    },
+    /// Light travelling along `direction` (unit).
+    Directional {
+        /// Travel direction.
+        direction: Vec3,
+        /// Colour × intensity.
+        radiance: Vec3,
+    },
+    /// Ambient term.
+    Ambient {
+        /// Colour × intensity.
+        radiance: Vec3,
+    },
+}
+
+/// An SDF object ready to trace.
+#[derive(Debug, Clone)]
+pub struct SdfObject {
+    /// Name from the file, or `object N`.
+    pub name: String,
+    /// The tree in world space (the object's transform wrapped around the shape).
+    pub node: SdfNode,
+    /// Tapes and bounds.
+    pub lowered: LoweredSdf,
+}
+
+impl SdfObject {
+    /// World-space bounds (possibly infinite).
+    pub fn bounds(&self) -> Aabb {
+        self.lowered.bounds
+    }
+}
+
+/// A loaded scene.
+#[derive(Debug, Clone)]
+pub struct Scene {
+    /// Where it came from (for messages).
+    pub source_name: String,
+    /// Image settings.
+    pub image: ImageSettings,
+    /// The camera.
+    pub camera: Camera,
+    /// Lights.
+    pub lights: Vec<Light>,
+    /// Materials; index 0 is the default grey.
+    pub materials: Vec<MaterialParams>,
+    /// Material names, parallel to `materials`.
+    pub material_names: Vec<String>,
+    /// SDF objects.
+    pub objects: Vec<SdfObject>,
+    /// Tracer settings.
+    pub tracer: TracerSettings,
+}
+
+impl Scene {
+    /// Reads and loads a scene file.
+    pub fn load(path: &Path) -> Result<Scene, SceneError> {
+        let source = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
+            file: path.to_path_buf(),
+            source,
+        })?;
+        Scene::from_source(&source, path)
+    }
+
+    /// Loads a scene from text; `path` is used in errors.
+    pub fn from_source(source: &str, path: &Path) -> Result<Scene, SceneError> {
+        let at = |offset: usize, message: String| {
+            let p = locate::place_of(source, offset);
+            SceneError::At {
+                file: path.to_path_buf(),
+                line: p.line,
+                column: p.column,
+                message,
+            }
+        };
+        // `implicit_some` lets optional fields be written plainly (`fov: 40`, not `Some(40)`).
+        let file: SceneFile = ron::Options::default()
+            .with_default_extension(ron::extensions::Extensions::IMPLICIT_SOME)
+            .from_str(source)
+            .map_err(|e| SceneError::At {
+                file: path.to_path_buf(),
+                line: e.span.start.line,
+                column: e.span.start.col,
+                message: e.code.to_string(),
+            })?;
+        let top = |field: &str| locate::find_in(source, (0, source.len()), field).unwrap_or(0);
+
+        let img = &file.image;
+        if img.width == 0 || img.height == 0 {
+            return Err(at(top("image"), format!(
+                "image size {}×{} is empty: width and height must be at least 1",
+                img.width, img.height
+            )));
+        }
+        if img.width > MAX_IMAGE_SIDE
+            || img.height > MAX_IMAGE_SIDE
+            || img.width as u64 * img.height as u64 > MAX_PIXELS
+        {
+            return Err(at(top("image"), format!(
+                "image size {}×{} is too large (at most {MAX_IMAGE_SIDE} per side and {MAX_PIXELS} pixels)",
+                img.width, img.height
+            )));
+        }
+        if img.samples == 0 || img.samples > MAX_SAMPLES {
+            return Err(at(top("samples"), format!(
+                "samples = {} is out of range 1..={MAX_SAMPLES}",
+                img.samples
+            )));
+        }
+        let t = &file.tracer;
+        if t.max_steps == 0 || t.max_steps > 1_000_000 {
+            return Err(at(top("max_steps"), format!(
+                "max_steps = {} is out of range 1..=1000000",
+                t.max_steps
+            )));
+        }
+
+        let camera = match &file.camera {
+            CameraDesc::Perspective {
+                position,
+                look_at,
+                up,
+                fov,
+            } => {
+                let fov = fov.map(|f| f.0).unwrap_or(45.0);
+                if fov >= 179.0 {
+                    return Err(at(top("fov"), format!("fov = {fov}° must be below 179°")));
+                }
+                Camera::look_at(
+                    position.0,
+                    look_at.0,
+                    up.map(|u| u.0).unwrap_or(Vec3::Y),
+                    Projection::Perspective {
+                        tan_half_fov: (0.5 * fov.to_radians()).tan(),
+                    },
+                )
+            }
+            CameraDesc::Orthographic {
+                position,
+                look_at,
+                up,
+                height,
+            } => Camera::look_at(
+                position.0,
+                look_at.0,
+                up.map(|u| u.0).unwrap_or(Vec3::Y),
+                Projection::Orthographic { height: height.0 },
+            ),
+        }
+        .map_err(|m| at(top("camera"), m))?;
+
+        let lights = file
+            .lights
+            .iter()
+            .map(|l| match l {
+                LightDesc::Point {
+                    position,
+                    color,
+                    intensity,
+                } => Light::Point {
+                    position: position.0,
+                    radiance: color.0 * intensity.0,
+                },
+                LightDesc::Directional {
+                    direction,
+                    color,
+                    intensity,
+                } => Light::Directional {
+                    direction: direction.0,
+                    radiance: color.0 * intensity.0,
+                },
+                LightDesc::Ambient { color, intensity } => Light::Ambient {
+                    radiance: color.0 * intensity.0,
+                },
+            })
+            .collect();
+
+        let mut materials = vec![MaterialParams::default_grey()];
+        let mut material_names = vec!["(default)".to_string()];
+        for (name, m) in &file.materials {
+            materials.push(MaterialParams::from(m));
+            material_names.push(name.clone());
+        }
+        let index_of = |name: &str| {
+            material_names
+                .iter()
+                .skip(1)
+                .position(|n| n == name)
+                .map(|i| i as u32 + 1)
+        };
+
+        let spans = locate::list_elements(source, "objects");
+        let mut objects = Vec::with_capacity(file.objects.len());
+        for (i, o) in file.objects.iter().enumerate() {
+            let span = spans.get(i).copied().unwrap_or((0, source.len()));
+            let name = o.name.clone().unwrap_or_else(|| format!("object {i}"));
+            let material = match &o.material {
+                None => 0,
+                Some(m) => index_of(m).ok_or_else(|| {
+                    let pos = locate::find_in(source, span, &format!("\"{m}\"")).unwrap_or(span.0);
+                    at(pos, format!(
+                        "{name}: unknown material \"{m}\" (defined: {})",
+                        defined(&material_names)
+                    ))
+                })?,
+            };
+            let node = if o.translate.is_some() || o.rotate.is_some() || o.scale.is_some() {
+                SdfNode::Transform {
+                    translate: o.translate,
+                    rotate: o.rotate,
+                    scale: o.scale,
+                    shape: Box::new(o.shape.clone()),
+                }
+            } else {
+                o.shape.clone()
+            };
+            let lowered = sdf::lower(&node, &index_of, material).map_err(|e| {
+                // Point at the failing node: the last named node kind on the path.
+                let kind = e
+                    .path
+                    .rsplit(" > ")
+                    .find(|k| !k.starts_with('[') && *k != "Transform")
+                    .unwrap_or("shape");
+                let needle = if e.message.starts_with("unknown material") {
+                    e.message
+                        .split('"')
+                        .nth(1)
+                        .map(|m| format!("\"{m}\""))
+                        .unwrap_or_default()
+                } else {
+                    kind.to_string()
+                };
+                let pos = locate::find_in(source, span, &needle).unwrap_or(span.0);
+                let extra = if e.message.starts_with("unknown material") {
+                    format!(" (defined: {})", defined(&material_names))
+                } else {
+                    String::new()
+                };
+                at(pos, format!("{name}: {e}{extra}"))
+            })?;
+            objects.push(SdfObject {
+                name,
+                node,
+                lowered,
+            });
+        }
+
+        Ok(Scene {
+            source_name: path.display().to_string(),
+            image: ImageSettings {
+                width: img.width,
+                height: img.height,
+                samples: img.samples,
+                background: img.background.0,
+            },
+            camera,
+            lights,
+            materials,
+            material_names,
+            objects,
+            tracer: TracerSettings {
+                epsilon: t.epsilon.0,
+                epsilon_per_unit: t.epsilon_per_unit.0,
+                max_distance: t.max_distance.0,
+                max_steps: t.max_steps,
+                normals: t.normals,
+                shadows: t.shadows,
+            },
+        })
+    }
+
+    /// Bounds of everything finite in the scene (infinite objects are left out).
+    pub fn finite_bounds(&self) -> Aabb {
+        self.objects
+            .iter()
+            .map(|o| o.bounds())
+            .filter(|b| b.is_finite())
+            .fold(Aabb::EMPTY, |acc, b| acc.union(&b))
+    }
+
+    /// Every material packed for the tape.
+    pub fn material_table(&self) -> Vec<sdf::tape::MaterialVec> {
+        self.materials.iter().map(|m| m.to_vec()).collect()
+    }
+}
+
+fn defined(names: &[String]) -> String {
+    if names.len() <= 1 {
+        "none".to_string()
+    } else {
+        names[1..].join(", ")
+    }
+}
