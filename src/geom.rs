@@ -161,6 +161,9 @@ mod tests {
     #[test]
     fn infinite_box_contains_every_ray() {
         let r = Ray::new(Vec3::new(3.0, 1.0, 2.0), Vec3::new(1.0, 2.0, 3.0));
-        assert_eq!(Aabb::INFINITE.ray_interval(&r, 0.0, 50.0), Some((0.0, 50.0)));
+        assert_eq!(
+            Aabb::INFINITE.ray_interval(&r, 0.0, 50.0),
+            Some((0.0, 50.0))
+        );
     }
 }

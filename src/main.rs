@@ -14,8 +14,9 @@ const SHOWCASE: &str = include_str!("../assets/scenes/showcase.ron");
 #[derive(Parser)]
 #[command(name = "hytrace", version, about = "Hybrid mesh + SDF renderer")]
 struct Cli {
+    /// What to do; with none, `render` the built-in showcase to out.png.
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
 }
 
 #[derive(Subcommand)]
@@ -24,7 +25,7 @@ enum Command {
     Render(RenderArgs),
 }
 
-#[derive(clap::Args)]
+#[derive(clap::Parser)]
 struct RenderArgs {
     /// Scene file (.ron); omit for the built-in showcase.
     scene: Option<PathBuf>,
@@ -54,7 +55,8 @@ struct RenderArgs {
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Render(args) => render(args),
+        Some(Command::Render(args)) => render(args),
+        None => render(RenderArgs::parse_from(["render"])),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");
@@ -80,7 +82,9 @@ fn render(args: RenderArgs) -> Result<()> {
     if width == 0 || height == 0 {
         bail!("--width and --height must be at least 1 (got {width}×{height})");
     }
-    if width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE || width as u64 * height as u64 > MAX_PIXELS
+    if width > MAX_IMAGE_SIDE
+        || height > MAX_IMAGE_SIDE
+        || width as u64 * height as u64 > MAX_PIXELS
     {
         bail!(
             "image size {width}×{height} is too large (at most {MAX_IMAGE_SIDE} per side and {MAX_PIXELS} pixels)"

@@ -1,5 +1,7 @@
 //! Finding places in a scene file's text, for errors found after parsing (unknown material names,
-//! shapes that cannot be lowered): the parser itself already reports syntax and value errors.
+//! shapes that cannot be lowered, invalid settings): the parser itself already reports syntax
+//! and value errors. A small RON lexer (strings, nested comments, brackets) keeps comments and
+//! string contents from being mistaken for fields.
 
 /// A 1-based line and column.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -12,7 +14,10 @@ pub struct Place {
 
 /// The line and column of a byte offset.
 pub fn place_of(source: &str, offset: usize) -> Place {
-    let offset = offset.min(source.len());
+    let mut offset = offset.min(source.len());
+    while !source.is_char_boundary(offset) {
+        offset -= 1;
+    }
     let before = &source[..offset];
     let line = before.matches('\n').count() + 1;
     let line_start = before.rfind('\n').map(|i| i + 1).unwrap_or(0);
@@ -22,30 +27,33 @@ pub fn place_of(source: &str, offset: usize) -> Place {
     }
 }
 
-/// Byte ranges of the elements of the top-level list field `field` (e.g. `objects`), found by
-/// scanning brackets while skipping strings and comments. Returns an empty list when absent.
-pub fn list_elements(source: &str, field: &str) -> Vec<(usize, usize)> {
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    Ident,
+    Str,
+    Open,
+    Close,
+    Colon,
+    Comma,
+    Other,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Token {
+    kind: Kind,
+    start: usize,
+    end: usize,
+}
+
+/// Splits RON text into tokens, dropping whitespace and (nested) comments.
+fn tokens(source: &str) -> Vec<Token> {
     let bytes = source.as_bytes();
-    let mut depth = 0usize;
+    let mut out = Vec::new();
     let mut i = 0;
-    let mut list_depth = None;
-    let mut elements = Vec::new();
-    let mut element_start: Option<usize> = None;
     while i < bytes.len() {
         let c = bytes[i];
-        match c {
-            b'"' => {
-                if let (Some(_), None) = (list_depth, element_start) {
-                    element_start = Some(i);
-                }
-                i += 1;
-                while i < bytes.len() && bytes[i] != b'"' {
-                    if bytes[i] == b'\\' {
-                        i += 1;
-                    }
-                    i += 1;
-                }
-            }
+        let start = i;
+        let kind = match c {
             b'/' if bytes.get(i + 1) == Some(&b'/') => {
                 while i < bytes.len() && bytes[i] != b'\n' {
                     i += 1;
@@ -53,85 +61,254 @@ pub fn list_elements(source: &str, field: &str) -> Vec<(usize, usize)> {
                 continue;
             }
             b'/' if bytes.get(i + 1) == Some(&b'*') => {
-                i += 2;
-                while i + 1 < bytes.len() && !(bytes[i] == b'*' && bytes[i + 1] == b'/') {
-                    i += 1;
+                let mut depth = 0;
+                while i < bytes.len() {
+                    if bytes[i] == b'/' && bytes.get(i + 1) == Some(&b'*') {
+                        depth += 1;
+                        i += 2;
+                    } else if bytes[i] == b'*' && bytes.get(i + 1) == Some(&b'/') {
+                        depth -= 1;
+                        i += 2;
+                        if depth == 0 {
+                            break;
+                        }
+                    } else {
+                        i += 1;
+                    }
+                }
+                continue;
+            }
+            b'"' => {
+                i += 1;
+                while i < bytes.len() && bytes[i] != b'"' {
+                    i += if bytes[i] == b'\\' { 2 } else { 1 };
                 }
                 i += 1;
+                Kind::Str
             }
             b'(' | b'[' | b'{' => {
-                if list_depth == Some(depth) && element_start.is_none() {
-                    element_start = Some(i);
-                }
-                depth += 1;
+                i += 1;
+                Kind::Open
             }
             b')' | b']' | b'}' => {
+                i += 1;
+                Kind::Close
+            }
+            b':' => {
+                i += 1;
+                Kind::Colon
+            }
+            b',' => {
+                i += 1;
+                Kind::Comma
+            }
+            c if c.is_ascii_alphabetic() || c == b'_' => {
+                while i < bytes.len() && (bytes[i].is_ascii_alphanumeric() || bytes[i] == b'_') {
+                    i += 1;
+                }
+                Kind::Ident
+            }
+            c if c.is_ascii_whitespace() => {
+                i += 1;
+                continue;
+            }
+            _ => {
+                // numbers, signs and any other character (UTF-8 continuation bytes included)
+                i += 1;
+                while i < bytes.len() && !source.is_char_boundary(i) {
+                    i += 1;
+                }
+                Kind::Other
+            }
+        };
+        out.push(Token {
+            kind,
+            start,
+            end: i.min(bytes.len()),
+        });
+    }
+    out
+}
+
+/// Offset of the value of the field reached by the key path (e.g. `["image", "samples"]`), where each key
+/// is a `name:` one bracket level below the previous one, starting inside the top-level
+/// `Scene( … )`. `None` when the file does not spell the field out (it took its default).
+pub fn field(source: &str, path: &[&str]) -> Option<usize> {
+    let toks = tokens(source);
+    let mut depth = 0usize;
+    let mut keys: Vec<Option<&str>> = vec![None];
+    for (i, t) in toks.iter().enumerate() {
+        match t.kind {
+            Kind::Open => {
+                depth += 1;
+                keys.truncate(depth);
+                keys.push(None);
+            }
+            Kind::Close => {
                 depth = depth.saturating_sub(1);
-                if list_depth == Some(depth + 1) && c == b']' {
-                    if let Some(s) = element_start.take() {
-                        elements.push((s, i));
-                    }
-                    return elements;
-                }
+                keys.truncate(depth + 1);
             }
-            b',' if list_depth == Some(depth) => {
-                if let Some(s) = element_start.take() {
-                    elements.push((s, i));
+            Kind::Ident if toks.get(i + 1).map(|n| n.kind) == Some(Kind::Colon) => {
+                let name = &source[t.start..t.end];
+                keys[depth] = Some(name);
+                if depth == path.len()
+                    && (1..=path.len()).all(|d| keys.get(d).copied().flatten() == Some(path[d - 1]))
+                {
+                    return Some(toks.get(i + 2).map_or(t.start, |v| v.start));
                 }
-            }
-            _ if list_depth.is_none()
-                && depth == 1
-                && source[i..].starts_with(field)
-                && !is_ident(bytes.get(i.wrapping_sub(1)).copied())
-                && !is_ident(bytes.get(i + field.len()).copied()) =>
-            {
-                // `field` `:` `[`
-                let rest = source[i + field.len()..].trim_start();
-                if let Some(rest) = rest.strip_prefix(':') {
-                    if let Some(pos) = rest.find('[') {
-                        if rest[..pos].trim().is_empty() {
-                            let open = source.len() - rest.len() + pos;
-                            i = open + 1;
-                            depth += 1;
-                            list_depth = Some(depth);
-                            continue;
-                        }
-                    }
-                }
-            }
-            c if list_depth == Some(depth)
-                && element_start.is_none()
-                && !c.is_ascii_whitespace() =>
-            {
-                element_start = Some(i);
             }
             _ => {}
         }
-        i += 1;
+    }
+    None
+}
+
+/// Byte ranges of the elements of the top-level list field `name` (e.g. `objects`).
+pub fn list_elements(source: &str, name: &str) -> Vec<(usize, usize)> {
+    let toks = tokens(source);
+    let Some(value) = field(source, &[name]) else {
+        return Vec::new();
+    };
+    let Some(open) = toks.iter().position(|t| t.start == value) else {
+        return Vec::new();
+    };
+    if toks.get(open).map(|t| (t.kind, &source[t.start..t.end])) != Some((Kind::Open, "[")) {
+        return Vec::new();
+    }
+    let mut depth = 0usize;
+    let mut elements = Vec::new();
+    let mut start: Option<usize> = None;
+    let mut last_end = toks[open].end;
+    for t in &toks[open + 1..] {
+        match t.kind {
+            Kind::Close if depth == 0 => {
+                if let Some(s) = start.take() {
+                    elements.push((s, last_end));
+                }
+                return elements;
+            }
+            Kind::Comma if depth == 0 => {
+                if let Some(s) = start.take() {
+                    elements.push((s, last_end));
+                }
+            }
+            _ => {
+                start.get_or_insert(t.start);
+                match t.kind {
+                    Kind::Open => depth += 1,
+                    Kind::Close => depth -= 1,
+                    _ => {}
+                }
+            }
+        }
+        last_end = t.end;
     }
     elements
 }
 
-fn is_ident(c: Option<u8>) -> bool {
-    c.is_some_and(|c| c.is_ascii_alphanumeric() || c == b'_')
+/// Offset of the first token in `range` that spells `needle` (an identifier such as `Torus`,
+/// or a quoted string such as `"red"`), ignoring comments.
+pub fn find_in(source: &str, range: (usize, usize), needle: &str) -> Option<usize> {
+    tokens(source)
+        .into_iter()
+        .filter(|t| t.start >= range.0 && t.end <= range.1)
+        .find(|t| &source[t.start..t.end] == needle)
+        .map(|t| t.start)
 }
 
-/// Offset of the first occurrence of `needle` within `range` of `source`, as a whole word.
-pub fn find_in(source: &str, range: (usize, usize), needle: &str) -> Option<usize> {
-    let hay = &source[range.0..range.1.min(source.len())];
-    let mut from = 0;
-    while let Some(pos) = hay[from..].find(needle) {
-        let at = from + pos;
-        let before = hay[..at].bytes().last();
-        let after = hay.as_bytes().get(at + needle.len()).copied();
-        let word_edge = !needle.starts_with(|c: char| c.is_alphanumeric()) || !is_ident(before);
-        let word_end = !needle.ends_with(|c: char| c.is_alphanumeric()) || !is_ident(after);
-        if word_edge && word_end {
-            return Some(range.0 + at);
+/// One step into a nested value, mirroring [`crate::sdf::lower::Step`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Nav<'a> {
+    /// The current value is a node of this kind.
+    Node(&'a str),
+    /// The named field of the current struct or node.
+    Field(&'a str),
+    /// The i-th element of the current list (or of a node whose argument is a list).
+    Index(usize),
+}
+
+/// Follows `steps` from the value that starts at byte `start` (e.g. an element of `objects`)
+/// and returns the offset of the value reached, or of the deepest one that could be found.
+pub fn follow(source: &str, start: usize, steps: &[Nav]) -> usize {
+    let toks = tokens(source);
+    let Some(mut cur) = toks.iter().position(|t| t.start >= start) else {
+        return start;
+    };
+    let text = |i: usize| toks.get(i).map(|t| &source[t.start..t.end]);
+    let kind = |i: usize| toks.get(i).map(|t| t.kind);
+    for step in steps {
+        let next = match *step {
+            Nav::Node(k) => (text(cur) == Some(k)).then_some(cur),
+            Nav::Field(f) => {
+                let open = match kind(cur) {
+                    Some(Kind::Ident) if kind(cur + 1) == Some(Kind::Open) => Some(cur + 1),
+                    Some(Kind::Open) => Some(cur),
+                    _ => None,
+                };
+                open.and_then(|open| {
+                    let mut depth = 0i32;
+                    let mut i = open + 1;
+                    while let Some(t) = toks.get(i) {
+                        match t.kind {
+                            Kind::Open => depth += 1,
+                            Kind::Close if depth == 0 => return None,
+                            Kind::Close => depth -= 1,
+                            Kind::Ident
+                                if depth == 0
+                                    && kind(i + 1) == Some(Kind::Colon)
+                                    && text(i) == Some(f) =>
+                            {
+                                return Some(i + 2);
+                            }
+                            _ => {}
+                        }
+                        i += 1;
+                    }
+                    None
+                })
+            }
+            Nav::Index(n) => {
+                let list = match (text(cur), kind(cur + 1), text(cur + 2)) {
+                    (Some("["), _, _) => Some(cur),
+                    (_, Some(Kind::Open), Some("[")) if kind(cur) == Some(Kind::Ident) => {
+                        Some(cur + 2)
+                    }
+                    _ => None,
+                };
+                list.and_then(|list| {
+                    let (mut depth, mut index, mut i) = (0i32, 0usize, list + 1);
+                    let mut at_start = true;
+                    while let Some(t) = toks.get(i) {
+                        match t.kind {
+                            Kind::Close if depth == 0 => return None,
+                            Kind::Comma if depth == 0 => {
+                                index += 1;
+                                at_start = true;
+                            }
+                            _ => {
+                                if at_start && depth == 0 && index == n {
+                                    return Some(i);
+                                }
+                                at_start = false;
+                                match t.kind {
+                                    Kind::Open => depth += 1,
+                                    Kind::Close => depth -= 1,
+                                    _ => {}
+                                }
+                            }
+                        }
+                        i += 1;
+                    }
+                    None
+                })
+            }
+        };
+        match next {
+            Some(n) if n < toks.len() => cur = n,
+            _ => break,
         }
-        from = at + needle.len();
     }
-    None
+    toks[cur].start
 }
 
 #[cfg(test)]
@@ -146,6 +323,50 @@ mod tests {
         assert!(src[e[0].0..e[0].1].starts_with("(shape: Sphere"));
         assert!(src[e[1].0..e[1].1].starts_with("(name: \"a,b\""));
         assert_eq!(place_of(src, e[1].0), Place { line: 5, column: 5 });
-        assert_eq!(find_in(src, e[1], "Box").map(|o| place_of(src, o).line), Some(5));
+        assert_eq!(
+            find_in(src, e[1], "Box").map(|o| place_of(src, o).line),
+            Some(5)
+        );
+    }
+
+    #[test]
+    fn fields_ignore_comments_and_strings() {
+        let src = "// samples: 3\nScene(\n  /* image: ( /* nested */ samples: 9) */\n  objects: [(name: \"image: samples: \")],\n  image: (\n    width: 4,\n    samples: 0,\n  ),\n)";
+        let at = field(src, &["image", "samples"]).unwrap();
+        assert_eq!(place_of(src, at).line, 7);
+        assert_eq!(place_of(src, field(src, &["image"]).unwrap()).line, 5);
+        assert_eq!(field(src, &["samples"]), None);
+    }
+
+    #[test]
+    fn follows_paths_into_nested_nodes() {
+        let src = "(shape: Union([\n  Torus(major: 1, minor: 0.2),\n  Torus(major: 0.5,\n   minor: 1),\n]))";
+        let at = follow(
+            src,
+            0,
+            &[
+                Nav::Field("shape"),
+                Nav::Node("Union"),
+                Nav::Index(1),
+                Nav::Node("Torus"),
+                Nav::Field("minor"),
+            ],
+        );
+        assert_eq!(
+            place_of(src, at),
+            Place {
+                line: 4,
+                column: 11
+            }
+        );
+        let node = follow(src, 0, &[Nav::Field("shape"), Nav::Index(1)]);
+        assert_eq!(place_of(src, node).line, 3);
+    }
+
+    #[test]
+    fn multibyte_text_is_safe() {
+        let src = "Scene(\u{a0}objects: [(name: \"é\"),\u{2003}(x: 1)], é: 1)";
+        assert_eq!(list_elements(src, "objects").len(), 2);
+        let _ = place_of(src, 8);
     }
 }

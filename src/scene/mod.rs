@@ -10,6 +10,7 @@ pub mod locate;
 pub mod values;
 
 use crate::geom::Aabb;
+use crate::sdf::lower::Step;
 use crate::sdf::{self, LoweredSdf, SdfNode};
 use crate::shade::material::MaterialParams;
 use camera::{Camera, Projection};
@@ -28,12 +29,12 @@ pub const MAX_SAMPLES: u32 = 1024;
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
     /// The file could not be read.
-    #[error("{file}: cannot read: {source}")]
+    #[error("{file}: cannot read: {error}")]
     Io {
         /// The file.
         file: PathBuf,
-        /// Why.
-        source: std::io::Error,
+        /// Why (shown in the message itself, so not chained as a source).
+        error: std::io::Error,
     },
     /// Syntax or value error, or an invalid setting, at a place in the file.
     #[error("{file}:{line}:{column}: {message}")]
@@ -145,9 +146,9 @@ pub struct Scene {
 impl Scene {
     /// Reads and loads a scene file.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
-        let source = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
+        let source = std::fs::read_to_string(path).map_err(|error| SceneError::Io {
             file: path.to_path_buf(),
-            source,
+            error,
         })?;
         Scene::from_source(&source, path)
     }
@@ -171,38 +172,59 @@ impl Scene {
                 file: path.to_path_buf(),
                 line: e.span.start.line,
                 column: e.span.start.col,
-                message: e.code.to_string(),
+                message: parse_message(&e.code),
             })?;
-        let top = |field: &str| locate::find_in(source, (0, source.len()), field).unwrap_or(0);
+        // The field itself, else its enclosing section, else the file's start.
+        let top = |path: &[&str]| {
+            (1..=path.len())
+                .rev()
+                .find_map(|n| locate::field(source, &path[..n]))
+                .unwrap_or(0)
+        };
 
         let img = &file.image;
         if img.width == 0 || img.height == 0 {
-            return Err(at(top("image"), format!(
-                "image size {}×{} is empty: width and height must be at least 1",
-                img.width, img.height
-            )));
+            let which = if img.width == 0 { "width" } else { "height" };
+            return Err(at(
+                top(&["image", which]),
+                format!(
+                    "image size {}×{} is empty: width and height must be at least 1",
+                    img.width, img.height
+                ),
+            ));
         }
         if img.width > MAX_IMAGE_SIDE
             || img.height > MAX_IMAGE_SIDE
             || img.width as u64 * img.height as u64 > MAX_PIXELS
         {
-            return Err(at(top("image"), format!(
-                "image size {}×{} is too large (at most {MAX_IMAGE_SIDE} per side and {MAX_PIXELS} pixels)",
-                img.width, img.height
-            )));
+            let which = if img.width > img.height {
+                "width"
+            } else {
+                "height"
+            };
+            return Err(at(
+                top(&["image", which]),
+                format!(
+                    "image size {}×{} is too large (at most {MAX_IMAGE_SIDE} per side and {MAX_PIXELS} pixels)",
+                    img.width, img.height
+                ),
+            ));
         }
         if img.samples == 0 || img.samples > MAX_SAMPLES {
-            return Err(at(top("samples"), format!(
-                "samples = {} is out of range 1..={MAX_SAMPLES}",
-                img.samples
-            )));
+            return Err(at(
+                top(&["image", "samples"]),
+                format!(
+                    "samples = {} is out of range 1..={MAX_SAMPLES}",
+                    img.samples
+                ),
+            ));
         }
         let t = &file.tracer;
         if t.max_steps == 0 || t.max_steps > 1_000_000 {
-            return Err(at(top("max_steps"), format!(
-                "max_steps = {} is out of range 1..=1000000",
-                t.max_steps
-            )));
+            return Err(at(
+                top(&["tracer", "max_steps"]),
+                format!("max_steps = {} is out of range 1..=1000000", t.max_steps),
+            ));
         }
 
         let camera = match &file.camera {
@@ -214,7 +236,10 @@ impl Scene {
             } => {
                 let fov = fov.map(|f| f.0).unwrap_or(45.0);
                 if fov >= 179.0 {
-                    return Err(at(top("fov"), format!("fov = {fov}° must be below 179°")));
+                    return Err(at(
+                        top(&["camera", "fov"]),
+                        format!("fov = {fov}° must be below 179°"),
+                    ));
                 }
                 Camera::look_at(
                     position.0,
@@ -237,7 +262,7 @@ impl Scene {
                 Projection::Orthographic { height: height.0 },
             ),
         }
-        .map_err(|m| at(top("camera"), m))?;
+        .map_err(|m| at(top(&["camera"]), m))?;
 
         let lights = file
             .lights
@@ -287,14 +312,18 @@ impl Scene {
             let material = match &o.material {
                 None => 0,
                 Some(m) => index_of(m).ok_or_else(|| {
-                    let pos = locate::find_in(source, span, &format!("\"{m}\"")).unwrap_or(span.0);
-                    at(pos, format!(
-                        "{name}: unknown material \"{m}\" (defined: {})",
-                        defined(&material_names)
-                    ))
+                    let pos = locate::follow(source, span.0, &[locate::Nav::Field("material")]);
+                    at(
+                        pos,
+                        format!(
+                            "{name}: unknown material \"{m}\" (defined: {})",
+                            defined(&material_names)
+                        ),
+                    )
                 })?,
             };
-            let node = if o.translate.is_some() || o.rotate.is_some() || o.scale.is_some() {
+            let wrapped = o.translate.is_some() || o.rotate.is_some() || o.scale.is_some();
+            let node = if wrapped {
                 SdfNode::Transform {
                     translate: o.translate,
                     rotate: o.rotate,
@@ -305,22 +334,19 @@ impl Scene {
                 o.shape.clone()
             };
             let lowered = sdf::lower(&node, &index_of, material).map_err(|e| {
-                // Point at the failing node: the last named node kind on the path.
-                let kind = e
-                    .path
-                    .rsplit(" > ")
-                    .find(|k| !k.starts_with('[') && *k != "Transform")
-                    .unwrap_or("shape");
-                let needle = if e.message.starts_with("unknown material") {
-                    e.message
-                        .split('"')
-                        .nth(1)
-                        .map(|m| format!("\"{m}\""))
-                        .unwrap_or_default()
-                } else {
-                    kind.to_string()
-                };
-                let pos = locate::find_in(source, span, &needle).unwrap_or(span.0);
+                // Point at the failing node (or field) by following its path in the text; the
+                // object's own translate/rotate/scale wrapper does not appear there.
+                let mut steps = e.path.as_slice();
+                if wrapped {
+                    steps = steps.get(2..).unwrap_or(&[]);
+                }
+                let mut nav = vec![locate::Nav::Field("shape")];
+                nav.extend(steps.iter().map(|s| match s {
+                    Step::Node(k) => locate::Nav::Node(k),
+                    Step::Field(f) => locate::Nav::Field(f),
+                    Step::Index(i) => locate::Nav::Index(*i),
+                }));
+                let pos = locate::follow(source, span.0, &nav);
                 let extra = if e.message.starts_with("unknown material") {
                     format!(" (defined: {})", defined(&material_names))
                 } else {
@@ -371,6 +397,18 @@ impl Scene {
     /// Every material packed for the tape.
     pub fn material_table(&self) -> Vec<sdf::tape::MaterialVec> {
         self.materials.iter().map(|m| m.to_vec()).collect()
+    }
+}
+
+/// The parser's message, with advice meant for Rust developers turned into advice for users.
+fn parse_message(code: &ron::Error) -> String {
+    match code {
+        ron::Error::ExceededRecursionLimit => {
+            "the file nests more than 128 levels deep; flatten the tree (e.g. one Union with \
+             many shapes instead of nested Unions)"
+                .to_string()
+        }
+        other => other.to_string(),
     }
 }
 

@@ -127,7 +127,9 @@ impl TryFrom<(f32, f32, f32)> for Color {
         if v.min_element() >= 0.0 {
             Ok(Color(v))
         } else {
-            Err(format!("expected a colour of three numbers >= 0, found {t:?}"))
+            Err(format!(
+                "expected a colour of three numbers >= 0, found {t:?}"
+            ))
         }
     }
 }

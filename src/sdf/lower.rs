@@ -11,14 +11,49 @@ use crate::sdf::node::SdfNode;
 use crate::sdf::tape::{IMM, Instr, MAX_MATERIAL_REGISTERS, MAX_REGISTERS, Op, Tape};
 use glam::{Affine3A, Quat, Vec3, Vec4};
 
-/// Why a tree could not be lowered; `path` names the node (e.g. `Union[1] > Twist`).
+/// Why a tree could not be lowered, and where: `path` leads from the root to the node (and,
+/// where one value is at fault, its field), so the scene loader can point at the text.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{path}: {message}")]
+#[error("{}: {message}", display_path(path))]
 pub struct LowerError {
     /// Where in the tree.
-    pub path: String,
+    pub path: Vec<Step>,
     /// What is wrong.
     pub message: String,
+}
+
+/// One step of a path into an SDF tree as written in the scene file.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Step {
+    /// A node of this kind (`Union`, `Torus`...).
+    Node(&'static str),
+    /// A named field of the current node (`shape`, `base`, `radius`...).
+    Field(&'static str),
+    /// An element of the current list (`Union([…])` or `shapes: […]`).
+    Index(usize),
+}
+
+fn display_path(path: &[Step]) -> String {
+    if path.is_empty() {
+        return "shape".to_string();
+    }
+    let mut s = String::new();
+    for step in path {
+        match step {
+            Step::Node(k) => {
+                if !s.is_empty() {
+                    s += " > ";
+                }
+                s += k;
+            }
+            Step::Field(f) => {
+                s += ".";
+                s += f;
+            }
+            Step::Index(i) => s += &format!("[{i}]"),
+        }
+    }
+    s
 }
 
 /// Both tapes of one SDF object.
@@ -63,9 +98,7 @@ pub fn bounds(node: &SdfNode) -> Result<Aabb, LowerError> {
     let child = |n: &SdfNode| bounds(n);
     Ok(match node {
         Sphere { radius } => Aabb::symmetric(Vec3::splat(radius.0)),
-        Cuboid { half_extents } | RoundBox { half_extents, .. } => {
-            Aabb::symmetric(half_extents.0)
-        }
+        Cuboid { half_extents } | RoundBox { half_extents, .. } => Aabb::symmetric(half_extents.0),
         Plane { .. } => Aabb::INFINITE,
         Torus { major, minor } => {
             let r = major.0 + minor.0;
@@ -83,9 +116,7 @@ pub fn bounds(node: &SdfNode) -> Result<Aabb, LowerError> {
             let r = bottom_radius.0.max(top_radius.0);
             Aabb::symmetric(Vec3::new(r, half_height.0, r))
         }
-        Capsule { a, b, radius } => {
-            Aabb::new(a.0.min(b.0), a.0.max(b.0)).expand(radius.0)
-        }
+        Capsule { a, b, radius } => Aabb::new(a.0.min(b.0), a.0.max(b.0)).expand(radius.0),
         Ellipsoid { radii } => Aabb::symmetric(radii.0),
         Octahedron { size } => Aabb::symmetric(Vec3::splat(size.0)),
         HexPrism {
@@ -166,13 +197,13 @@ fn child_of_transform(node: &SdfNode) -> Result<Aabb, LowerError> {
     Ok(bounds(shape)?.transformed(&m))
 }
 
-fn finite_child(shape: &SdfNode, what: &str) -> Result<Aabb, LowerError> {
+fn finite_child(shape: &SdfNode, what: &'static str) -> Result<Aabb, LowerError> {
     let c = bounds(shape)?;
     if c.is_finite() && !c.is_empty() {
         Ok(c)
     } else {
         Err(LowerError {
-            path: what.to_string(),
+            path: Vec::new(),
             message: format!(
                 "{what} needs a bounded child (its Lipschitz correction depends on the child's \
                  size), but `{}` is unbounded",
@@ -314,7 +345,14 @@ impl Builder {
         self.emit(op, a, Some(B::Imm([s; 4])), a, 0, [0.0; 4])
     }
     fn bin_v(&mut self, op: Op, a: V, v: Vec3) -> V {
-        self.emit(op, a, Some(B::Imm(v.extend(0.0).to_array())), a, 0, [0.0; 4])
+        self.emit(
+            op,
+            a,
+            Some(B::Imm(v.extend(0.0).to_array())),
+            a,
+            0,
+            [0.0; 4],
+        )
     }
     fn konst(&mut self, v: Vec4) -> V {
         self.emit(Op::Const, V(0), None, V(0), 0, v.to_array())
@@ -386,7 +424,14 @@ impl Builder {
     }
     /// (a[la], b[lb], c[lc], 0) with lanes 0–3.
     fn pack(&mut self, a: V, la: u32, b: V, lb: u32, c: V, lc: u32) -> V {
-        self.emit(Op::Pack, a, Some(B::V(b)), c, la | (lb << 2) | (lc << 4), [0.0; 4])
+        self.emit(
+            Op::Pack,
+            a,
+            Some(B::V(b)),
+            c,
+            la | (lb << 2) | (lc << 4),
+            [0.0; 4],
+        )
     }
     fn length2(&mut self, a: V) -> V {
         self.emit(Op::Length, a, None, a, 2, [0.0; 4])
@@ -406,7 +451,14 @@ impl Builder {
         self.neg(m)
     }
     fn dot3_v(&mut self, a: V, v: Vec3) -> V {
-        self.emit(Op::Dot3, a, Some(B::Imm(v.extend(0.0).to_array())), a, 0, [0.0; 4])
+        self.emit(
+            Op::Dot3,
+            a,
+            Some(B::Imm(v.extend(0.0).to_array())),
+            a,
+            0,
+            [0.0; 4],
+        )
     }
     fn affine(&mut self, a: V, m: &Affine3A) -> V {
         let k = self.constants.len() as u32;
@@ -555,16 +607,18 @@ impl Builder {
             if ins.is_material() {
                 free_m.sort_unstable_by(|a, b| b.cmp(a));
                 let reg = free_m.pop().ok_or_else(|| {
-                    format!("too complex: needs more than {MAX_MATERIAL_REGISTERS} material registers")
+                    format!(
+                        "too complex: needs more than {MAX_MATERIAL_REGISTERS} material registers"
+                    )
                 })?;
                 reg_m[ins.dst as usize] = reg;
                 used_m = used_m.max(reg as usize + 1);
                 out.dst = reg;
             } else {
                 free_v.sort_unstable_by(|a, b| b.cmp(a));
-                let reg = free_v
-                    .pop()
-                    .ok_or_else(|| format!("too complex: needs more than {MAX_REGISTERS} registers"))?;
+                let reg = free_v.pop().ok_or_else(|| {
+                    format!("too complex: needs more than {MAX_REGISTERS} registers")
+                })?;
                 reg_v[ins.dst as usize] = reg;
                 used_v = used_v.max(reg as usize + 1);
                 out.dst = reg;
@@ -594,47 +648,83 @@ struct Out {
 
 struct Context<'a> {
     material_index: &'a dyn Fn(&str) -> Option<u32>,
-    path: Vec<String>,
+    path: Vec<Step>,
 }
 
 impl Context<'_> {
     fn error(&self, message: impl Into<String>) -> LowerError {
         LowerError {
-            path: if self.path.is_empty() {
-                "shape".to_string()
-            } else {
-                self.path.join(" > ")
-            },
+            path: self.path.clone(),
             message: message.into(),
         }
     }
 
-    fn node(&mut self, b: &mut Builder, node: &SdfNode, p: V, mat: u32) -> Result<Out, LowerError> {
-        self.path.push(node.kind().to_string());
-        let out = self.node_inner(b, node, p, mat);
-        if out.is_ok() {
-            self.path.pop();
-        }
-        out
+    /// An error about one field of the current node.
+    fn field_error(&self, field: &'static str, message: impl Into<String>) -> LowerError {
+        let mut e = self.error(message);
+        e.path.push(Step::Field(field));
+        e
     }
 
-    fn children(
+    /// Bounds of a subtree, with errors placed at the current node.
+    fn bounds(&self, node: &SdfNode) -> Result<Aabb, LowerError> {
+        bounds(node).map_err(|e| self.error(e.message))
+    }
+
+    fn node(&mut self, b: &mut Builder, node: &SdfNode, p: V, mat: u32) -> Result<Out, LowerError> {
+        self.path.push(Step::Node(node.kind()));
+        let out = self.node_inner(b, node, p, mat)?;
+        self.path.pop();
+        Ok(out)
+    }
+
+    /// Lowers the child held in field `field` of the current node.
+    fn child(
         &mut self,
         b: &mut Builder,
+        field: &'static str,
+        node: &SdfNode,
+        p: V,
+        mat: u32,
+    ) -> Result<Out, LowerError> {
+        self.path.push(Step::Field(field));
+        let out = self.node(b, node, p, mat)?;
+        self.path.pop();
+        Ok(out)
+    }
+
+    /// Lowers a list of children and folds them with `combine` as it goes, so that only the
+    /// running result and the newest child are live: a union of hundreds of shapes needs no
+    /// more registers than a union of two.
+    fn fold_children(
+        &mut self,
+        b: &mut Builder,
+        field: Option<&'static str>,
         shapes: &[SdfNode],
         p: V,
         mat: u32,
-    ) -> Result<Vec<Out>, LowerError> {
+        combine: impl Fn(&mut Builder, Out, Out) -> Out,
+    ) -> Result<Out, LowerError> {
         if shapes.is_empty() {
             return Err(self.error("needs at least one shape"));
         }
-        let mut outs = Vec::new();
+        if let Some(f) = field {
+            self.path.push(Step::Field(f));
+        }
+        let mut acc: Option<Out> = None;
         for (i, s) in shapes.iter().enumerate() {
-            self.path.push(format!("[{i}]"));
-            outs.push(self.node(b, s, p, mat)?);
+            self.path.push(Step::Index(i));
+            let out = self.node(b, s, p, mat)?;
+            self.path.pop();
+            acc = Some(match acc {
+                None => out,
+                Some(a) => combine(b, a, out),
+            });
+        }
+        if field.is_some() {
             self.path.pop();
         }
-        Ok(outs)
+        Ok(acc.expect("shapes is not empty"))
     }
 
     fn leaf(b: &mut Builder, d: V, mat: u32) -> Out {
@@ -668,10 +758,13 @@ impl Context<'_> {
             } => {
                 let r = radius.0;
                 if r > half_extents.0.min_element() {
-                    return Err(self.error(format!(
-                        "radius {r} exceeds the smallest half-extent {}",
-                        half_extents.0.min_element()
-                    )));
+                    return Err(self.field_error(
+                        "radius",
+                        format!(
+                            "radius {r} exceeds the smallest half-extent {}",
+                            half_extents.0.min_element()
+                        ),
+                    ));
                 }
                 // Quilez sdRoundBox: a box shrunk by r, inflated by r.
                 let inner = box_distance(b, p, half_extents.0 - Vec3::splat(r));
@@ -685,10 +778,13 @@ impl Context<'_> {
             }
             Torus { major, minor } => {
                 if minor.0 > major.0 {
-                    return Err(self.error(format!(
-                        "minor radius {} exceeds major radius {} (self-intersecting torus)",
-                        minor.0, major.0
-                    )));
+                    return Err(self.field_error(
+                        "minor",
+                        format!(
+                            "minor radius {} exceeds major radius {} (self-intersecting torus)",
+                            minor.0, major.0
+                        ),
+                    ));
                 }
                 let xz = b.swz(p, "xz");
                 let l = b.length2(xz);
@@ -711,7 +807,9 @@ impl Context<'_> {
                 top_radius,
             } => {
                 if bottom_radius.0 == 0.0 && top_radius.0 == 0.0 {
-                    return Err(self.error("bottom_radius and top_radius are both 0"));
+                    return Err(
+                        self.field_error("top_radius", "bottom_radius and top_radius are both 0")
+                    );
                 }
                 let d = capped_cone(b, p, half_height.0, bottom_radius.0, top_radius.0);
                 Self::leaf(b, d, mat)
@@ -738,16 +836,19 @@ impl Context<'_> {
                 Self::leaf(b, d, mat)
             }
             Ellipsoid { radii } => {
-                // Quilez's improved ellipsoid bound: k0(k0 − 1)/k1.
+                // A guaranteed bound: (|p/r| − 1)·min(r) has |∇| ≤ 1 (the gradient is
+                // min(r)·|p/r²|/|p/r| ≤ 1), vanishes exactly on the surface, and its max with the
+                // bounding sphere's distance |p| − max(r) stays a bound while being tight far
+                // away. Quilez's k0(k0−1)/k1 estimate looks better but over-estimates by up to
+                // ~10% near the tips of elongated ellipsoids (the conformance suite measures it).
                 let r = radii.0;
                 let pr = b.bin_v(Op::Div, p, r);
                 let k0 = b.length3(pr);
-                let prr = b.bin_v(Op::Div, p, r * r);
-                let k1 = b.length3(prr);
-                let k1 = b.max_s(k1, 1e-20);
                 let k0m = b.sub_s(k0, 1.0);
-                let num = b.mul(k0, k0m);
-                let d = b.bin(Op::Div, num, k1);
+                let near = b.mul_s(k0m, r.min_element());
+                let l = b.length3(p);
+                let far = b.sub_s(l, r.max_element());
+                let d = b.max(near, far);
                 Self::leaf(b, d, mat)
             }
             Octahedron { size } => {
@@ -761,17 +862,13 @@ impl Context<'_> {
                 let d = hex_prism(b, p, radius.0, half_length.0);
                 Self::leaf(b, d, mat)
             }
-            Union(shapes) => {
-                let outs = self.children(b, shapes, p, mat)?;
-                fold(b, &outs, combine_union)
-            }
+            Union(shapes) => self.fold_children(b, None, shapes, p, mat, combine_union)?,
             Intersection(shapes) => {
-                let outs = self.children(b, shapes, p, mat)?;
-                fold(b, &outs, combine_intersection)
+                self.fold_children(b, None, shapes, p, mat, combine_intersection)?
             }
             Subtraction { base, cut } => {
-                let a = self.node(b, base, p, mat)?;
-                let c = self.node(b, cut, p, mat)?;
+                let a = self.child(b, "base", base, p, mat)?;
+                let c = self.child(b, "cut", cut, p, mat)?;
                 let nc = b.neg(c.d);
                 Out {
                     d: b.max(a.d, nc),
@@ -779,18 +876,20 @@ impl Context<'_> {
                 }
             }
             SmoothUnion { k, shapes } => {
-                let outs = self.children(b, shapes, p, mat)?;
                 let k = k.0;
-                fold(b, &outs, |b, x, y| smooth_min(b, x, y, k))
+                self.fold_children(b, Some("shapes"), shapes, p, mat, |b, x, y| {
+                    smooth_min(b, x, y, k)
+                })?
             }
             SmoothIntersection { k, shapes } => {
-                let outs = self.children(b, shapes, p, mat)?;
                 let k = k.0;
-                fold(b, &outs, |b, x, y| smooth_max(b, x, y, k))
+                self.fold_children(b, Some("shapes"), shapes, p, mat, |b, x, y| {
+                    smooth_max(b, x, y, k)
+                })?
             }
             SmoothSubtraction { k, base, cut } => {
-                let a = self.node(b, base, p, mat)?;
-                let c = self.node(b, cut, p, mat)?;
+                let a = self.child(b, "base", base, p, mat)?;
+                let c = self.child(b, "cut", cut, p, mat)?;
                 let nc = Out {
                     d: b.neg(c.d),
                     m: a.m,
@@ -799,14 +898,14 @@ impl Context<'_> {
                 Out { d: out.d, m: a.m }
             }
             Round { radius, shape } => {
-                let c = self.node(b, shape, p, mat)?;
+                let c = self.child(b, "shape", shape, p, mat)?;
                 Out {
                     d: b.sub_s(c.d, radius.0),
                     m: c.m,
                 }
             }
             Onion { thickness, shape } => {
-                let c = self.node(b, shape, p, mat)?;
+                let c = self.child(b, "shape", shape, p, mat)?;
                 let a = b.abs(c.d);
                 Out {
                     d: b.sub_s(a, thickness.0),
@@ -816,14 +915,14 @@ impl Context<'_> {
             Transform { shape, .. } => {
                 let (m, s) = transform_of(node);
                 let q = b.affine(p, &m.inverse());
-                let c = self.node(b, shape, q, mat)?;
+                let c = self.child(b, "shape", shape, q, mat)?;
                 // Uniform scale: distances in object space are 1/s of world distances.
                 let d = if s == 1.0 { c.d } else { b.mul_s(c.d, s) };
                 Out { d, m: c.m }
             }
             Scale { factors, shape } => {
                 let q = b.bin_v(Op::Div, p, factors.0);
-                let c = self.node(b, shape, q, mat)?;
+                let c = self.child(b, "shape", shape, q, mat)?;
                 // f(p/s) is (1/min s)-Lipschitz; multiplying by min s restores λ = 1.
                 Out {
                     d: b.mul_s(c.d, factors.0.min_element()),
@@ -833,12 +932,13 @@ impl Context<'_> {
             Repeat { period, shape } => {
                 let c = Vec3::new(period.0.0, period.1.0, period.2.0);
                 if c == Vec3::ZERO {
-                    return Err(self.error("period is 0 on every axis: nothing is repeated"));
+                    return Err(self
+                        .field_error("period", "period is 0 on every axis: nothing is repeated"));
                 }
                 let inv = Vec3::select(c.cmpgt(Vec3::ZERO), c.recip(), Vec3::ZERO);
-                let child = bounds(shape)?;
+                let child = self.bounds(shape)?;
                 let q = repeat_point(b, p, c, inv);
-                let out = self.node(b, shape, q, mat)?;
+                let out = self.child(b, "shape", shape, q, mat)?;
                 let cap = self.repeat_cap(b, q, c, &child, None)?;
                 Out {
                     d: b.min(out.d, cap),
@@ -856,9 +956,9 @@ impl Context<'_> {
                     copies_each_side.1 as f32,
                     copies_each_side.2 as f32,
                 );
-                let child = bounds(shape)?;
+                let child = self.bounds(shape)?;
                 let (q, cell) = repeat_point_limited(b, p, c, n);
-                let out = self.node(b, shape, q, mat)?;
+                let out = self.child(b, "shape", shape, q, mat)?;
                 let cap = self.repeat_cap(b, q, c, &child, Some((cell, n)))?;
                 Out {
                     d: b.min(out.d, cap),
@@ -867,8 +967,8 @@ impl Context<'_> {
             }
             Twist { rate, shape } => {
                 let k = rate.0;
-                let cb = bounds(shape)?;
-                let region = bounds(node)?;
+                let cb = self.bounds(shape)?;
+                let region = self.bounds(node)?;
                 let r = region.max.x;
                 // J = [R_xz | k·r·u + e_y]: singular values of [[1, kr],[kr, 1+k²r²]]^½ give
                 // σ_max = (k r + √(4 + k² r²)) / 2 (≤ 1 + k r).
@@ -892,7 +992,7 @@ impl Context<'_> {
                 let t2 = b.mul(sn, px);
                 let qz = b.mul_add(cs, pz, t2);
                 let q = b.pack(qx, 0, pp, 1, qz, 0);
-                let out = self.node(b, shape, q, mat)?;
+                let out = self.child(b, "shape", shape, q, mat)?;
                 Out {
                     d: clip_lipschitz(b, out.d, lambda, region),
                     m: out.m,
@@ -900,8 +1000,8 @@ impl Context<'_> {
             }
             Bend { rate, shape } => {
                 let k = rate.0;
-                let cb = bounds(shape)?;
-                let region = bounds(node)?;
+                let cb = self.bounds(shape)?;
+                let region = self.bounds(node)?;
                 let r = region.max.x;
                 // J = R(kx)·(I + k·w·e_xᵀ) with |w| = r: ‖J‖ ≤ 1 + k r (triangle inequality).
                 let lambda = 1.0 + k.abs() * r;
@@ -924,7 +1024,7 @@ impl Context<'_> {
                 let t2 = b.mul(sn, x);
                 let qy = b.mul_add(cs, py, t2);
                 let q = b.pack(qx, 0, qy, 0, pp, 2);
-                let out = self.node(b, shape, q, mat)?;
+                let out = self.child(b, "shape", shape, q, mat)?;
                 Out {
                     d: clip_lipschitz(b, out.d, lambda, region),
                     m: out.m,
@@ -936,12 +1036,15 @@ impl Context<'_> {
                 half_extents,
             } => {
                 let e = expr::parse(source)
-                    .map_err(|e| self.error(format!("in expression `{source}`: {e}")))?
+                    .map_err(|e| {
+                        self.field_error("expr", format!("in expression `{source}`: {e}"))
+                    })?
                     .fold_constants();
                 let lambda = match lipschitz {
                     Some(l) => l.0,
-                    None => estimate_lipschitz(&e, half_extents.0)
-                        .map_err(|m| self.error(format!("in expression `{source}`: {m}")))?,
+                    None => estimate_lipschitz(&e, half_extents.0).map_err(|m| {
+                        self.field_error("expr", format!("in expression `{source}`: {m}"))
+                    })?,
                 };
                 let region = box_distance(b, p, half_extents.0);
                 let proj = project_box(b, p, half_extents.0);
@@ -951,9 +1054,9 @@ impl Context<'_> {
             }
             Material { name, shape } => {
                 let m = (self.material_index)(name).ok_or_else(|| {
-                    self.error(format!("unknown material \"{name}\""))
+                    self.field_error("name", format!("unknown material \"{name}\""))
                 })?;
-                self.node(b, shape, p, m)?
+                self.child(b, "shape", shape, p, m)?
             }
         })
     }
@@ -975,12 +1078,18 @@ impl Context<'_> {
         for i in 0..3 {
             if c[i] > 0.0 {
                 let g = (half[i] - child.max[i]).min(child.min[i] + half[i]);
-                if !(g >= 0.0) {
-                    return Err(self.error(format!(
-                        "the shape (bounds {:?}..{:?}) does not fit in its cell of period {} on \
+                if g.is_nan() || g < 0.0 {
+                    return Err(self.field_error(
+                        "period",
+                        format!(
+                            "the shape (bounds {}..{}) does not fit in its cell of period {} on \
                          axis {}: copies would overlap; use a larger period",
-                        child.min, child.max, c[i], ["x", "y", "z"][i]
-                    )));
+                            fmt3(child.min),
+                            fmt3(child.max),
+                            c[i],
+                            ["x", "y", "z"][i]
+                        ),
+                    ));
                 }
                 gap = gap.min(g);
             }
@@ -1009,14 +1118,6 @@ impl Context<'_> {
         let wall = b.min_lane3(w);
         Ok(b.add_s(wall, gap))
     }
-}
-
-fn fold(b: &mut Builder, outs: &[Out], f: impl Fn(&mut Builder, Out, Out) -> Out) -> Out {
-    let mut acc = outs[0];
-    for &o in &outs[1..] {
-        acc = f(b, acc, o);
-    }
-    acc
 }
 
 fn combine_union(b: &mut Builder, x: Out, y: Out) -> Out {
@@ -1377,4 +1478,9 @@ pub fn estimate_lipschitz(e: &Expr, h: Vec3) -> Result<f32, String> {
                 .to_string(),
         )
     }
+}
+
+/// `(x, y, z)` for messages.
+fn fmt3(v: Vec3) -> String {
+    format!("({}, {}, {})", v.x, v.y, v.z)
 }

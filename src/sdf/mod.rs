@@ -2,6 +2,7 @@
 //!
 //! Data flow: [`node::SdfNode`] (parsed from the scene file) → [`lower::lower`] →
 //! [`tape::Tape`] (evaluated by the CPU interpreter here and by the WGSL interpreter on the GPU).
+pub mod conformance;
 pub mod expr;
 pub mod lower;
 pub mod node;

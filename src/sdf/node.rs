@@ -53,8 +53,9 @@ pub enum SdfNode {
         b: FiniteVec3,
         radius: Positive,
     },
-    /// Axis-aligned ellipsoid. Bound, not exact: Quilez's improved estimate k0(k0−1)/k1 with
-    /// k0 = |p/r|, k1 = |p/r²| ("ellipsoid SDF", 2008); measured λ ≤ 1 (tests sample it).
+    /// Axis-aligned ellipsoid. Bound, not exact: max((|p/r| − 1)·min(r), |p| − max(r)), which
+    /// is provably 1-Lipschitz (Quilez's popular k0(k0−1)/k1 estimate is not: the conformance
+    /// suite measures λ ≈ 1.1 for it).
     Ellipsoid { radii: PositiveVec3 },
     /// Regular octahedron |x|+|y|+|z| = size. Exact; λ = 1 (Quilez `sdOctahedron`, exact form).
     Octahedron { size: Positive },
@@ -71,13 +72,22 @@ pub enum SdfNode {
     /// max of the children. Bound; λ = 1.
     Intersection(Vec<SdfNode>),
     /// max(base, −cut). Bound; λ = 1.
-    Subtraction { base: Box<SdfNode>, cut: Box<SdfNode> },
+    Subtraction {
+        base: Box<SdfNode>,
+        cut: Box<SdfNode>,
+    },
     /// Polynomial smooth minimum of the children, blend radius k (Quilez "smooth minimum", 2013):
     /// h = clamp(½ + ½(a−b)/k, 0, 1), f = a(1−h) + b·h − k·h(1−h). C1-continuous; its gradient is
     /// the convex combination (1−h)∇a + h∇b, so λ = 1. Materials blend with the same h.
-    SmoothUnion { k: NonNegative, shapes: Vec<SdfNode> },
+    SmoothUnion {
+        k: NonNegative,
+        shapes: Vec<SdfNode>,
+    },
     /// Smooth maximum, −smin(−a, −b, k). Bound; λ = 1.
-    SmoothIntersection { k: NonNegative, shapes: Vec<SdfNode> },
+    SmoothIntersection {
+        k: NonNegative,
+        shapes: Vec<SdfNode>,
+    },
     /// Smooth max(base, −cut). Bound; λ = 1.
     SmoothSubtraction {
         k: NonNegative,
@@ -85,9 +95,15 @@ pub enum SdfNode {
         cut: Box<SdfNode>,
     },
     /// Offset surface f − radius (inflates and rounds edges). Keeps exactness outside; λ = 1.
-    Round { radius: NonNegative, shape: Box<SdfNode> },
+    Round {
+        radius: NonNegative,
+        shape: Box<SdfNode>,
+    },
     /// Shell |f| − thickness. Exact where f is; λ = 1.
-    Onion { thickness: Positive, shape: Box<SdfNode> },
+    Onion {
+        thickness: Positive,
+        shape: Box<SdfNode>,
+    },
 
     // ---- transforms: applied as the inverse transform of the sample point ----
     /// Rotation (Euler angles in degrees, applied about x, then y, then z), uniform scale s and
@@ -161,7 +177,11 @@ fn default_implicit_extent() -> PositiveVec3 {
 impl SdfNode {
     /// Number of nodes in this subtree (for `info` and limits).
     pub fn node_count(&self) -> usize {
-        1 + self.children().iter().map(|c| c.node_count()).sum::<usize>()
+        1 + self
+            .children()
+            .iter()
+            .map(|c| c.node_count())
+            .sum::<usize>()
     }
 
     /// Depth of the tree (a leaf has depth 1).

@@ -298,7 +298,8 @@ impl Tape {
                     if let Some((mats, _)) = materials.as_mut() {
                         let (ma, mb) = (mats[ins.a as usize], mats[ins.b as usize]);
                         let h = c.x;
-                        mats[ins.dst as usize] = std::array::from_fn(|i| ma[i] + (mb[i] - ma[i]) * h);
+                        mats[ins.dst as usize] =
+                            std::array::from_fn(|i| ma[i] + (mb[i] - ma[i]) * h);
                     }
                     continue;
                 }
@@ -335,13 +336,21 @@ impl PowVec for Vec4 {
 /// WGSL constant declarations for every opcode and tape limit, generated from [`Op`] so the
 /// shader and the Rust side can never disagree (fidget's `opcode_constants` habit).
 pub fn wgsl_constants() -> String {
-    let mut s = String::from("// Generated from src/sdf/tape.rs by hytrace::sdf::tape::wgsl_constants.\n");
+    let mut s =
+        String::from("// Generated from src/sdf/tape.rs by hytrace::sdf::tape::wgsl_constants.\n");
     for op in Op::ALL {
-        s += &format!("const OP_{}: u32 = {}u;\n", op.name().to_uppercase(), *op as u32);
+        s += &format!(
+            "const OP_{}: u32 = {}u;\n",
+            op.name().to_uppercase(),
+            *op as u32
+        );
     }
     s += &format!("const IMM: u32 = {}u;\n", IMM);
     s += &format!("const MAX_REGISTERS: u32 = {}u;\n", MAX_REGISTERS);
-    s += &format!("const MAX_MATERIAL_REGISTERS: u32 = {}u;\n", MAX_MATERIAL_REGISTERS);
+    s += &format!(
+        "const MAX_MATERIAL_REGISTERS: u32 = {}u;\n",
+        MAX_MATERIAL_REGISTERS
+    );
     s += &format!("const MATERIAL_FLOATS: u32 = {}u;\n", MATERIAL_FLOATS);
     s
 }

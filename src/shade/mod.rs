@@ -1,9 +1,12 @@
 //! Shading: the radiance leaving a surface point toward the eye, from materials and lights.
 //!
 //! The model (documented in `docs/scene-format.md`), in linear RGB:
-//! L = Σ_ambient albedo·kd·A
-//!   + Σ_lights V·E·( albedo·kd·max(n·l, 0) + ks·max(r·v, 0)^s )  (for n·l > 0)
-//! with E = radiance/d² for a point light at distance d and E = radiance for a directional
+//!
+//! ```text
+//! L = Σ_ambient albedo·kd·A + Σ_lights V·E·(albedo·kd·max(n·l, 0) + ks·max(r·v, 0)^s)
+//! ```
+//!
+//! (light terms only where n·l > 0), with E = radiance/d² for a point light at distance d and E = radiance for a directional
 //! light, V ∈ {0, 1} the hard-shadow visibility, r the mirror reflection of l about n
 //! (Phong 1975) and v the direction to the eye.
 

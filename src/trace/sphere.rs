@@ -33,10 +33,7 @@ pub fn trace(
         let d = tape.eval_in(ray.at(t), regs);
         steps += 1;
         if d < epsilon_at(s, t) {
-            return TraceResult {
-                t: Some(t),
-                steps,
-            };
+            return TraceResult { t: Some(t), steps };
         }
         t += d;
         if t > t1 {

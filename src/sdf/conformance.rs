@@ -1,0 +1,681 @@
+//! The SDF conformance suite: checks written once and run against every tape evaluator.
+//!
+//! Each check takes an evaluator `Fn(&Tape, &[Vec3]) -> Vec<f32>` so the same cases run on the
+//! CPU interpreter (unit tests below) and on the GPU interpreter (its integration tests), as in
+//! fidget's shared evaluator tests. The cases cover every node kind: closed-form distances,
+//! sampled Lipschitz bounds, and |∇f| = 1 for exact fields.
+
+use crate::sdf::tape::Tape;
+use crate::sdf::{SdfNode, lower};
+use glam::Vec3;
+
+/// A batch evaluator: distances of `tape` at `points`.
+pub trait Evaluator {
+    /// Evaluates the tape at every point.
+    fn eval(&self, tape: &Tape, points: &[Vec3]) -> Vec<f32>;
+}
+
+/// The CPU tape interpreter as an [`Evaluator`].
+pub struct CpuEvaluator;
+
+impl Evaluator for CpuEvaluator {
+    fn eval(&self, tape: &Tape, points: &[Vec3]) -> Vec<f32> {
+        points.iter().map(|&p| tape.eval(p)).collect()
+    }
+}
+
+/// Parses one SDF node written in scene syntax (for tests and examples).
+pub fn parse_node(src: &str) -> SdfNode {
+    ron::Options::default()
+        .with_default_extension(ron::extensions::Extensions::IMPLICIT_SOME)
+        .from_str(src)
+        .unwrap_or_else(|e| panic!("test node `{src}` does not parse: {e}"))
+}
+
+/// Lowers a node with every material resolving to 0; returns the distance tape.
+pub fn distance_tape(node: &SdfNode) -> Tape {
+    lower(node, &|_| Some(0), 0)
+        .unwrap_or_else(|e| panic!("test node does not lower: {e}"))
+        .distance
+}
+
+/// A small deterministic generator (xorshift64*), so failures reproduce exactly.
+pub struct Rng(u64);
+
+impl Rng {
+    /// Seeded generator.
+    pub fn new(seed: u64) -> Self {
+        Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
+    }
+    /// Uniform in [0, 1).
+    pub fn next_f32(&mut self) -> f32 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        let v = self.0.wrapping_mul(0x2545_F491_4F6C_DD1D);
+        (v >> 40) as f32 / (1u64 << 24) as f32
+    }
+    /// Uniform in the box [lo, hi].
+    pub fn in_box(&mut self, lo: Vec3, hi: Vec3) -> Vec3 {
+        let t = Vec3::new(self.next_f32(), self.next_f32(), self.next_f32());
+        lo + (hi - lo) * t
+    }
+    /// Uniform direction.
+    pub fn direction(&mut self) -> Vec3 {
+        loop {
+            let v = self.in_box(Vec3::splat(-1.0), Vec3::ONE);
+            let l = v.length_squared();
+            if l > 1e-4 && l <= 1.0 {
+                return v / l.sqrt();
+            }
+        }
+    }
+}
+
+/// Closed-form distance oracles for the primitives (independent of the lowering code).
+pub mod oracle {
+    use glam::{Vec2, Vec3};
+
+    /// Signed distance from q to a simple polygon (negative inside).
+    pub fn polygon(q: Vec2, verts: &[Vec2]) -> f32 {
+        let mut d = f32::INFINITY;
+        let mut inside = false;
+        for i in 0..verts.len() {
+            let (a, b) = (verts[i], verts[(i + 1) % verts.len()]);
+            let ab = b - a;
+            let t = ((q - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
+            d = d.min((q - (a + ab * t)).length());
+            if (a.y > q.y) != (b.y > q.y) && q.x < a.x + (q.y - a.y) / (b.y - a.y) * (b.x - a.x) {
+                inside = !inside;
+            }
+        }
+        if inside { -d } else { d }
+    }
+
+    /// Distance to an axis-aligned box [−b, b]: by clamping outside, by the nearest face inside.
+    pub fn cuboid(p: Vec3, b: Vec3) -> f32 {
+        let outside = (p - p.clamp(-b, b)).length();
+        if outside > 0.0 {
+            outside
+        } else {
+            -(b - p.abs()).min_element()
+        }
+    }
+
+    /// Distance to a solid of revolution about y with the given (radius, y) profile polygon.
+    pub fn revolved(p: Vec3, profile: &[Vec2]) -> f32 {
+        let q = Vec2::new(Vec2::new(p.x, p.z).length(), p.y);
+        polygon(q, profile)
+    }
+
+    /// Distance to the segment a–b minus r.
+    pub fn capsule(p: Vec3, a: Vec3, b: Vec3, r: f32) -> f32 {
+        let ab = b - a;
+        let t = ((p - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
+        (p - (a + ab * t)).length() - r
+    }
+}
+
+/// A named test shape with its sampling region.
+pub struct Case {
+    /// Label for failures.
+    pub name: &'static str,
+    /// Scene syntax of the node.
+    pub src: &'static str,
+    /// Whether |∇f| = 1 almost everywhere (an exact distance).
+    pub exact: bool,
+    /// Half-size of the region sampled.
+    pub extent: f32,
+}
+
+/// Every node kind, alone and combined: the catalogue the suite runs over.
+pub const CASES: &[Case] = &[
+    Case {
+        name: "sphere",
+        src: "Sphere(radius: 1.0)",
+        exact: true,
+        extent: 2.5,
+    },
+    Case {
+        name: "box",
+        src: "Box(half_extents: (1.0, 0.5, 0.75))",
+        exact: true,
+        extent: 2.5,
+    },
+    Case {
+        name: "round box",
+        src: "RoundBox(half_extents: (1.0, 0.5, 0.75), radius: 0.2)",
+        exact: true,
+        extent: 2.5,
+    },
+    Case {
+        name: "plane",
+        src: "Plane(normal: (0.3, 1.0, 0.2), offset: 0.25)",
+        exact: true,
+        extent: 2.5,
+    },
+    Case {
+        name: "torus",
+        src: "Torus(major: 1.0, minor: 0.3)",
+        exact: true,
+        extent: 2.5,
+    },
+    Case {
+        name: "cylinder",
+        src: "Cylinder(half_height: 0.8, radius: 0.5)",
+        exact: true,
+        extent: 2.5,
+    },
+    Case {
+        name: "cone",
+        src: "Cone(half_height: 0.8, bottom_radius: 0.7, top_radius: 0.2)",
+        exact: true,
+        extent: 2.5,
+    },
+    Case {
+        name: "pointed cone",
+        src: "Cone(half_height: 1.0, bottom_radius: 0.8, top_radius: 0.0)",
+        exact: true,
+        extent: 2.5,
+    },
+    Case {
+        name: "capsule",
+        src: "Capsule(a: (-0.5, -0.3, 0.1), b: (0.6, 0.4, -0.2), radius: 0.35)",
+        exact: true,
+        extent: 2.5,
+    },
+    Case {
+        name: "ellipsoid",
+        src: "Ellipsoid(radii: (1.2, 0.6, 0.8))",
+        exact: false,
+        extent: 2.5,
+    },
+    Case {
+        name: "octahedron",
+        src: "Octahedron(size: 1.0)",
+        exact: true,
+        extent: 2.5,
+    },
+    Case {
+        name: "hex prism",
+        src: "HexPrism(radius: 0.6, half_length: 0.8)",
+        exact: true,
+        extent: 2.5,
+    },
+    Case {
+        name: "union",
+        src: "Union([Sphere(radius: 0.8), Transform(translate: (0.9, 0, 0), shape: Box(half_extents: (0.5, 0.5, 0.5)))])",
+        exact: false,
+        extent: 2.5,
+    },
+    Case {
+        name: "intersection",
+        src: "Intersection([Sphere(radius: 1.0), Box(half_extents: (0.8, 0.8, 0.8))])",
+        exact: false,
+        extent: 2.5,
+    },
+    Case {
+        name: "subtraction",
+        src: "Subtraction(base: Box(half_extents: (1, 1, 1)), cut: Sphere(radius: 1.2))",
+        exact: false,
+        extent: 2.5,
+    },
+    Case {
+        name: "smooth union",
+        src: "SmoothUnion(k: 0.5, shapes: [Sphere(radius: 0.7), Transform(translate: (0.8, 0.3, 0), shape: Sphere(radius: 0.5))])",
+        exact: false,
+        extent: 2.5,
+    },
+    Case {
+        name: "smooth intersection",
+        src: "SmoothIntersection(k: 0.3, shapes: [Sphere(radius: 1.0), Box(half_extents: (0.8, 0.8, 0.8))])",
+        exact: false,
+        extent: 2.5,
+    },
+    Case {
+        name: "smooth subtraction",
+        src: "SmoothSubtraction(k: 0.3, base: Box(half_extents: (1, 1, 1)), cut: Sphere(radius: 1.1))",
+        exact: false,
+        extent: 2.5,
+    },
+    Case {
+        name: "round",
+        src: "Round(radius: 0.2, shape: Box(half_extents: (0.6, 0.6, 0.6)))",
+        exact: true,
+        extent: 2.5,
+    },
+    Case {
+        name: "onion",
+        src: "Onion(thickness: 0.1, shape: Sphere(radius: 1.0))",
+        exact: true,
+        extent: 2.5,
+    },
+    Case {
+        name: "transform",
+        src: "Transform(translate: (0.3, -0.2, 0.1), rotate: (30, 45, 60), scale: 1.7, shape: Box(half_extents: (0.5, 0.3, 0.4)))",
+        exact: true,
+        extent: 2.5,
+    },
+    Case {
+        name: "non-uniform scale",
+        src: "Scale(factors: (2.0, 0.5, 1.0), shape: Sphere(radius: 0.8))",
+        exact: false,
+        extent: 2.5,
+    },
+    Case {
+        name: "repeat",
+        src: "Repeat(period: (1.5, 0, 1.5), shape: Sphere(radius: 0.4))",
+        exact: false,
+        extent: 4.0,
+    },
+    Case {
+        name: "repeat limited",
+        src: "RepeatLimited(period: (1.0, 1.2, 1.0), copies_each_side: (2, 1, 0), shape: Box(half_extents: (0.3, 0.2, 0.3)))",
+        exact: false,
+        extent: 4.0,
+    },
+    Case {
+        name: "twist",
+        src: "Twist(rate: 1.5, shape: Box(half_extents: (0.5, 1.0, 0.3)))",
+        exact: false,
+        extent: 2.5,
+    },
+    Case {
+        name: "bend",
+        src: "Bend(rate: 0.8, shape: Box(half_extents: (1.0, 0.2, 0.4)))",
+        exact: false,
+        extent: 2.5,
+    },
+    Case {
+        name: "implicit sphere",
+        src: "Implicit(expr: \"x*x + y*y + z*z - 1\")",
+        exact: false,
+        extent: 3.0,
+    },
+    Case {
+        name: "implicit squircle",
+        src: "Implicit(expr: \"max(0.5*(max(abs(x),abs(y)) - 1) + 0.5*(x*x + y*y - 1), abs(z) - 0.5)\", half_extents: (1.5, 1.5, 1.0))",
+        exact: false,
+        extent: 3.0,
+    },
+    Case {
+        name: "implicit gyroid",
+        src: "Implicit(expr: \"sin(3*x)*cos(3*y) + sin(3*y)*cos(3*z) + sin(3*z)*cos(3*x)\", half_extents: (1, 1, 1))",
+        exact: false,
+        extent: 2.0,
+    },
+    Case {
+        name: "implicit given lipschitz",
+        src: "Implicit(expr: \"x*x + y*y + z*z - 1\", lipschitz: 7.0, half_extents: (1.5, 1.5, 1.5))",
+        exact: false,
+        extent: 3.0,
+    },
+];
+
+/// Samples random pairs of points and returns the largest |f(a) − f(b)| / |a − b| seen.
+/// Pairs are both far apart and close together, so both global and local slopes are probed.
+pub fn sampled_lipschitz(
+    ev: &dyn Evaluator,
+    tape: &Tape,
+    extent: f32,
+    pairs: usize,
+    seed: u64,
+) -> f32 {
+    let mut rng = Rng::new(seed);
+    let lo = Vec3::splat(-extent);
+    let hi = Vec3::splat(extent);
+    let mut a = Vec::with_capacity(pairs);
+    let mut b = Vec::with_capacity(pairs);
+    for i in 0..pairs {
+        let p = rng.in_box(lo, hi);
+        let step = if i % 2 == 0 {
+            1e-2
+        } else {
+            extent * rng.next_f32()
+        };
+        a.push(p);
+        b.push(p + rng.direction() * step.max(1e-3));
+    }
+    let fa = ev.eval(tape, &a);
+    let fb = ev.eval(tape, &b);
+    (0..pairs)
+        .map(|i| (fa[i] - fb[i]).abs() / (a[i] - b[i]).length())
+        .filter(|v| v.is_finite())
+        .fold(0.0, f32::max)
+}
+
+/// Fraction of random points where the central-difference gradient has length within `tol`
+/// of 1 (an exact distance field has |∇f| = 1 except on its medial axis).
+pub fn unit_gradient_fraction(
+    ev: &dyn Evaluator,
+    tape: &Tape,
+    extent: f32,
+    n: usize,
+    tol: f32,
+    seed: u64,
+) -> f32 {
+    let mut rng = Rng::new(seed);
+    let h = 1e-3;
+    let mut pts = Vec::with_capacity(n * 6);
+    for _ in 0..n {
+        let p = rng.in_box(Vec3::splat(-extent), Vec3::splat(extent));
+        for axis in [Vec3::X, Vec3::Y, Vec3::Z] {
+            pts.push(p + axis * h);
+            pts.push(p - axis * h);
+        }
+    }
+    let f = ev.eval(tape, &pts);
+    let good = (0..n)
+        .filter(|&i| {
+            let g = Vec3::new(
+                f[6 * i] - f[6 * i + 1],
+                f[6 * i + 2] - f[6 * i + 3],
+                f[6 * i + 4] - f[6 * i + 5],
+            ) / (2.0 * h);
+            (g.length() - 1.0).abs() < tol
+        })
+        .count();
+    good as f32 / n as f32
+}
+
+/// Runs the whole suite against an evaluator; panics with every failure listed.
+pub fn run_all(ev: &dyn Evaluator) {
+    let mut failures = Vec::new();
+    for (k, case) in CASES.iter().enumerate() {
+        let tape = distance_tape(&parse_node(case.src));
+        let lambda = sampled_lipschitz(ev, &tape, case.extent, 4000, 17 + k as u64);
+        if lambda > 1.0 + 2e-3 {
+            failures.push(format!(
+                "{}: sampled Lipschitz constant {lambda} > 1",
+                case.name
+            ));
+        }
+        if case.exact {
+            let frac = unit_gradient_fraction(ev, &tape, case.extent, 2000, 1e-2, 91 + k as u64);
+            if frac < 0.97 {
+                failures.push(format!(
+                    "{}: |∇f| ≈ 1 at only {:.1}% of points",
+                    case.name,
+                    100.0 * frac
+                ));
+            }
+        }
+    }
+    assert!(
+        failures.is_empty(),
+        "conformance failures:\n{}",
+        failures.join("\n")
+    );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec2;
+    use proptest::prelude::*;
+
+    fn tape(src: &str) -> Tape {
+        distance_tape(&parse_node(src))
+    }
+
+    fn vec3() -> impl Strategy<Value = Vec3> {
+        (-3.0f32..3.0, -3.0f32..3.0, -3.0f32..3.0).prop_map(|(x, y, z)| Vec3::new(x, y, z))
+    }
+
+    #[test]
+    fn every_case_is_1_lipschitz_and_exact_ones_have_unit_gradient() {
+        run_all(&CpuEvaluator);
+    }
+
+    const TOL: f32 = 2e-5;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(512))]
+
+        #[test]
+        fn sphere_matches_closed_form(p in vec3(), r in 0.1f32..2.0) {
+            let t = tape(&format!("Sphere(radius: {r})"));
+            prop_assert!((t.eval(p) - (p.length() - r)).abs() < TOL);
+        }
+
+        #[test]
+        fn box_matches_closed_form(p in vec3(), bx in 0.1f32..2.0, by in 0.1f32..2.0, bz in 0.1f32..2.0) {
+            let t = tape(&format!("Box(half_extents: ({bx}, {by}, {bz}))"));
+            prop_assert!((t.eval(p) - oracle::cuboid(p, Vec3::new(bx, by, bz))).abs() < TOL);
+        }
+
+        #[test]
+        fn round_box_is_inner_box_minus_radius(p in vec3(), r in 0.0f32..0.3) {
+            let b = Vec3::new(1.0, 0.6, 0.8);
+            let t = tape(&format!("RoundBox(half_extents: ({}, {}, {}), radius: {r})", b.x, b.y, b.z));
+            let expect = oracle::cuboid(p, b - Vec3::splat(r)) - r;
+            prop_assert!((t.eval(p) - expect).abs() < TOL);
+        }
+
+        #[test]
+        fn plane_matches_closed_form(p in vec3(), off in -2.0f32..2.0) {
+            let n = Vec3::new(1.0, 2.0, -0.5).normalize();
+            let t = tape(&format!("Plane(normal: (1, 2, -0.5), offset: {off})"));
+            prop_assert!((t.eval(p) - (n.dot(p) - off)).abs() < TOL);
+        }
+
+        #[test]
+        fn torus_matches_closed_form(p in vec3(), big in 0.5f32..2.0, small in 0.05f32..0.5) {
+            let t = tape(&format!("Torus(major: {big}, minor: {small})"));
+            let q = Vec2::new(Vec2::new(p.x, p.z).length() - big, p.y);
+            prop_assert!((t.eval(p) - (q.length() - small)).abs() < TOL);
+        }
+
+        #[test]
+        fn cylinder_matches_revolved_rectangle(p in vec3(), h in 0.1f32..2.0, r in 0.1f32..2.0) {
+            let t = tape(&format!("Cylinder(half_height: {h}, radius: {r})"));
+            // The profile mirrored about the axis: the axis itself is no boundary.
+            let full = [Vec2::new(-r, -h), Vec2::new(r, -h), Vec2::new(r, h), Vec2::new(-r, h)];
+            let q = Vec2::new(Vec2::new(p.x, p.z).length(), p.y);
+            prop_assert!((t.eval(p) - oracle::polygon(q, &full)).abs() < TOL);
+        }
+
+        #[test]
+        fn cone_matches_revolved_trapezoid(p in vec3(), h in 0.2f32..1.5, r1 in 0.0f32..1.5, r2 in 0.0f32..1.5) {
+            prop_assume!(r1 + r2 > 0.05);
+            let t = tape(&format!("Cone(half_height: {h}, bottom_radius: {r1}, top_radius: {r2})"));
+            let full = [Vec2::new(-r1, -h), Vec2::new(r1, -h), Vec2::new(r2, h), Vec2::new(-r2, h)];
+            let q = Vec2::new(Vec2::new(p.x, p.z).length(), p.y);
+            let expect = oracle::polygon(q, &full);
+            prop_assert!((t.eval(p) - expect).abs() < 1e-4, "got {} expected {}", t.eval(p), expect);
+        }
+
+        #[test]
+        fn capsule_matches_segment_distance(p in vec3(), r in 0.05f32..1.0) {
+            let (a, b) = (Vec3::new(-0.5, -0.3, 0.1), Vec3::new(0.6, 0.4, -0.2));
+            let t = tape(&format!("Capsule(a: (-0.5, -0.3, 0.1), b: (0.6, 0.4, -0.2), radius: {r})"));
+            prop_assert!((t.eval(p) - oracle::capsule(p, a, b, r)).abs() < TOL);
+        }
+
+        #[test]
+        fn hex_prism_matches_revolved_hexagon(p in vec3(), r in 0.2f32..1.5, hz in 0.1f32..1.5) {
+            // Exact distance to a convex prism: 2D hexagon distance combined with the z slab.
+            let t = tape(&format!("HexPrism(radius: {r}, half_length: {hz})"));
+            let c = r * 2.0 / 3f32.sqrt();
+            // Quilez's hexagon has flat sides at |y| = r (apothem along y), vertices on x.
+            let hex: Vec<Vec2> = (0..6)
+                .map(|i| {
+                    let a = std::f32::consts::FRAC_PI_3 * i as f32;
+                    Vec2::new(c * a.cos(), c * a.sin())
+                })
+                .collect();
+            let d2 = oracle::polygon(Vec2::new(p.x, p.y), &hex);
+            let dz = p.z.abs() - hz;
+            let expect = Vec2::new(d2.max(0.0), dz.max(0.0)).length() + d2.max(dz).min(0.0);
+            prop_assert!((t.eval(p) - expect).abs() < 1e-4, "got {} expected {}", t.eval(p), expect);
+        }
+
+        #[test]
+        fn octahedron_matches_polytope_distance(p in vec3(), s in 0.2f32..2.0) {
+            let t = tape(&format!("Octahedron(size: {s})"));
+            prop_assert!((t.eval(p) - octahedron_oracle(p, s)).abs() < 1e-4,
+                "got {} expected {}", t.eval(p), octahedron_oracle(p, s));
+        }
+
+        #[test]
+        fn ellipsoid_is_a_bound_with_the_right_sign(p in vec3()) {
+            let r = Vec3::new(1.2, 0.6, 0.8);
+            let t = tape("Ellipsoid(radii: (1.2, 0.6, 0.8))");
+            let inside = (p / r).length_squared() < 1.0;
+            let f = t.eval(p);
+            prop_assert_eq!(f < 0.0, inside);
+            // a bound never exceeds the true distance: compare with the distance to a dense
+            // set of surface points (which over-estimates the true distance by ≤ the spacing)
+            let mut best = f32::INFINITY;
+            for i in 0..=60 {
+                for j in 0..120 {
+                    let th = std::f32::consts::PI * i as f32 / 60.0;
+                    let ph = 2.0 * std::f32::consts::PI * j as f32 / 120.0;
+                    let s = r * Vec3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin());
+                    best = best.min((p - s).length());
+                }
+            }
+            prop_assert!(f.abs() <= best + 1e-3, "|f| = {} > distance ≈ {}", f.abs(), best);
+        }
+    }
+
+    /// Exact distance to the octahedron |x|+|y|+|z| ≤ s: outside, the distance to the nearest
+    /// face, edge or vertex (all found as projections on the faces of the first octant, which
+    /// suffices by symmetry); inside, the distance to the nearest face plane.
+    fn octahedron_oracle(p: Vec3, s: f32) -> f32 {
+        let q = p.abs();
+        let n = Vec3::ONE / 3f32.sqrt();
+        let plane = (q.dot(Vec3::ONE) - s) / 3f32.sqrt();
+        if plane <= 0.0 {
+            return plane;
+        }
+        // closest point on the triangle with vertices s·e_x, s·e_y, s·e_z
+        let tri = [Vec3::X * s, Vec3::Y * s, Vec3::Z * s];
+        let proj = q - n * plane;
+        if proj.min_element() >= 0.0 {
+            return plane;
+        }
+        let mut best = f32::INFINITY;
+        for i in 0..3 {
+            let (a, b) = (tri[i], tri[(i + 1) % 3]);
+            let ab = b - a;
+            let t = ((q - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
+            best = best.min((q - (a + ab * t)).length());
+        }
+        best
+    }
+
+    #[test]
+    fn tetrahedral_and_central_normals_agree_on_a_sphere() {
+        use crate::sdf::tape::Registers;
+        use crate::trace::normal;
+        let t = tape("Sphere(radius: 1.0)");
+        let mut rng = super::Rng::new(5);
+        let mut regs = Registers::new();
+        for _ in 0..200 {
+            let n = rng.direction();
+            let p = n * 1.0;
+            let c = normal::central(&t, p, 1e-3, &mut regs).normalize();
+            let k = normal::tetrahedral(&t, p, 1e-3, &mut regs).normalize();
+            assert!((c - n).length() < 1e-3, "central {c} vs {n}");
+            assert!((k - n).length() < 1e-3, "tetrahedral {k} vs {n}");
+        }
+    }
+
+    #[test]
+    fn smooth_union_blends_materials_with_the_same_weight() {
+        // Two spheres with materials 1 and 2 (colour lane 0 = 0 and 1): halfway between them
+        // the blend weight is ½, so the colour must be ½.
+        let node = parse_node(
+            "SmoothUnion(k: 1.0, shapes: [Material(name: \"a\", shape: Transform(translate: (-1, 0, 0), shape: Sphere(radius: 0.8))), Material(name: \"b\", shape: Transform(translate: (1, 0, 0), shape: Sphere(radius: 0.8)))])",
+        );
+        let low = lower(&node, &|n| Some(if n == "a" { 1 } else { 2 }), 0).unwrap();
+        let mut table = [[0.0f32; crate::sdf::tape::MATERIAL_FLOATS]; 3];
+        table[2][0] = 1.0;
+        let (_, mid) = low.shading.eval_material(Vec3::new(0.0, 0.0, 0.0), &table);
+        assert!(
+            (mid[0] - 0.5).abs() < 1e-6,
+            "blend at the midpoint is {}",
+            mid[0]
+        );
+        let (_, left) = low.shading.eval_material(Vec3::new(-1.5, 0.0, 0.0), &table);
+        assert_eq!(left[0], 0.0);
+        let (_, right) = low.shading.eval_material(Vec3::new(1.5, 0.0, 0.0), &table);
+        assert_eq!(right[0], 1.0);
+        // and the distance-only tape carries no material work
+        assert!(low.distance.instrs.len() < low.shading.instrs.len());
+        assert_eq!(low.distance.material_result, None);
+    }
+
+    #[test]
+    fn smooth_min_is_the_documented_polynomial() {
+        // f = a(1−h) + b·h − k·h(1−h), h = clamp(½ + ½(a−b)/k, 0, 1), for planes a = x, b = −x + c
+        let t = tape(
+            "SmoothUnion(k: 0.8, shapes: [Plane(normal: (1, 0, 0), offset: 0), Plane(normal: (-1, 0, 0), offset: -0.5)])",
+        );
+        for i in 0..50 {
+            let x = -1.0 + i as f32 * 0.05;
+            let (a, b, k) = (x, -x + 0.5, 0.8f32);
+            let h = (0.5 + 0.5 * (a - b) / k).clamp(0.0, 1.0);
+            let f = a * (1.0 - h) + b * h - k * h * (1.0 - h);
+            assert!((t.eval(Vec3::new(x, 0.3, -0.2)) - f).abs() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn transforms_apply_the_inverse_to_the_point() {
+        let t = tape(
+            "Transform(translate: (1, 2, 3), rotate: (0, 90, 0), scale: 2.0, shape: Box(half_extents: (1, 0.5, 0.25)))",
+        );
+        // after R_y(90°) the box's x half-extent 1·2 lies along −z…+z, and its z extent along x
+        let c = Vec3::new(1.0, 2.0, 3.0);
+        assert!((t.eval(c + Vec3::new(0.5, 0.0, 0.0)) - 0.0).abs() < 1e-5);
+        assert!((t.eval(c + Vec3::new(0.0, 0.0, 2.0)) - 0.0).abs() < 1e-5);
+        assert!((t.eval(c + Vec3::new(0.0, 3.0, 0.0)) - 2.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn tapes_fit_the_register_limits_and_reuse_registers() {
+        for case in CASES {
+            let low = lower(&parse_node(case.src), &|_| Some(0), 0).unwrap();
+            assert!(low.distance.registers <= crate::sdf::tape::MAX_REGISTERS);
+            assert!(low.shading.registers <= crate::sdf::tape::MAX_REGISTERS);
+            assert!(
+                low.distance.registers < low.distance.instrs.len().max(2),
+                "{}: {} registers for {} instructions: no reuse",
+                case.name,
+                low.distance.registers,
+                low.distance.instrs.len()
+            );
+        }
+    }
+
+    #[test]
+    fn implicit_lipschitz_estimate_bounds_the_gradient() {
+        use crate::sdf::expr;
+        // |∇(x²+y²+z²−1)| = 2|p| ≤ 2√3·1.5 on the box of half-size 1.5
+        let e = expr::parse("x*x + y*y + z*z - 1").unwrap();
+        let l = crate::sdf::lower::estimate_lipschitz(&e, Vec3::splat(1.5)).unwrap();
+        let true_max = 2.0 * 3f32.sqrt() * 1.5;
+        assert!(
+            l >= true_max,
+            "estimate {l} below the true bound {true_max}"
+        );
+        assert!(l <= 2.0 * true_max, "estimate {l} far above {true_max}");
+        assert!(
+            crate::sdf::lower::estimate_lipschitz(&expr::parse("1").unwrap(), Vec3::ONE).is_err()
+        );
+    }
+
+    #[test]
+    fn wgsl_constants_name_every_opcode() {
+        let s = crate::sdf::tape::wgsl_constants();
+        for op in crate::sdf::tape::Op::ALL {
+            assert!(s.contains(&format!(
+                "const OP_{}: u32 = {}u;",
+                op.name().to_uppercase(),
+                *op as u32
+            )));
+        }
+    }
+}
