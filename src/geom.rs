@@ -84,18 +84,30 @@ impl Aabb {
         ]
     }
 
-    /// The bounds of this box after an affine map (infinite boxes stay infinite).
+    /// The bounds of this box after an affine map. An axis that is infinite (in either
+    /// direction) stays infinite only in the output axes it maps onto, so a slab repeated
+    /// along x and z and then translated keeps its finite y extent.
     pub fn transformed(&self, m: &Affine3A) -> Aabb {
         if self.is_empty() {
             return *self;
         }
-        if !self.is_finite() {
-            return Aabb::INFINITE;
+        // Centre/half-extent form (Arvo, "Transforming axis-aligned bounding boxes", 1990),
+        // with infinite axes given centre 0 and infinite half-extent.
+        let finite = self.min.is_finite_mask() & self.max.is_finite_mask();
+        let centre = Vec3::select(finite, self.center(), Vec3::ZERO);
+        let half = Vec3::select(finite, 0.5 * (self.max - self.min), Vec3::INFINITY);
+        let mut out_centre: Vec3 = m.translation.into();
+        let mut out_half = Vec3::ZERO;
+        for i in 0..3 {
+            let col: Vec3 = m.matrix3.col(i).into();
+            out_centre += col * centre[i];
+            for j in 0..3 {
+                if col[j] != 0.0 {
+                    out_half[j] += col[j].abs() * half[i];
+                }
+            }
         }
-        self.corners().iter().fold(Aabb::EMPTY, |acc, &c| {
-            let p = m.transform_point3(c);
-            Aabb::new(acc.min.min(p), acc.max.max(p))
-        })
+        Aabb::new(out_centre - out_half, out_centre + out_half)
     }
 
     /// Signed distance from `p` to the box surface (negative inside): exact (Quilez `sdBox`).
@@ -156,6 +168,20 @@ mod tests {
         assert_eq!(b.ray_interval(&miss, 0.0, 100.0), None);
         let inside = Ray::new(Vec3::ZERO, Vec3::X);
         assert_eq!(b.ray_interval(&inside, 0.0, 100.0), Some((0.0, 1.0)));
+    }
+
+    #[test]
+    fn transforms_keep_finite_axes_finite() {
+        let slab = Aabb::new(
+            Vec3::new(f32::NEG_INFINITY, -1.0, f32::NEG_INFINITY),
+            Vec3::new(f32::INFINITY, 1.0, f32::INFINITY),
+        );
+        let moved = slab.transformed(&Affine3A::from_translation(Vec3::new(1.0, 2.0, 3.0)));
+        assert_eq!((moved.min.y, moved.max.y), (1.0, 3.0));
+        assert!(moved.min.x.is_infinite() && moved.max.z.is_infinite());
+        let b = Aabb::symmetric(Vec3::new(1.0, 2.0, 3.0));
+        let r = b.transformed(&Affine3A::from_rotation_y(std::f32::consts::FRAC_PI_2));
+        assert!((r.max - Vec3::new(3.0, 2.0, 1.0)).length() < 1e-5);
     }
 
     #[test]

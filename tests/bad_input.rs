@@ -1451,3 +1451,24 @@ fn showcase_with_odd_whitespace_and_comments_still_loads() {
     }
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
+
+#[test]
+fn material_defined_twice() {
+    expect_error(
+        &scene(
+            "    materials: {\n        \"red\": (color: (1, 0, 0)),\n        «\"red\"»: (color: (0, 1, 0)),\n    },\n",
+        ),
+        &["\"red\"", "defined twice"],
+    );
+}
+
+#[test]
+fn implicit_undefined_inside_its_box() {
+    // sqrt of a negative number is NaN in part of the box: that would render as solid
+    expect_error(
+        &scene(
+            "    objects: [\n        (shape: Implicit(\n            expr: «\"sqrt(x + y) - 0.5 + 0*z\"»,\n        )),\n    ],\n",
+        ),
+        &["expression", "NaN", "defined everywhere"],
+    );
+}

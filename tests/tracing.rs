@@ -293,3 +293,20 @@ fn primary_ray_parameters_are_distances() {
     assert!(tracer.occluded(&Ray::new(Vec3::new(0.0, 0.0, 6.0), -Vec3::Z), 0.0, 5.5));
     assert!(!tracer.occluded(&Ray::new(Vec3::new(0.0, 0.0, 6.0), -Vec3::Z), 0.0, 4.5));
 }
+
+#[test]
+fn touching_repeated_copies_show_no_cell_walls() {
+    // the copies fill their cells exactly (gap 0): empty cell walls must not read as surfaces
+    check_no_holes(
+        "touching repeat",
+        "Repeat(period: (1.0, 1.0, 0), shape: Sphere(radius: 0.5))",
+    );
+}
+
+#[test]
+fn limited_repetition_has_no_holes() {
+    check_no_holes(
+        "limited repeat",
+        "RepeatLimited(period: (0.8, 0.8, 0.8), copies_each_side: (2, 1, 1), shape: Box(half_extents: (0.3, 0.25, 0.35)))",
+    );
+}

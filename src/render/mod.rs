@@ -70,21 +70,23 @@ pub fn tiles(width: u32, height: u32) -> Vec<Tile> {
     v
 }
 
-/// Sub-pixel position of sample `s` of `n` in pixel (x, y): stratified on a ⌈√n⌉² grid with
-/// a jitter inside each stratum drawn from a hash of (pixel, sample), so every run and every
-/// thread count and backend produce the same positions. One sample sits at the pixel centre.
+/// Sub-pixel position of sample `s` of `n` in pixel (x, y): stratified on a grid of
+/// ⌈√n⌉ columns and ⌈n/columns⌉ rows with a jitter inside each stratum drawn from a hash of
+/// (pixel, sample), so every run, thread count and backend produces the same positions. A
+/// single sample sits at the pixel centre.
 pub fn sample_offset(x: u32, y: u32, s: u32, n: u32) -> (f32, f32) {
     if n <= 1 {
         return (0.5, 0.5);
     }
-    let side = (n as f32).sqrt().ceil() as u32;
-    let (cx, cy) = (s % side, (s / side) % side);
+    let cols = (n as f32).sqrt().ceil() as u32;
+    let rows = n.div_ceil(cols);
+    let (cx, cy) = (s % cols, (s / cols) % rows);
     let h = hash3(x, y, s);
     let jx = (h & 0xffff) as f32 / 65536.0;
     let jy = (h >> 16) as f32 / 65536.0;
     (
-        (cx as f32 + jx) / side as f32,
-        (cy as f32 + jy) / side as f32,
+        (cx as f32 + jx) / cols as f32,
+        (cy as f32 + jy) / rows as f32,
     )
 }
 

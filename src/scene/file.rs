@@ -6,7 +6,7 @@
 use super::values::{Color, Direction, FiniteVec3, NonNegative, Positive, Unit};
 use crate::sdf::SdfNode;
 use serde::Deserialize;
-use std::collections::BTreeMap;
+use std::collections::HashSet;
 
 /// A whole scene file.
 #[derive(Debug, Clone, Deserialize)]
@@ -22,13 +22,47 @@ pub struct SceneFile {
     pub lights: Vec<LightDesc>,
     /// Named materials, referenced by objects and `Material` nodes.
     #[serde(default)]
-    pub materials: BTreeMap<String, MaterialDesc>,
+    pub materials: Materials,
     /// The objects.
     #[serde(default)]
     pub objects: Vec<ObjectDesc>,
     /// Sphere-tracing parameters.
     #[serde(default)]
     pub tracer: TracerDesc,
+}
+
+/// The `materials` map in file order; a name defined twice is an error (a map would silently
+/// keep the last one).
+#[derive(Debug, Clone, Default)]
+pub struct Materials(pub Vec<(String, MaterialDesc)>);
+
+impl<'de> Deserialize<'de> for Materials {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl<'de> serde::de::Visitor<'de> for Visitor {
+            type Value = Materials;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a map of material names to materials")
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> Result<Materials, A::Error> {
+                let mut seen = HashSet::new();
+                let mut out = Vec::new();
+                while let Some(name) = map.next_key::<String>()? {
+                    if !seen.insert(name.clone()) {
+                        return Err(serde::de::Error::custom(format!(
+                            "material \"{name}\" is defined twice"
+                        )));
+                    }
+                    out.push((name, map.next_value::<MaterialDesc>()?));
+                }
+                Ok(Materials(out))
+            }
+        }
+        d.deserialize_map(Visitor)
+    }
 }
 
 /// Image size, sampling and background.

@@ -292,7 +292,7 @@ impl Scene {
 
         let mut materials = vec![MaterialParams::default_grey()];
         let mut material_names = vec!["(default)".to_string()];
-        for (name, m) in &file.materials {
+        for (name, m) in &file.materials.0 {
             materials.push(MaterialParams::from(m));
             material_names.push(name.clone());
         }
@@ -352,7 +352,11 @@ impl Scene {
                 } else {
                     String::new()
                 };
-                at(pos, format!("{name}: {e}{extra}"))
+                let shown = sdf::LowerError {
+                    path: steps.to_vec(),
+                    message: e.message.clone(),
+                };
+                at(pos, format!("{name}: {shown}{extra}"))
             })?;
             objects.push(SdfObject {
                 name,

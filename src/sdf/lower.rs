@@ -935,35 +935,24 @@ impl Context<'_> {
                     return Err(self
                         .field_error("period", "period is 0 on every axis: nothing is repeated"));
                 }
-                let inv = Vec3::select(c.cmpgt(Vec3::ZERO), c.recip(), Vec3::ZERO);
-                let child = self.bounds(shape)?;
-                let q = repeat_point(b, p, c, inv);
-                let out = self.child(b, "shape", shape, q, mat)?;
-                let cap = self.repeat_cap(b, q, c, &child, None)?;
-                Out {
-                    d: b.min(out.d, cap),
-                    m: out.m,
-                }
+                self.repeat(b, node, shape, p, mat, c, None)?
             }
             RepeatLimited {
                 period,
                 copies_each_side,
                 shape,
             } => {
-                let c = period.0;
                 let n = Vec3::new(
                     copies_each_side.0 as f32,
                     copies_each_side.1 as f32,
                     copies_each_side.2 as f32,
                 );
-                let child = self.bounds(shape)?;
-                let (q, cell) = repeat_point_limited(b, p, c, n);
-                let out = self.child(b, "shape", shape, q, mat)?;
-                let cap = self.repeat_cap(b, q, c, &child, Some((cell, n)))?;
-                Out {
-                    d: b.min(out.d, cap),
-                    m: out.m,
+                // An axis with no copies on either side is not repeated at all.
+                let c = Vec3::select(n.cmpgt(Vec3::ZERO), period.0, Vec3::ZERO);
+                if c == Vec3::ZERO {
+                    return self.child(b, "shape", shape, p, mat);
                 }
+                self.repeat(b, node, shape, p, mat, c, Some(n))?
             }
             Twist { rate, shape } => {
                 let k = rate.0;
@@ -1040,6 +1029,9 @@ impl Context<'_> {
                         self.field_error("expr", format!("in expression `{source}`: {e}"))
                     })?
                     .fold_constants();
+                check_defined(&e, half_extents.0).map_err(|m| {
+                    self.field_error("expr", format!("in expression `{source}`: {m}"))
+                })?;
                 let lambda = match lipschitz {
                     Some(l) => l.0,
                     None => estimate_lipschitz(&e, half_extents.0).map_err(|m| {
@@ -1061,18 +1053,27 @@ impl Context<'_> {
         })
     }
 
-    /// Caps a repeated child's distance by (distance to the walls of its cell that have a
-    /// neighbour + the smallest gap between the child's bounds and the cell wall): a
-    /// neighbouring copy lies at least that far, so the step never crosses into it.
-    fn repeat_cap(
-        &self,
+    /// Domain repetition (Quilez, "domain repetition", 2023 revision): the child is evaluated
+    /// in its own cell *and* in the neighbouring cell on the near side of every repeated axis
+    /// (2^k cells for k repeated axes), and the minimum is taken; every copy outside that block
+    /// lies beyond the own cell's far wall, at least c/2 + |q| + gap away (gap = clearance
+    /// between the child's bounds and its cell wall), which caps the result. The cap never
+    /// falls below c/2, so empty cell walls never look like surfaces. The distance to the slab
+    /// (or box) holding all copies is a second lower bound for the far copies, which lets rays
+    /// far from the pattern take long steps. Bound; λ = 1.
+    #[allow(clippy::too_many_arguments)]
+    fn repeat(
+        &mut self,
         b: &mut Builder,
-        q: V,
+        node: &SdfNode,
+        shape: &SdfNode,
+        p: V,
+        mat: u32,
         c: Vec3,
-        child: &Aabb,
-        limited: Option<(V, Vec3)>,
-    ) -> Result<V, LowerError> {
+        limit: Option<Vec3>,
+    ) -> Result<Out, LowerError> {
         const FAR: f32 = 1e30;
+        let child = self.bounds(shape)?;
         let half = 0.5 * c;
         let mut gap = f32::INFINITY;
         for i in 0..3 {
@@ -1083,7 +1084,7 @@ impl Context<'_> {
                         "period",
                         format!(
                             "the shape (bounds {}..{}) does not fit in its cell of period {} on \
-                         axis {}: copies would overlap; use a larger period",
+                             axis {}: copies would overlap; use a larger period",
                             fmt3(child.min),
                             fmt3(child.max),
                             c[i],
@@ -1094,29 +1095,85 @@ impl Context<'_> {
                 gap = gap.min(g);
             }
         }
+        let inv = Vec3::select(c.cmpgt(Vec3::ZERO), c.recip(), Vec3::ZERO);
+        let neg_c = b.konst((-c).extend(0.0));
+        // own cell ⌊p/c + ½⌋ (⌊x + ½⌋ rather than round(): WGSL rounds halves to even)
+        let t = b.bin_v(Op::Mul, p, inv);
+        let t = b.add_s(t, 0.5);
+        let mut cell = b.un(Op::Floor, t);
+        if let Some(n) = limit {
+            cell = b.bin_v(Op::Max, cell, -n);
+            cell = b.bin_v(Op::Min, cell, n);
+        }
+        let q = b.mul_add(neg_c, cell, p);
+        // s = sign(q) per lane (0 at the exact centre, where the own cell suffices)
+        let aq = b.abs(q);
+        let aq_safe = b.max_s(aq, 1e-30);
+        let s = b.bin(Op::Div, q, aq_safe);
+        let mut near = b.add(cell, s);
+        if let Some(n) = limit {
+            near = b.bin_v(Op::Max, near, -n);
+            near = b.bin_v(Op::Min, near, n);
+        }
+        let step = b.sub(near, cell);
+        let axes: Vec<usize> = (0..3).filter(|&i| c[i] > 0.0).collect();
+        let mut acc: Option<Out> = None;
+        for mask in 0..(1u32 << axes.len()) {
+            let mut pick = Vec3::ZERO;
+            for (k, &axis) in axes.iter().enumerate() {
+                if mask & (1 << k) != 0 {
+                    pick[axis] = 1.0;
+                }
+            }
+            let qm = if mask == 0 {
+                q
+            } else {
+                let pv = b.konst(pick.extend(0.0));
+                let cm = b.mul_add(step, pv, cell);
+                b.mul_add(neg_c, cm, p)
+            };
+            let out = self.child(b, "shape", shape, qm, mat)?;
+            acc = Some(match acc {
+                None => out,
+                Some(a) => combine_union(b, a, out),
+            });
+        }
+        let block = acc.expect("at least one cell");
+        // distance to the own cell's far wall, pushed out of reach where no copy lies beyond
         let halfv = Vec3::select(c.cmpgt(Vec3::ZERO), half, Vec3::splat(FAR));
-        let hv = b.konst(halfv.extend(FAR));
-        let walls_plus = b.sub(hv, q); // distance to the + wall per axis
-        let walls_minus = b.add(hv, q); // distance to the − wall per axis
-        let (wp, wm) = match limited {
-            None => (walls_plus, walls_minus),
-            Some((cell, n)) => {
-                // No neighbour beyond the last copy: push that wall out of reach.
-                // step(cell ≥ n) = clamp(cell − n + 1, 0, 1) for integer cells.
-                let up = b.bin_v(Op::Sub, cell, n - Vec3::ONE);
-                let up = b.clamp_s(up, 0.0, 1.0);
-                let ncell = b.neg(cell);
-                let down = b.bin_v(Op::Sub, ncell, n - Vec3::ONE);
-                let down = b.clamp_s(down, 0.0, 1.0);
+        let far_wall = b.bin_v(Op::Add, aq, halfv);
+        let far_wall = match limit {
+            None => far_wall,
+            Some(n) => {
+                let beyond = b.sub(cell, s);
+                let beyond = b.abs(beyond);
+                let missing = b.bin_v(Op::Sub, beyond, n);
+                let missing = b.clamp_s(missing, 0.0, 1.0);
                 let far = b.splat(FAR);
-                let wp = b.mul_add(up, far, walls_plus);
-                let wm = b.mul_add(down, far, walls_minus);
-                (wp, wm)
+                b.mul_add(missing, far, far_wall)
             }
         };
-        let w = b.min(wp, wm);
-        let wall = b.min_lane3(w);
-        Ok(b.add_s(wall, gap))
+        let wall = b.min_lane3(far_wall);
+        let cap = b.add_s(wall, gap);
+        // the region holding every copy
+        let region = self.bounds(node)?;
+        let centre = Vec3::select(
+            region.min.is_finite_mask() & region.max.is_finite_mask(),
+            region.center(),
+            Vec3::ZERO,
+        );
+        let extent = Vec3::select(
+            region.min.is_finite_mask() & region.max.is_finite_mask(),
+            0.5 * (region.max - region.min),
+            Vec3::splat(FAR),
+        );
+        let local = b.bin_v(Op::Sub, p, centre);
+        let slab = box_distance(b, local, extent);
+        let cap = b.max(cap, slab);
+        Ok(Out {
+            d: b.min(block.d, cap),
+            m: block.m,
+        })
     }
 }
 
@@ -1346,27 +1403,6 @@ fn hex_prism(b: &mut Builder, p: V, r: f32, hz: f32) -> V {
     b.add(inside, outside)
 }
 
-/// p − c·⌊p/c + ½⌋ on the lanes where c > 0 (`inv` is 1/c there and 0 elsewhere). ⌊x + ½⌋ is
-/// used rather than round() because WGSL rounds halves to even and Rust away from zero.
-fn repeat_point(b: &mut Builder, p: V, c: Vec3, inv: Vec3) -> V {
-    let t = b.bin_v(Op::Mul, p, inv);
-    let t = b.add_s(t, 0.5);
-    let cell = b.un(Op::Floor, t);
-    let cv = b.konst((-c).extend(0.0));
-    b.mul_add(cv, cell, p)
-}
-
-/// p − c·clamp(⌊p/c + ½⌋, −n, n); also returns the cell index.
-fn repeat_point_limited(b: &mut Builder, p: V, c: Vec3, n: Vec3) -> (V, V) {
-    let t = b.bin_v(Op::Mul, p, c.recip());
-    let t = b.add_s(t, 0.5);
-    let cell = b.un(Op::Floor, t);
-    let cell = b.bin_v(Op::Max, cell, -n);
-    let cell = b.bin_v(Op::Min, cell, n);
-    let cv = b.konst((-c).extend(0.0));
-    (b.mul_add(cv, cell, p), cell)
-}
-
 /// Lowers an implicit-surface expression; integer powers become products so that negative
 /// bases work identically on every backend (WGSL's pow is undefined for x < 0).
 fn lower_expr(b: &mut Builder, e: &Expr, p: V) -> V {
@@ -1445,6 +1481,30 @@ fn int_pow(b: &mut Builder, x: V, k: u32) -> V {
         }
     }
     result.expect("k > 0 sets the result")
+}
+
+/// Checks that an expression is finite over the box [−h, h] (sampled on a 21³ grid that
+/// includes the faces): a NaN would silently turn part of the box into solid, since the clipped
+/// field falls back to the box distance there.
+pub fn check_defined(e: &Expr, h: Vec3) -> Result<(), String> {
+    const N: usize = 21;
+    for i in 0..N {
+        for j in 0..N {
+            for k in 0..N {
+                let t = Vec3::new(i as f32, j as f32, k as f32) / (N - 1) as f32;
+                let q = -h + 2.0 * h * t;
+                let v = e.eval(q);
+                if !v.is_finite() {
+                    return Err(format!(
+                        "the expression is {v} at {} inside its box; it must be defined \
+                         everywhere in half_extents (e.g. guard sqrt and ln with abs or max)",
+                        fmt3(q)
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Estimates the Lipschitz constant of an expression over the box [−h, h] by the largest

@@ -127,15 +127,17 @@ pub enum SdfNode {
 
     // ---- domain operators ----
     /// Infinite repetition with the given period on each axis (0 = not repeated on that axis):
-    /// p ← p − c·round(p/c). The child must fit inside its cell; the distance is additionally
-    /// capped by (distance to the cell wall + the gap between the child's bounds and the wall),
-    /// so a neighbouring copy is never stepped through. Bound; λ = 1.
+    /// p ← p − c·⌊p/c + ½⌋. The child must fit inside its cell. The child is evaluated in its
+    /// own cell and in the nearest neighbouring cell along each repeated axis, and the result is
+    /// capped by a lower bound on the distance to every other copy (see `lower.rs`), so no copy
+    /// is stepped through and empty cell walls never look like surfaces. Bound; λ = 1.
     Repeat {
         period: (NonNegative, NonNegative, NonNegative),
         shape: Box<SdfNode>,
     },
-    /// Finite repetition: p ← p − c·clamp(round(p/c), −n, n) gives 2n+1 copies per axis
-    /// (Quilez "domain repetition", limited form). Same cap as `Repeat`. Bound; λ = 1.
+    /// Finite repetition: p ← p − c·clamp(⌊p/c + ½⌋, −n, n) gives 2n+1 copies per axis
+    /// (Quilez "domain repetition", limited form); an axis with n = 0 is not repeated. Same
+    /// neighbour evaluation and cap as `Repeat`. Bound; λ = 1.
     RepeatLimited {
         period: PositiveVec3,
         copies_each_side: (u32, u32, u32),
@@ -156,7 +158,8 @@ pub enum SdfNode {
     /// `x*x + y*y + z*z - 1`. f is traced as f/λ (Hart 1996, §3.3) with λ its Lipschitz constant
     /// over the box |p| ≤ half_extents: given by the user or, when absent, estimated by sampling
     /// |∇f| on a grid over that box (times a 1.5 safety factor). The surface is clipped to the
-    /// box, and outside it the distance to the box is used, so λ only has to hold inside.
+    /// box: the field is max(f(π(p))/λ, box(p)) with π the projection onto the box, which is
+    /// 1-Lipschitz everywhere when λ holds inside the box. f must be finite in the whole box.
     Implicit {
         expr: String,
         #[serde(default)]
