@@ -31,9 +31,24 @@ impl SdfAccel {
         ray: &Ray,
         tmin: f32,
         tmax: &mut f32,
+        visit: impl FnMut(usize, f32, f32, &mut f32) -> ControlFlow<()>,
+    ) {
+        self.visit_within(ray, tmin, tmax, 0.0, visit)
+    }
+
+    /// Like [`SdfAccel::visit`], with every object's bounds grown by `margin`: queries that
+    /// look at the field *near* surfaces (soft-shadow penumbrae) need the rays that pass
+    /// close to an object, not only those that cross its bounds.
+    pub fn visit_within(
+        &self,
+        ray: &Ray,
+        tmin: f32,
+        tmax: &mut f32,
+        margin: f32,
         mut visit: impl FnMut(usize, f32, f32, &mut f32) -> ControlFlow<()>,
     ) {
         for (i, b) in self.bounds.iter().enumerate() {
+            let b = if margin > 0.0 { b.expand(margin) } else { *b };
             if let Some((t0, t1)) = b.ray_interval(ray, tmin, *tmax) {
                 if visit(i, t0, t1, tmax).is_break() {
                     return;

@@ -1,10 +1,10 @@
-//! The CPU backend: rayon over tiles, one sphere-traced camera ray per sample.
+//! The CPU backend: rayon over tiles, one camera path per sample.
 
 use super::{Framebuffer, RenderOptions, Tile, sample_offset, tiles};
 use crate::scene::Scene;
-use crate::shade::{self, SurfacePoint, material::MaterialParams};
+use crate::sdf::tape::MaterialVec;
+use crate::shade::integrator::{CameraSample, trace_camera_ray};
 use crate::trace::SceneTracer;
-use glam::Vec3;
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 
@@ -29,7 +29,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> anyhow::Result<Framebuffer
     } else {
         ProgressBar::hidden()
     };
-    let done: Vec<(Tile, Vec<Vec3>)> = pool.install(|| {
+    let done: Vec<(Tile, Vec<Vec<CameraSample>>)> = pool.install(|| {
         all.par_iter()
             .map(|&tile| {
                 let px = render_tile(&tracer, &materials, opts, tile);
@@ -39,16 +39,11 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> anyhow::Result<Framebuffer
             .collect()
     });
     bar.finish_and_clear();
-    let mut fb = Framebuffer {
-        width: opts.width,
-        height: opts.height,
-        pixels: vec![Vec3::ZERO; (opts.width * opts.height) as usize],
-    };
+    let mut fb = Framebuffer::new(opts.width, opts.height);
     for (tile, px) in done {
         for j in 0..tile.h {
             for i in 0..tile.w {
-                fb.pixels[((tile.y0 + j) * opts.width + tile.x0 + i) as usize] =
-                    px[(j * tile.w + i) as usize];
+                fb.set(tile.x0 + i, tile.y0 + j, &px[(j * tile.w + i) as usize]);
             }
         }
     }
@@ -57,55 +52,37 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> anyhow::Result<Framebuffer
 
 fn render_tile(
     tracer: &SceneTracer,
-    materials: &[crate::sdf::tape::MaterialVec],
+    materials: &[MaterialVec],
     opts: &RenderOptions,
     tile: Tile,
-) -> Vec<Vec3> {
+) -> Vec<Vec<CameraSample>> {
     let mut out = Vec::with_capacity((tile.w * tile.h) as usize);
     for y in tile.y0..tile.y0 + tile.h {
         for x in tile.x0..tile.x0 + tile.w {
-            let mut sum = Vec3::ZERO;
-            for s in 0..opts.samples {
-                let (dx, dy) = sample_offset(x, y, s, opts.samples);
-                sum += radiance(tracer, materials, opts, x as f32 + dx, y as f32 + dy);
-            }
-            out.push(sum / opts.samples as f32);
+            let samples = (0..opts.samples)
+                .map(|s| {
+                    let (dx, dy) = sample_offset(x, y, s, opts.samples);
+                    camera_sample(tracer, materials, opts, x as f32 + dx, y as f32 + dy)
+                })
+                .collect();
+            out.push(samples);
         }
     }
     out
 }
 
-/// Radiance along the camera ray through image position (px, py) in pixels.
-pub fn radiance(
+/// What the camera ray through image position (px, py), in pixels, sees.
+pub fn camera_sample(
     tracer: &SceneTracer,
-    materials: &[crate::sdf::tape::MaterialVec],
+    materials: &[MaterialVec],
     opts: &RenderOptions,
     px: f32,
     py: f32,
-) -> Vec3 {
-    let scene = tracer.scene();
+) -> CameraSample {
     let aspect = opts.width as f32 / opts.height as f32;
-    let ray = scene
+    let ray = tracer
+        .scene()
         .camera
         .ray(px / opts.width as f32, py / opts.height as f32, aspect);
-    match tracer.closest_hit(&ray, 0.0, f32::INFINITY) {
-        None => scene.image.background,
-        Some(hit) => {
-            let p = ray.at(hit.t);
-            let (_, m) = scene.objects[hit.object]
-                .lowered
-                .shading
-                .eval_material(p, materials);
-            shade::shade(
-                tracer,
-                &SurfacePoint {
-                    position: p,
-                    normal: hit.normal,
-                    to_eye: -ray.direction,
-                    t: hit.t,
-                    material: MaterialParams::from_vec(&m),
-                },
-            )
-        }
-    }
+    trace_camera_ray(tracer, materials, ray)
 }

@@ -1,8 +1,12 @@
 //! Render backends and what they share: options, the framebuffer, sample positions and output.
 
 pub mod cpu;
+pub mod exr;
 pub mod output;
+pub mod slice;
+pub mod view;
 
+use crate::shade::integrator::CameraSample;
 use glam::Vec3;
 
 /// What to render, beyond the scene itself.
@@ -23,21 +27,60 @@ pub struct RenderOptions {
 /// Side of the square tiles the image is cut into.
 pub const TILE: u32 = 32;
 
-/// A linear-RGB image.
+/// A rendered image: linear radiance and, per pixel, the first hit's auxiliary values
+/// (AOVs) that the debug views and EXR output use. Over a pixel's samples radiance, normal,
+/// albedo, steps and gradient are averaged; depth is the nearest sample's (∞ if all missed).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Framebuffer {
     /// Width.
     pub width: u32,
     /// Height.
     pub height: u32,
-    /// Row-major pixels.
+    /// Row-major linear radiance.
     pub pixels: Vec<Vec3>,
+    /// Distance to the first hit along the camera ray.
+    pub depth: Vec<f32>,
+    /// Surface normal at the first hit.
+    pub normal: Vec<Vec3>,
+    /// Albedo at the first hit.
+    pub albedo: Vec<Vec3>,
+    /// Sphere-tracing steps of the camera ray.
+    pub steps: Vec<f32>,
+    /// |∇f| at the first hit.
+    pub gradient: Vec<f32>,
 }
 
 impl Framebuffer {
-    /// The pixel at (x, y).
+    /// An empty (black, all-miss) framebuffer.
+    pub fn new(width: u32, height: u32) -> Self {
+        let n = (width * height) as usize;
+        Framebuffer {
+            width,
+            height,
+            pixels: vec![Vec3::ZERO; n],
+            depth: vec![f32::INFINITY; n],
+            normal: vec![Vec3::ZERO; n],
+            albedo: vec![Vec3::ZERO; n],
+            steps: vec![0.0; n],
+            gradient: vec![0.0; n],
+        }
+    }
+
+    /// The radiance at (x, y).
     pub fn get(&self, x: u32, y: u32) -> Vec3 {
         self.pixels[(y * self.width + x) as usize]
+    }
+
+    /// Stores the pixel value combined from its samples (see the type's documentation).
+    pub fn set(&mut self, x: u32, y: u32, samples: &[CameraSample]) {
+        let i = (y * self.width + x) as usize;
+        let n = samples.len().max(1) as f32;
+        self.pixels[i] = samples.iter().map(|s| s.radiance).sum::<Vec3>() / n;
+        self.depth[i] = samples.iter().map(|s| s.depth).fold(f32::INFINITY, f32::min);
+        self.normal[i] = samples.iter().map(|s| s.normal).sum::<Vec3>() / n;
+        self.albedo[i] = samples.iter().map(|s| s.albedo).sum::<Vec3>() / n;
+        self.steps[i] = samples.iter().map(|s| s.steps as f32).sum::<f32>() / n;
+        self.gradient[i] = samples.iter().map(|s| s.gradient).sum::<f32>() / n;
     }
 }
 

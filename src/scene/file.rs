@@ -3,7 +3,7 @@
 //! Every field is documented in `docs/scene-format.md`; unknown fields are errors. Values are
 //! validated while parsing (see [`super::values`]), so errors carry line and column.
 
-use super::values::{Color, Direction, FiniteVec3, NonNegative, Positive, Unit};
+use super::values::{Color, Direction, Finite, FiniteVec3, NonNegative, Positive, Unit};
 use crate::sdf::SdfNode;
 use serde::Deserialize;
 use std::collections::HashSet;
@@ -29,6 +29,44 @@ pub struct SceneFile {
     /// Sphere-tracing parameters.
     #[serde(default)]
     pub tracer: TracerDesc,
+    /// Shading effects: ambient occlusion and secondary rays.
+    #[serde(default)]
+    pub shading: ShadingDesc,
+}
+
+/// Shading effects beyond direct light.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ShadingDesc {
+    /// Ambient occlusion from the distance field (off when absent).
+    pub ambient_occlusion: Option<AmbientOcclusionDesc>,
+    /// Most reflection/refraction bounces along one camera path (0 = none).
+    pub max_bounces: u32,
+}
+
+impl Default for ShadingDesc {
+    fn default() -> Self {
+        ShadingDesc {
+            ambient_occlusion: None,
+            max_bounces: 4,
+        }
+    }
+}
+
+/// Ambient occlusion by sampling the distance field along the normal (Evans, "Fast
+/// approximations for global illumination on dynamic scenes", 2006; as in the CS171 report):
+/// ao = clamp(1 − strength · Σᵢ 2⁻ⁱ (i·step − d(p + n·i·step)) / step, 0, 1), i = 1..steps.
+/// Dividing by `step` makes the sum dimensionless (at most Σ i·2⁻ⁱ < 2), so the same strength
+/// means the same darkening at any scene scale. It multiplies the ambient lights only.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AmbientOcclusionDesc {
+    /// Strength (1 = as in the formula).
+    pub strength: NonNegative,
+    /// Number of samples along the normal.
+    pub steps: u32,
+    /// Distance between samples.
+    pub step: Positive,
 }
 
 /// The `materials` map in file order; a name defined twice is an error (a map would silently
@@ -77,6 +115,22 @@ pub struct ImageDesc {
     pub samples: u32,
     /// Radiance of rays that hit nothing (linear RGB).
     pub background: Color,
+    /// Exposure in stops: radiance is multiplied by 2^exposure before tone mapping.
+    pub exposure: Finite,
+    /// Tone-mapping operator from linear radiance to display values.
+    pub tonemap: ToneMap,
+}
+
+/// Tone-mapping operators (applied to exposed linear radiance before the sRGB curve).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default, clap::ValueEnum)]
+pub enum ToneMap {
+    /// Clip each channel to [0, 1].
+    #[default]
+    Clamp,
+    /// Reinhard's x/(1 + x) per channel (Reinhard et al. 2002).
+    Reinhard,
+    /// Narkowicz's fit of the ACES filmic curve (2015), per channel.
+    Aces,
 }
 
 impl Default for ImageDesc {
@@ -86,6 +140,8 @@ impl Default for ImageDesc {
             height: 600,
             samples: 1,
             background: Color(glam::Vec3::new(0.05, 0.06, 0.08)),
+            exposure: Finite(0.0),
+            tonemap: ToneMap::Clamp,
         }
     }
 }
@@ -134,6 +190,9 @@ pub enum LightDesc {
         color: Color,
         /// Intensity (radiant intensity multiplier).
         intensity: NonNegative,
+        /// Shadow kind (default `Hard`).
+        #[serde(default)]
+        shadow: ShadowDesc,
     },
     /// Directional light (sun), travelling along `direction`.
     Directional {
@@ -144,6 +203,9 @@ pub enum LightDesc {
         color: Color,
         /// Irradiance multiplier.
         intensity: NonNegative,
+        /// Shadow kind (default `Hard`).
+        #[serde(default)]
+        shadow: ShadowDesc,
     },
     /// Constant ambient light.
     Ambient {
@@ -152,6 +214,29 @@ pub enum LightDesc {
         color: Color,
         /// Intensity.
         intensity: NonNegative,
+    },
+}
+
+/// How a light's shadows are computed.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub enum ShadowDesc {
+    /// No shadow ray.
+    None,
+    /// Binary visibility from one shadow ray.
+    #[default]
+    Hard,
+    /// Quilez's penumbra estimate min(k·h/t) along the shadow ray ("soft shadows in raymarched
+    /// SDFs", 2010): larger k, harder shadow.
+    Soft {
+        /// Sharpness k.
+        k: Positive,
+    },
+    /// The improved estimate that places the closest approach between two steps
+    /// (y = h²/(2h'), d = √(h² − y²), min(k·d/(t − y))), which removes banding.
+    SoftImproved {
+        /// Sharpness k.
+        k: Positive,
     },
 }
 

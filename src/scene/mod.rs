@@ -14,7 +14,7 @@ use crate::sdf::lower::Step;
 use crate::sdf::{self, LoweredSdf, SdfNode};
 use crate::shade::material::MaterialParams;
 use camera::{Camera, Projection};
-use file::{CameraDesc, LightDesc, NormalMethod, SceneFile};
+use file::{CameraDesc, LightDesc, NormalMethod, SceneFile, ShadowDesc, ToneMap};
 use glam::Vec3;
 use std::path::{Path, PathBuf};
 
@@ -61,6 +61,10 @@ pub struct ImageSettings {
     pub samples: u32,
     /// Background radiance.
     pub background: Vec3,
+    /// Exposure in stops.
+    pub exposure: f32,
+    /// Tone-mapping operator.
+    pub tonemap: ToneMap,
 }
 
 /// Sphere-tracing settings after validation.
@@ -89,6 +93,8 @@ pub enum Light {
         position: Vec3,
         /// Colour × intensity.
         radiance: Vec3,
+        /// Shadow kind.
+        shadow: Shadow,
     },
     /// Light travelling along `direction` (unit).
     Directional {
@@ -96,6 +102,8 @@ pub enum Light {
         direction: Vec3,
         /// Colour × intensity.
         radiance: Vec3,
+        /// Shadow kind.
+        shadow: Shadow,
     },
     /// Ambient term.
     Ambient {
@@ -103,6 +111,53 @@ pub enum Light {
         radiance: Vec3,
     },
 }
+
+/// How a light's visibility is estimated.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Shadow {
+    /// Always visible.
+    None,
+    /// One shadow ray, visible or not.
+    Hard,
+    /// Penumbra estimate min(k·h/t) (Quilez 2010), sharpness k.
+    Soft(f32),
+    /// Penumbra with the closest approach between steps (Quilez 2010, improved), sharpness k.
+    SoftImproved(f32),
+}
+
+impl From<ShadowDesc> for Shadow {
+    fn from(d: ShadowDesc) -> Self {
+        match d {
+            ShadowDesc::None => Shadow::None,
+            ShadowDesc::Hard => Shadow::Hard,
+            ShadowDesc::Soft { k } => Shadow::Soft(k.0),
+            ShadowDesc::SoftImproved { k } => Shadow::SoftImproved(k.0),
+        }
+    }
+}
+
+/// Ambient-occlusion settings (see [`file::AmbientOcclusionDesc`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AmbientOcclusion {
+    /// Strength.
+    pub strength: f32,
+    /// Samples along the normal.
+    pub steps: u32,
+    /// Spacing of the samples.
+    pub step: f32,
+}
+
+/// Shading settings after validation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ShadingSettings {
+    /// Ambient occlusion, if on.
+    pub ambient_occlusion: Option<AmbientOcclusion>,
+    /// Most reflection/refraction bounces per camera path.
+    pub max_bounces: u32,
+}
+
+/// The largest accepted `shading.max_bounces`.
+pub const MAX_BOUNCES: u32 = 16;
 
 /// An SDF object ready to trace.
 #[derive(Debug, Clone)]
@@ -141,6 +196,8 @@ pub struct Scene {
     pub objects: Vec<SdfObject>,
     /// Tracer settings.
     pub tracer: TracerSettings,
+    /// Shading settings.
+    pub shading: ShadingSettings,
 }
 
 impl Scene {
@@ -227,6 +284,30 @@ impl Scene {
             ));
         }
 
+        let sh = &file.shading;
+        if sh.max_bounces > MAX_BOUNCES {
+            return Err(at(
+                top(&["shading", "max_bounces"]),
+                format!("max_bounces = {} is out of range 0..={MAX_BOUNCES}", sh.max_bounces),
+            ));
+        }
+        if let Some(ao) = &sh.ambient_occlusion {
+            if ao.steps == 0 || ao.steps > 64 {
+                return Err(at(
+                    top(&["shading", "ambient_occlusion", "steps"]),
+                    format!("ambient_occlusion.steps = {} is out of range 1..=64", ao.steps),
+                ));
+            }
+        }
+        let shading = ShadingSettings {
+            ambient_occlusion: sh.ambient_occlusion.map(|a| AmbientOcclusion {
+                strength: a.strength.0,
+                steps: a.steps,
+                step: a.step.0,
+            }),
+            max_bounces: sh.max_bounces,
+        };
+
         let camera = match &file.camera {
             CameraDesc::Perspective {
                 position,
@@ -272,17 +353,21 @@ impl Scene {
                     position,
                     color,
                     intensity,
+                    shadow,
                 } => Light::Point {
                     position: position.0,
                     radiance: color.0 * intensity.0,
+                    shadow: (*shadow).into(),
                 },
                 LightDesc::Directional {
                     direction,
                     color,
                     intensity,
+                    shadow,
                 } => Light::Directional {
                     direction: direction.0,
                     radiance: color.0 * intensity.0,
+                    shadow: (*shadow).into(),
                 },
                 LightDesc::Ambient { color, intensity } => Light::Ambient {
                     radiance: color.0 * intensity.0,
@@ -372,6 +457,8 @@ impl Scene {
                 height: img.height,
                 samples: img.samples,
                 background: img.background.0,
+                exposure: img.exposure.0,
+                tonemap: img.tonemap,
             },
             camera,
             lights,
@@ -386,6 +473,7 @@ impl Scene {
                 normals: t.normals,
                 shadows: t.shadows,
             },
+            shading,
         })
     }
 

@@ -1,19 +1,22 @@
 //! Shading: the radiance leaving a surface point toward the eye, from materials and lights.
 //!
-//! The model (documented in `docs/scene-format.md`), in linear RGB:
+//! The local model (documented in `docs/scene-format.md`), in linear RGB:
 //!
 //! ```text
-//! L = Σ_ambient albedo·kd·A + Σ_lights V·E·(albedo·kd·max(n·l, 0) + ks·max(r·v, 0)^s)
+//! L_local = Σ_ambient albedo·kd·A·ao + Σ_lights V·E·(albedo·kd·max(n·l, 0) + ks·max(r·v, 0)^s)
 //! ```
 //!
-//! (light terms only where n·l > 0), with E = radiance/d² for a point light at distance d and E = radiance for a directional
-//! light, V ∈ {0, 1} the hard-shadow visibility, r the mirror reflection of l about n
-//! (Phong 1975) and v the direction to the eye.
+//! (light terms only where n·l > 0), with E = radiance/d² for a point light at distance d and
+//! E = radiance for a directional light, V ∈ [0, 1] the light's visibility (hard or soft
+//! shadow), ao ∈ [0, 1] the ambient occlusion, r the mirror reflection of l about n (Phong
+//! 1975) and v the direction to the eye. [`integrator`] adds reflection and refraction.
 
+pub mod integrator;
 pub mod material;
+pub mod optics;
 
 use crate::geom::Ray;
-use crate::scene::Light;
+use crate::scene::{AmbientOcclusion, Light};
 use crate::trace::{SceneTracer, epsilon_at};
 use glam::Vec3;
 use material::MaterialParams;
@@ -33,47 +36,82 @@ pub struct SurfacePoint {
     pub material: MaterialParams,
 }
 
-/// Radiance from `sp` toward the eye.
+/// The offset that moves secondary-ray origins off a surface found at ray distance t: the
+/// tracer stopped within ε(t) of it, so a few ε clear it (and a ray starting on the surface
+/// would report the surface itself).
+pub fn surface_offset(tracer: &SceneTracer, t: f32) -> f32 {
+    4.0 * epsilon_at(&tracer.scene().tracer, t)
+}
+
+/// Local (direct) radiance from `sp` toward the eye.
 pub fn shade(tracer: &SceneTracer, sp: &SurfacePoint) -> Vec3 {
     let scene = tracer.scene();
     let m = &sp.material;
     let n = sp.normal;
-    let settings = &scene.tracer;
-    // Shadow rays start a few ε above the surface: the tracer stopped within ε(t) of it, and
-    // starting on the surface would report the surface itself as the occluder.
-    let offset = 4.0 * epsilon_at(settings, sp.t);
+    let offset = surface_offset(tracer, sp.t);
     let origin = sp.position + n * offset;
     let mut out = Vec3::ZERO;
     for light in &scene.lights {
-        let (l, dist, irradiance) = match *light {
+        let (l, dist, irradiance, shadow) = match *light {
             Light::Ambient { radiance } => {
-                out += m.color * m.diffuse * radiance;
+                let ao = scene
+                    .shading
+                    .ambient_occlusion
+                    .map_or(1.0, |a| ambient_occlusion(tracer, sp.position, n, &a));
+                out += m.color * m.diffuse * radiance * ao;
                 continue;
             }
-            Light::Point { position, radiance } => {
+            Light::Point {
+                position,
+                radiance,
+                shadow,
+            } => {
                 let d = position - sp.position;
                 let dist = d.length();
                 if dist <= 0.0 {
                     continue;
                 }
-                (d / dist, dist, radiance / (dist * dist))
+                (d / dist, dist, radiance / (dist * dist), shadow)
             }
             Light::Directional {
                 direction,
                 radiance,
-            } => (-direction, f32::INFINITY, radiance),
+                shadow,
+            } => (-direction, f32::INFINITY, radiance, shadow),
         };
         let ndl = n.dot(l);
         if ndl <= 0.0 {
             continue;
         }
-        if settings.shadows && tracer.occluded(&Ray::new(origin, l), 0.0, dist - offset) {
+        let visibility = if scene.tracer.shadows {
+            tracer.visibility(&Ray::new(origin, l), 0.0, dist - offset, shadow)
+        } else {
+            1.0
+        };
+        if visibility <= 0.0 {
             continue;
         }
         let diffuse = m.color * m.diffuse * ndl;
         let r = (2.0 * ndl) * n - l;
         let spec = m.specular * r.dot(sp.to_eye).max(0.0).powf(m.shininess);
-        out += irradiance * (diffuse + spec);
+        out += visibility * irradiance * (diffuse + spec);
     }
     out
+}
+
+/// Ambient occlusion from the distance field: sample d at p + n·i·δ for i = 1..steps; an
+/// unoccluded point has d = i·δ there, and each shortfall darkens by 2⁻ⁱ (nearer samples weigh
+/// more). ao = clamp(1 − strength·Σ 2⁻ⁱ (i·δ − d)/δ, 0, 1) (Evans 2006; the CS171 report's
+/// form, made scale-free by the division by δ).
+pub fn ambient_occlusion(tracer: &SceneTracer, p: Vec3, n: Vec3, ao: &AmbientOcclusion) -> f32 {
+    let reach = ao.step * ao.steps as f32;
+    let mut occlusion = 0.0;
+    let mut weight = 0.5;
+    for i in 1..=ao.steps {
+        let h = ao.step * i as f32;
+        let d = tracer.distance(p + n * h, reach);
+        occlusion += weight * (h - d).max(0.0);
+        weight *= 0.5;
+    }
+    (1.0 - ao.strength * occlusion / ao.step).clamp(0.0, 1.0)
 }

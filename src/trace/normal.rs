@@ -12,14 +12,20 @@ pub fn step_for(s: &TracerSettings, t: f32) -> f32 {
     (2.0 * epsilon_at(s, t)).max(1e-4)
 }
 
-/// The unit normal at p by the chosen estimator; a zero gradient (e.g. the centre of a
-/// sphere) gives +y rather than NaN.
-pub fn estimate(tape: &Tape, p: Vec3, h: f32, method: NormalMethod, regs: &mut Registers) -> Vec3 {
+/// The unit normal at p by the chosen estimator, and the gradient's length; a zero gradient
+/// (e.g. the centre of a sphere) gives +y rather than NaN.
+pub fn estimate(
+    tape: &Tape,
+    p: Vec3,
+    h: f32,
+    method: NormalMethod,
+    regs: &mut Registers,
+) -> (Vec3, f32) {
     let g = match method {
         NormalMethod::Central => central(tape, p, h, regs),
         NormalMethod::Tetrahedral => tetrahedral(tape, p, h, regs),
     };
-    g.try_normalize().unwrap_or(Vec3::Y)
+    (g.try_normalize().unwrap_or(Vec3::Y), g.length())
 }
 
 /// Central differences, 6 evaluations: ∇f ≈ (f(p+hx) − f(p−hx), …)/2h, second-order accurate.

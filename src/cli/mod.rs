@@ -1,0 +1,3 @@
+//! The subcommands of the `hytrace` binary, one module each.
+pub mod render;
+pub mod slice;

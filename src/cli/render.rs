@@ -1,0 +1,139 @@
+//! `hytrace render`: a scene to an image.
+
+use crate::load_scene;
+use anyhow::{Context, Result, bail};
+use hytrace::render::exr::{Aov, write_exr};
+use hytrace::render::output::ToneMapping;
+use hytrace::render::view::{View, picture};
+use hytrace::render::{RenderOptions, cpu, output};
+use hytrace::scene::file::ToneMap;
+use hytrace::scene::{MAX_IMAGE_SIDE, MAX_PIXELS, MAX_SAMPLES};
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Arguments of `hytrace render`.
+#[derive(clap::Parser)]
+pub struct RenderArgs {
+    /// Scene file (.ron); omit for the built-in showcase.
+    scene: Option<PathBuf>,
+    /// Output image: .png (sRGB, tone-mapped) or .exr (linear radiance, plus --aov channels).
+    #[arg(short, long, default_value = "out.png")]
+    output: PathBuf,
+    /// What to draw: the shaded image or a debug view of the first hits.
+    #[arg(long, value_enum, default_value = "shaded")]
+    view: View,
+    /// Exposure in stops (overrides the scene).
+    #[arg(long, allow_negative_numbers = true)]
+    exposure: Option<f32>,
+    /// Tone-mapping operator (overrides the scene).
+    #[arg(long, value_enum)]
+    tonemap: Option<ToneMap>,
+    /// Extra EXR channels: depth, normal, albedo, steps (comma-separated); EXR output only.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    aov: Vec<Aov>,
+    /// Image width (overrides the scene).
+    #[arg(long)]
+    width: Option<u32>,
+    /// Image height (overrides the scene).
+    #[arg(long)]
+    height: Option<u32>,
+    /// Samples per pixel (overrides the scene).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Normal estimator (overrides the scene).
+    #[arg(long, value_enum)]
+    normals: Option<hytrace::scene::file::NormalMethod>,
+    /// No progress bar.
+    #[arg(short, long)]
+    quiet: bool,
+}
+
+/// Renders and writes the image.
+pub fn run(args: RenderArgs) -> Result<()> {
+    let mut scene = load_scene(args.scene.as_deref())?;
+    if let Some(n) = args.normals {
+        scene.tracer.normals = n;
+    }
+    let width = args.width.unwrap_or(scene.image.width);
+    let height = args.height.unwrap_or(scene.image.height);
+    let samples = args.spp.unwrap_or(scene.image.samples);
+    if width == 0 || height == 0 {
+        bail!("--width and --height must be at least 1 (got {width}×{height})");
+    }
+    if width > MAX_IMAGE_SIDE
+        || height > MAX_IMAGE_SIDE
+        || width as u64 * height as u64 > MAX_PIXELS
+    {
+        bail!(
+            "image size {width}×{height} is too large (at most {MAX_IMAGE_SIDE} per side and {MAX_PIXELS} pixels)"
+        );
+    }
+    if samples == 0 || samples > MAX_SAMPLES {
+        bail!("--spp {samples} is out of range 1..={MAX_SAMPLES}");
+    }
+    if args.threads == Some(0) {
+        bail!("--threads must be at least 1");
+    }
+    let exposure = args.exposure.unwrap_or(scene.image.exposure);
+    if !exposure.is_finite() || exposure.abs() > 64.0 {
+        bail!("--exposure {exposure} is out of range -64..=64 stops");
+    }
+    let tone = ToneMapping {
+        exposure,
+        operator: args.tonemap.unwrap_or(scene.image.tonemap),
+    };
+    let ext = args
+        .output
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    let exr = match ext.as_deref() {
+        Some("png") => false,
+        Some("exr") => true,
+        _ => bail!(
+            "{}: unsupported output format (use a .png or .exr file name)",
+            args.output.display()
+        ),
+    };
+    if !args.aov.is_empty() && !exr {
+        bail!("--aov needs an .exr output (PNG holds only the picture; see --view)");
+    }
+    if exr && args.view != View::Shaded {
+        bail!("--view applies to PNG output; EXR stores radiance and the --aov channels");
+    }
+    let opts = RenderOptions {
+        width,
+        height,
+        samples,
+        threads: args.threads,
+        progress: !args.quiet && std::io::stderr().is_terminal(),
+    };
+    let start = Instant::now();
+    let fb = cpu::render(&scene, &opts)?;
+    let elapsed = start.elapsed();
+    if exr {
+        write_exr(&fb, &args.aov, &args.output)
+            .with_context(|| format!("writing {}", args.output.display()))?;
+    } else {
+        let img = picture(&fb, args.view, tone, scene.tracer.max_steps);
+        output::save_png(&img, &args.output)
+            .with_context(|| format!("writing {}", args.output.display()))?;
+    }
+    if !args.quiet {
+        eprintln!(
+            "{}: {}×{} px, {} spp, {} object(s), rendered in {:.3} s → {}",
+            scene.source_name,
+            width,
+            height,
+            samples,
+            scene.objects.len(),
+            elapsed.as_secs_f64(),
+            args.output.display()
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,186 @@
+//! The path a camera ray takes: local shading, then mirror reflection and refraction, followed
+//! iteratively with a small explicit stack (no recursion, as a GPU needs) up to a bounce limit.
+//!
+//! At a surface with reflectivity r, transparency τ and index of refraction η, and Schlick
+//! reflectances F_r (R₀ = r, only where r > 0) and F_t (R₀ = ((1−η)/(1+η))², total internal
+//! reflection included):
+//!
+//! ```text
+//! L = (1 − τ)·[(1 − F_r)·L_local + F_r·L_reflected] + τ·[F_t·L_reflected + (1 − F_t)·albedo·L_transmitted]
+//! ```
+//!
+//! A refracted ray marches inside the object it entered (the others are ignored inside it)
+//! with |f| and a step scale below 1 until it leaves, and splits again there into the
+//! transmitted ray and the internally reflected one. Paths whose weight drops below 1/1000,
+//! and paths beyond `shading.max_bounces`, are dropped.
+
+use super::material::MaterialParams;
+use super::optics::{reflect, refract, schlick};
+use super::{SurfacePoint, shade, surface_offset};
+use crate::geom::Ray;
+use crate::scene::MAX_BOUNCES;
+use crate::sdf::tape::MaterialVec;
+use crate::trace::SceneTracer;
+use glam::Vec3;
+
+/// What one camera sample sees: its radiance and the first hit's auxiliary values (AOVs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraSample {
+    /// Linear radiance.
+    pub radiance: Vec3,
+    /// Distance to the first hit (infinite on a miss).
+    pub depth: f32,
+    /// Unit normal at the first hit (zero on a miss).
+    pub normal: Vec3,
+    /// Albedo at the first hit (zero on a miss).
+    pub albedo: Vec3,
+    /// Sphere-tracing steps of the camera ray.
+    pub steps: u32,
+    /// |∇f| at the first hit (zero on a miss).
+    pub gradient: f32,
+}
+
+/// One pending ray of the path: where it goes, what fraction of it reaches the camera, how
+/// many bounces it took, and the object it travels inside (for refracted rays).
+#[derive(Debug, Clone, Copy)]
+struct PendingRay {
+    ray: Ray,
+    weight: Vec3,
+    bounces: u32,
+    inside: Option<(usize, f32)>,
+}
+
+/// Paths lighter than this are not followed.
+const MIN_WEIGHT: f32 = 1e-3;
+
+/// Follows the camera ray `ray` and everything it spawns. `materials` is the scene's material
+/// table as the shading tapes expect it.
+pub fn trace_camera_ray(tracer: &SceneTracer, materials: &[MaterialVec], ray: Ray) -> CameraSample {
+    let scene = tracer.scene();
+    let max_bounces = scene.shading.max_bounces.min(MAX_BOUNCES);
+    // Depth-first: each step pops one ray and pushes at most two, so the stack never holds
+    // more than max_bounces + 1 entries (a fixed array of MAX_BOUNCES + 2 on the GPU).
+    let mut stack = Vec::with_capacity(MAX_BOUNCES as usize + 2);
+    stack.push(PendingRay {
+        ray,
+        weight: Vec3::ONE,
+        bounces: 0,
+        inside: None,
+    });
+    let mut sample = CameraSample {
+        radiance: Vec3::ZERO,
+        depth: f32::INFINITY,
+        normal: Vec3::ZERO,
+        albedo: Vec3::ZERO,
+        steps: 0,
+        gradient: 0.0,
+    };
+    let mut primary = true;
+    while let Some(item) = stack.pop() {
+        let spawn = |stack: &mut Vec<PendingRay>, ray: Ray, weight: Vec3, inside| {
+            if item.bounces < max_bounces && weight.max_element() >= MIN_WEIGHT {
+                stack.push(PendingRay {
+                    ray,
+                    weight,
+                    bounces: item.bounces + 1,
+                    inside,
+                });
+            }
+        };
+        if let Some((object, ior)) = item.inside {
+            // Travelling inside a transparent object: find where it leaves.
+            let Some((t, n)) = tracer.exit(object, &item.ray, f32::INFINITY) else {
+                continue;
+            };
+            let p = item.ray.at(t);
+            let d = item.ray.direction;
+            let offset = surface_offset(tracer, t);
+            let cos_i = d.dot(n).clamp(0.0, 1.0);
+            let f = schlick(cos_i, ior, 1.0);
+            if let Some(out) = refract(d, -n, ior) {
+                spawn(&mut stack, Ray::new(p + n * offset, out), item.weight * (1.0 - f), None);
+            }
+            spawn(
+                &mut stack,
+                Ray::new(p - n * offset, reflect(d, -n)),
+                item.weight * f,
+                Some((object, ior)),
+            );
+            continue;
+        }
+        let hit = tracer.closest_hit(&item.ray, 0.0, f32::INFINITY);
+        if primary {
+            sample.steps = hit.map_or(0, |h| h.steps);
+        }
+        let Some(hit) = hit else {
+            sample.radiance += item.weight * scene.image.background;
+            primary = false;
+            continue;
+        };
+        let p = item.ray.at(hit.t);
+        let (_, m) = scene.objects[hit.object]
+            .lowered
+            .shading
+            .eval_material(p, materials);
+        let m = MaterialParams::from_vec(&m);
+        let d = item.ray.direction;
+        // Shade the side the ray arrives on (rays can start inside a solid).
+        let n = if hit.normal.dot(d) > 0.0 {
+            -hit.normal
+        } else {
+            hit.normal
+        };
+        if primary {
+            sample.depth = hit.t;
+            sample.normal = n;
+            sample.albedo = m.color;
+            sample.gradient = hit.gradient;
+            primary = false;
+        }
+        let cos_i = (-d.dot(n)).clamp(0.0, 1.0);
+        let f_r = if m.reflectivity > 0.0 {
+            m.reflectivity + (1.0 - m.reflectivity) * (1.0 - cos_i).powi(5)
+        } else {
+            0.0
+        };
+        let f_t = if m.transparency > 0.0 {
+            schlick(cos_i, 1.0, m.ior)
+        } else {
+            0.0
+        };
+        let opaque = 1.0 - m.transparency;
+        let local_weight = opaque * (1.0 - f_r);
+        if local_weight > 0.0 {
+            let sp = SurfacePoint {
+                position: p,
+                normal: n,
+                to_eye: -d,
+                t: hit.t,
+                material: m,
+            };
+            sample.radiance += item.weight * local_weight * shade(tracer, &sp);
+        }
+        let offset = surface_offset(tracer, hit.t);
+        let reflect_weight = opaque * f_r + m.transparency * f_t;
+        if reflect_weight > 0.0 {
+            spawn(
+                &mut stack,
+                Ray::new(p + n * offset, reflect(d, n)),
+                item.weight * reflect_weight,
+                None,
+            );
+        }
+        let transmit_weight = m.transparency * (1.0 - f_t);
+        if transmit_weight > 0.0 {
+            if let Some(t) = refract(d, n, 1.0 / m.ior) {
+                spawn(
+                    &mut stack,
+                    Ray::new(p - n * offset, t),
+                    item.weight * transmit_weight * m.color,
+                    Some((hit.object, m.ior)),
+                );
+            }
+        }
+    }
+    sample
+}
