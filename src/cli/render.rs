@@ -1,7 +1,7 @@
 //! `hytrace render`: a scene to an image.
 
 use crate::load_scene;
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use hytrace::render::exr::{Aov, write_exr};
 use hytrace::render::output::ToneMapping;
 use hytrace::render::view::{View, picture};
@@ -99,6 +99,17 @@ pub fn run(args: RenderArgs) -> Result<()> {
             args.output.display()
         ),
     };
+    // Fail before a long render rather than after it.
+    let parent = args.output.parent().filter(|p| !p.as_os_str().is_empty());
+    if let Some(dir) = parent {
+        if !dir.is_dir() {
+            bail!(
+                "{}: cannot write there: {} is not a directory",
+                args.output.display(),
+                dir.display()
+            );
+        }
+    }
     if !args.aov.is_empty() && !exr {
         bail!("--aov needs an .exr output (PNG holds only the picture; see --view)");
     }
@@ -116,12 +127,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let fb = cpu::render(&scene, &opts)?;
     let elapsed = start.elapsed();
     if exr {
-        write_exr(&fb, &args.aov, &args.output)
-            .with_context(|| format!("writing {}", args.output.display()))?;
+        write_exr(&fb, &args.aov, &args.output)?;
     } else {
         let img = picture(&fb, args.view, tone, scene.tracer.max_steps);
-        output::save_png(&img, &args.output)
-            .with_context(|| format!("writing {}", args.output.display()))?;
+        output::save_png(&img, &args.output)?;
     }
     if !args.quiet {
         eprintln!(

@@ -10,7 +10,7 @@
 //! `(0, 0)–(width − 1, height − 1)`, which is also the display window.
 
 use super::Framebuffer;
-use anyhow::{Context, bail};
+use anyhow::{Context, anyhow, bail};
 use exr::prelude::{
     AnyChannel, AnyChannels, Blocks, Compression, Encoding, FlatSamples, Image, Layer,
     LayerAttributes, LineOrder, SmallVec, WritableImage,
@@ -102,7 +102,8 @@ pub fn write_exr(fb: &Framebuffer, aovs: &[Aov], path: &Path) -> anyhow::Result<
     Image::from_layer(layer)
         .write()
         .to_file(path)
-        .with_context(|| format!("{}: cannot write EXR", path.display()))
+        // exr's error already displays its I/O cause; flatten it so `{:#}` says it once.
+        .map_err(|e| anyhow!("{}: cannot write EXR: {e}", path.display()))
 }
 
 /// One float channel.
