@@ -11,6 +11,7 @@ pub mod accel;
 pub mod geom;
 pub mod reference;
 pub mod render;
+pub mod rng;
 pub mod scene;
 pub mod sdf;
 pub mod shade;

@@ -23,8 +23,19 @@ struct Cli {
 enum Command {
     /// Render a scene to a PNG (the built-in showcase when no scene is given).
     Render(cli::render::RenderArgs),
+    /// Print what a scene holds: meshes, instances, triangles, SDF nodes, bounds, BVH sizes.
+    Info(cli::info::InfoArgs),
     /// Draw the signed distance of a scene on an axis-aligned plane, with iso-contours.
     Slice(cli::slice::SliceArgs),
+    /// Write a generated test scene of N small SDF objects (for scaling tests and benchmarks).
+    Generate {
+        /// Number of objects.
+        #[arg(long, default_value_t = 10_000)]
+        objects: usize,
+        /// Output scene file (stdout when absent).
+        #[arg(short, long)]
+        output: Option<std::path::PathBuf>,
+    },
 }
 
 fn main() {
@@ -32,6 +43,8 @@ fn main() {
     let result = match cli.command {
         Some(Command::Render(args)) => cli::render::run(args),
         Some(Command::Slice(args)) => cli::slice::run(args),
+        Some(Command::Info(args)) => cli::info::run(args),
+        Some(Command::Generate { objects, output }) => generate(objects, output.as_deref()),
         None => cli::render::run(cli::render::RenderArgs::parse_from(["render"])),
     };
     if let Err(e) = result {
@@ -42,8 +55,38 @@ fn main() {
 
 /// Loads the scene file, or the built-in showcase when none is given.
 fn load_scene(path: Option<&Path>) -> Result<Scene> {
+    load_any(path, None)
+}
+
+/// Loads a scene file, or a mesh file as a scene of its own (a default camera framing it, or
+/// the file's camera `camera`, and its lights or default ones), or the showcase.
+fn load_any(path: Option<&Path>, camera: Option<&str>) -> Result<Scene> {
+    let is_scene = |p: &Path| {
+        p.extension()
+            .and_then(|e| e.to_str())
+            .is_none_or(|e| e.eq_ignore_ascii_case("ron"))
+    };
     Ok(match path {
-        Some(p) => Scene::load(p)?,
+        Some(p) if is_scene(p) => {
+            if camera.is_some() {
+                anyhow::bail!("--camera applies to mesh files (.gltf, .glb, .obj, .ply), not scenes");
+            }
+            Scene::load(p)?
+        }
+        Some(p) => Scene::from_model(p, camera)?,
         None => Scene::from_source(SHOWCASE, Path::new("<built-in showcase.ron>"))?,
     })
+}
+
+fn generate(objects: usize, output: Option<&Path>) -> Result<()> {
+    if objects == 0 || objects > 1_000_000 {
+        anyhow::bail!("--objects {objects} is out of range 1..=1000000");
+    }
+    let text = hytrace::scene::generate::many_objects(objects);
+    match output {
+        Some(p) => std::fs::write(p, text)
+            .map_err(|e| anyhow::anyhow!("{}: cannot write: {e}", p.display()))?,
+        None => print!("{text}"),
+    }
+    Ok(())
 }

@@ -1,31 +1,44 @@
 //! Acceleration: which objects a ray can meet, and over which parametric interval.
 //!
-//! Every SDF object has conservative world bounds; a ray sphere-traces an object only inside
-//! the interval where it crosses those bounds. Unbounded objects (planes, infinite repetition)
-//! span the whole ray. The candidates are scanned linearly here; the meshes issue replaces the
-//! scan with a BVH over the same bounds without changing this interface.
+//! SDF objects: every object has conservative world bounds, and a ray sphere-traces an object
+//! only inside the interval where it crosses them. The bounds sit in a BVH ([`bvh::AabbBvh`]);
+//! unbounded objects (planes, infinite repetition) are kept apart and span the whole ray. A
+//! linear scan over the same bounds remains available to check the BVH against.
+//! Meshes: a BVH per mesh ([`bvh::MeshBvh`]) under a BVH over instances
+//! ([`bvh::InstanceBvh`]), with a watertight triangle test ([`triangle`]).
+
+pub mod bvh;
+pub mod triangle;
 
 use crate::geom::{Aabb, Ray};
-use crate::scene::SdfObject;
+use crate::scene::{SceneMeshes, SdfObject};
 use std::ops::ControlFlow;
 
 /// Culling structure over the SDF objects of a scene.
 #[derive(Debug, Clone)]
-pub struct SdfAccel {
-    bounds: Vec<Aabb>,
+pub enum SdfAccel {
+    /// Every object's bounds tested in turn (the reference for the BVH).
+    Linear(Vec<Aabb>),
+    /// A BVH over the bounded objects, the unbounded ones apart.
+    Bvh(bvh::AabbBvh),
 }
 
 impl SdfAccel {
-    /// Builds over the objects' world bounds.
+    /// Builds a BVH over the objects' world bounds.
     pub fn new(objects: &[SdfObject]) -> Self {
-        SdfAccel {
-            bounds: objects.iter().map(|o| o.bounds()).collect(),
-        }
+        SdfAccel::Bvh(bvh::AabbBvh::build(
+            &objects.iter().map(|o| o.bounds()).collect::<Vec<_>>(),
+        ))
     }
 
-    /// Calls `visit(object, t_enter, t_exit)` for every object whose bounds the ray crosses
-    /// within [tmin, tmax], in object order; `visit` may stop the walk. The interval is passed
-    /// by `&mut` so a closest-hit query can shrink `tmax` as it finds hits.
+    /// The linear scan over the same bounds.
+    pub fn linear(objects: &[SdfObject]) -> Self {
+        SdfAccel::Linear(objects.iter().map(|o| o.bounds()).collect())
+    }
+
+    /// Calls `visit(object, t_enter, t_exit, tmax)` for every object whose bounds the ray
+    /// crosses within [tmin, tmax]; `visit` may lower `tmax` (closest hit: farther objects are
+    /// then skipped) or stop the walk (any hit).
     pub fn visit(
         &self,
         ray: &Ray,
@@ -47,13 +60,68 @@ impl SdfAccel {
         margin: f32,
         mut visit: impl FnMut(usize, f32, f32, &mut f32) -> ControlFlow<()>,
     ) {
-        for (i, b) in self.bounds.iter().enumerate() {
-            let b = if margin > 0.0 { b.expand(margin) } else { *b };
-            if let Some((t0, t1)) = b.ray_interval(ray, tmin, *tmax) {
-                if visit(i, t0, t1, tmax).is_break() {
-                    return;
+        match self {
+            SdfAccel::Bvh(b) => b.visit_within(ray, tmin, tmax, margin, visit),
+            SdfAccel::Linear(bounds) => {
+                for (i, b) in bounds.iter().enumerate() {
+                    let b = if margin > 0.0 { b.expand(margin) } else { *b };
+                    if let Some((t0, t1)) = b.ray_interval(ray, tmin, *tmax) {
+                        if visit(i, t0, t1, tmax).is_break() {
+                            return;
+                        }
+                    }
                 }
             }
         }
+    }
+
+    /// Nodes of the BVH (0 for the linear scan).
+    pub fn node_count(&self) -> usize {
+        match self {
+            SdfAccel::Bvh(b) => b.node_count(),
+            SdfAccel::Linear(_) => 0,
+        }
+    }
+}
+
+/// The meshes' two-level BVH.
+#[derive(Debug, Clone)]
+pub struct MeshAccel {
+    /// One BVH per mesh, in object space.
+    pub blas: Vec<bvh::MeshBvh>,
+    /// The BVH over instances.
+    pub tlas: bvh::InstanceBvh,
+    /// Wall-clock time of the whole build.
+    pub build_time: std::time::Duration,
+}
+
+impl MeshAccel {
+    /// Builds the BVHs of a scene's meshes.
+    pub fn new(meshes: &SceneMeshes, quality: bvh::BuildQuality) -> Self {
+        let start = std::time::Instant::now();
+        let blas: Vec<_> = meshes
+            .meshes
+            .iter()
+            .map(|m| bvh::MeshBvh::build(&m.positions, &m.triangles, quality))
+            .collect();
+        let instances: Vec<bvh::Instance> = meshes
+            .instances
+            .iter()
+            .map(|i| bvh::Instance {
+                mesh: i.mesh,
+                transform: i.transform,
+            })
+            .collect();
+        let tlas = bvh::InstanceBvh::build(&blas, &instances, quality);
+        MeshAccel {
+            blas,
+            tlas,
+            build_time: start.elapsed(),
+        }
+    }
+
+    /// Whether there is anything to hit.
+    pub fn is_empty(&self) -> bool {
+        self.blas.is_empty()
     }
 }

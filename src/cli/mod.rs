@@ -1,3 +1,4 @@
 //! The subcommands of the `hytrace` binary, one module each.
+pub mod info;
 pub mod render;
 pub mod slice;

@@ -1,6 +1,5 @@
 //! `hytrace render`: a scene to an image.
 
-use crate::load_scene;
 use anyhow::{Result, bail};
 use hytrace::render::exr::{Aov, write_exr};
 use hytrace::render::output::ToneMapping;
@@ -15,8 +14,12 @@ use std::time::Instant;
 /// Arguments of `hytrace render`.
 #[derive(clap::Parser)]
 pub struct RenderArgs {
-    /// Scene file (.ron); omit for the built-in showcase.
+    /// Scene file (.ron) or mesh file (.gltf, .glb, .obj, .ply); omit for the built-in
+    /// showcase.
     scene: Option<PathBuf>,
+    /// For a mesh file: render from the file's camera with this name or number (from 0).
+    #[arg(long)]
+    camera: Option<String>,
     /// Output image: .png (sRGB, tone-mapped) or .exr (linear radiance, plus --aov channels).
     #[arg(short, long, default_value = "out.png")]
     output: PathBuf,
@@ -54,7 +57,7 @@ pub struct RenderArgs {
 
 /// Renders and writes the image.
 pub fn run(args: RenderArgs) -> Result<()> {
-    let mut scene = load_scene(args.scene.as_deref())?;
+    let mut scene = crate::load_any(args.scene.as_deref(), args.camera.as_deref())?;
     if let Some(n) = args.normals {
         scene.tracer.normals = n;
     }

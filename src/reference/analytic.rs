@@ -1025,52 +1025,7 @@ mod tests {
     // -----------------------------------------------------------------------------------------
     // Randomised checks against an inside/outside predicate.
 
-    /// xorshift64* (Vigna, "An experimental exploration of Marsaglia's xorshift generators").
-    struct Rng(u64);
-
-    impl Rng {
-        fn next_u64(&mut self) -> u64 {
-            self.0 ^= self.0 >> 12;
-            self.0 ^= self.0 << 25;
-            self.0 ^= self.0 >> 27;
-            self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-        }
-
-        /// Uniform in [0, 1).
-        fn uniform(&mut self) -> f64 {
-            (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-        }
-
-        fn range(&mut self, lo: f64, hi: f64) -> f64 {
-            lo + (hi - lo) * self.uniform()
-        }
-
-        fn below(&mut self, n: u64) -> u64 {
-            self.next_u64() % n
-        }
-
-        fn chance(&mut self, p: f64) -> bool {
-            self.uniform() < p
-        }
-
-        fn in_cube(&mut self, half: f64) -> DVec3 {
-            DVec3::new(
-                self.range(-half, half),
-                self.range(-half, half),
-                self.range(-half, half),
-            )
-        }
-
-        fn direction(&mut self) -> DVec3 {
-            loop {
-                let v = self.in_cube(1.0);
-                let l2 = v.length_squared();
-                if l2 > 1e-4 && l2 <= 1.0 {
-                    return v / l2.sqrt();
-                }
-            }
-        }
-    }
+    use crate::rng::Rng;
 
     type Intersector = Box<dyn Fn(DVec3, DVec3, f64, f64) -> Option<AnalyticHit>>;
 
@@ -1126,7 +1081,7 @@ mod tests {
                 .try_normalize()
                 .unwrap_or(DVec3::X),
             // Anywhere: mostly misses.
-            2 => rng.direction(),
+            2 => rng.direction_f64(),
             // Parallel to an axis (and so to faces, caps and symmetry axes) through the solid.
             3 => {
                 let axis = random_axis(rng);
@@ -1136,7 +1091,7 @@ mod tests {
             // Starting inside the solid: an exit exists.
             4 | 5 => {
                 ro = point_inside(rng, shape);
-                rng.direction()
+                rng.direction_f64()
             }
             _ => {
                 ro = point_inside(rng, shape);
@@ -1373,7 +1328,7 @@ mod tests {
             let n = if rng.chance(0.2) {
                 DVec3::AXES[rng.below(3) as usize]
             } else {
-                rng.direction()
+                rng.direction_f64()
             };
             let offset = rng.range(-1.0, 1.0);
             Instance {

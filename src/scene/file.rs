@@ -281,8 +281,14 @@ pub struct ObjectDesc {
     /// Optional name, shown in errors and `info`.
     #[serde(default)]
     pub name: Option<String>,
-    /// The SDF tree.
-    pub shape: SdfNode,
+    /// The SDF tree (give either `shape` or `mesh`).
+    #[serde(default)]
+    pub shape: Option<SdfNode>,
+    /// A mesh file (.gltf, .glb, .obj, .ply), relative to the scene file; a leading
+    /// `$HYTRACE_ASSETS/` is replaced by that environment variable (default
+    /// `../shared/assets`).
+    #[serde(default)]
+    pub mesh: Option<String>,
     /// Translation.
     #[serde(default)]
     pub translate: Option<FiniteVec3>,
@@ -292,7 +298,8 @@ pub struct ObjectDesc {
     /// Uniform scale.
     #[serde(default)]
     pub scale: Option<Positive>,
-    /// Material name (default: the built-in grey).
+    /// Material name (default: the built-in grey for SDFs, the file's own materials for
+    /// meshes; given for a mesh, it overrides them all).
     #[serde(default)]
     pub material: Option<String>,
 }

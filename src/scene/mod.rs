@@ -6,7 +6,11 @@
 
 pub mod camera;
 pub mod file;
+pub mod generate;
 pub mod locate;
+pub mod meshes;
+pub mod model;
+pub mod mesh;
 pub mod values;
 
 use crate::geom::Aabb;
@@ -14,6 +18,7 @@ use crate::sdf::lower::Step;
 use crate::sdf::{self, LoweredSdf, SdfNode};
 use crate::shade::material::MaterialParams;
 use camera::{Camera, Projection};
+pub use meshes::{SceneMeshes, resolve_mesh_path};
 use file::{CameraDesc, LightDesc, NormalMethod, SceneFile, ShadowDesc, ToneMap};
 use glam::Vec3;
 use std::path::{Path, PathBuf};
@@ -36,6 +41,18 @@ pub enum SceneError {
         /// Why (shown in the message itself, so not chained as a source).
         error: std::io::Error,
     },
+    /// A problem with a whole file rather than a place in it (e.g. a mesh file with nothing
+    /// to render, a camera it does not have).
+    #[error("{file}: {message}")]
+    File {
+        /// The file.
+        file: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// A mesh file could not be loaded (the message names it and the place in it).
+    #[error(transparent)]
+    Mesh(mesh::MeshError),
     /// Syntax or value error, or an invalid setting, at a place in the file.
     #[error("{file}:{line}:{column}: {message}")]
     At {
@@ -198,6 +215,8 @@ pub struct Scene {
     pub tracer: TracerSettings,
     /// Shading settings.
     pub shading: ShadingSettings,
+    /// Triangle meshes and their placements.
+    pub meshes: SceneMeshes,
 }
 
 impl Scene {
@@ -391,6 +410,7 @@ impl Scene {
 
         let spans = locate::list_elements(source, "objects");
         let mut objects = Vec::with_capacity(file.objects.len());
+        let mut meshes = SceneMeshes::new(materials.len() as u32);
         for (i, o) in file.objects.iter().enumerate() {
             let span = spans.get(i).copied().unwrap_or((0, source.len()));
             let name = o.name.clone().unwrap_or_else(|| format!("object {i}"));
@@ -408,15 +428,42 @@ impl Scene {
                 })?,
             };
             let wrapped = o.translate.is_some() || o.rotate.is_some() || o.scale.is_some();
+            let shape = match (&o.shape, &o.mesh) {
+                (Some(shape), None) => shape,
+                (None, Some(file)) => {
+                    let place = locate::follow(source, span.0, &[locate::Nav::Field("mesh")]);
+                    let (transform, _) = sdf::lower::transform_of(&SdfNode::Transform {
+                        translate: o.translate,
+                        rotate: o.rotate,
+                        scale: o.scale,
+                        shape: Box::new(SdfNode::Union(Vec::new())),
+                    });
+                    let override_material = o.material.as_ref().map(|_| material);
+                    meshes
+                        .add_file(&resolve_mesh_path(path, file), transform, override_material, &name)
+                        .map_err(|e| at(place, format!("{name}: {e}")))?;
+                    continue;
+                }
+                (Some(_), Some(_)) => {
+                    let place = locate::follow(source, span.0, &[locate::Nav::Field("mesh")]);
+                    return Err(at(place, format!("{name}: give either `shape` or `mesh`, not both")));
+                }
+                (None, None) => {
+                    return Err(at(
+                        span.0,
+                        format!("{name}: an object needs a `shape` (an SDF tree) or a `mesh` (a file)"),
+                    ));
+                }
+            };
             let node = if wrapped {
                 SdfNode::Transform {
                     translate: o.translate,
                     rotate: o.rotate,
                     scale: o.scale,
-                    shape: Box::new(o.shape.clone()),
+                    shape: Box::new(shape.clone()),
                 }
             } else {
-                o.shape.clone()
+                shape.clone()
             };
             let lowered = sdf::lower(&node, &index_of, material).map_err(|e| {
                 // Point at the failing node (or field) by following its path in the text; the
@@ -450,6 +497,8 @@ impl Scene {
             });
         }
 
+        materials.extend(meshes.materials.iter().map(|m| m.params));
+        material_names.extend(meshes.materials.iter().map(|m| m.name.clone()));
         Ok(Scene {
             source_name: path.display().to_string(),
             image: ImageSettings {
@@ -474,6 +523,7 @@ impl Scene {
                 shadows: t.shadows,
             },
             shading,
+            meshes,
         })
     }
 

@@ -39,38 +39,7 @@ pub fn distance_tape(node: &SdfNode) -> Tape {
         .distance
 }
 
-/// A small deterministic generator (xorshift64*), so failures reproduce exactly.
-pub struct Rng(u64);
-
-impl Rng {
-    /// Seeded generator.
-    pub fn new(seed: u64) -> Self {
-        Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
-    }
-    /// Uniform in [0, 1).
-    pub fn next_f32(&mut self) -> f32 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        let v = self.0.wrapping_mul(0x2545_F491_4F6C_DD1D);
-        (v >> 40) as f32 / (1u64 << 24) as f32
-    }
-    /// Uniform in the box [lo, hi].
-    pub fn in_box(&mut self, lo: Vec3, hi: Vec3) -> Vec3 {
-        let t = Vec3::new(self.next_f32(), self.next_f32(), self.next_f32());
-        lo + (hi - lo) * t
-    }
-    /// Uniform direction.
-    pub fn direction(&mut self) -> Vec3 {
-        loop {
-            let v = self.in_box(Vec3::splat(-1.0), Vec3::ONE);
-            let l = v.length_squared();
-            if l > 1e-4 && l <= 1.0 {
-                return v / l.sqrt();
-            }
-        }
-    }
-}
+pub use crate::rng::Rng;
 
 /// Closed-form distance oracles for the primitives (independent of the lowering code).
 pub mod oracle {

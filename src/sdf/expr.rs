@@ -880,33 +880,11 @@ mod tests {
         a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan())
     }
 
-    /// xorshift64*: a tiny deterministic generator for the randomised tests.
-    struct Rng(u64);
+    use crate::rng::Rng;
 
-    impl Rng {
-        fn next_u64(&mut self) -> u64 {
-            self.0 ^= self.0 >> 12;
-            self.0 ^= self.0 << 25;
-            self.0 ^= self.0 >> 27;
-            self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
-        }
-
-        fn below(&mut self, n: usize) -> usize {
-            (self.next_u64() % n as u64) as usize
-        }
-
-        fn range(&mut self, lo: f32, hi: f32) -> f32 {
-            let unit = (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32;
-            lo + (hi - lo) * unit
-        }
-
-        fn point(&mut self) -> Vec3 {
-            vec3(
-                self.range(-3.0, 3.0),
-                self.range(-3.0, 3.0),
-                self.range(-3.0, 3.0),
-            )
-        }
+    /// A random point in the cube [−3, 3]³.
+    fn random_point(rng: &mut Rng) -> Vec3 {
+        rng.in_cube(3.0).as_vec3()
     }
 
     use BinaryOp::{Add, Div, Max, Min, Mul, Pow, Sub};
@@ -1251,7 +1229,7 @@ mod tests {
             let folded = expr.clone().fold_constants();
             assert!(folded.node_count() <= expr.node_count());
             for _ in 0..200 {
-                let point = rng.point();
+                let point = random_point(&mut rng);
                 let (a, b) = (expr.eval(point), folded.eval(point));
                 assert!(same(a, b), "{source} at {point}: {a} vs folded {b}");
             }
@@ -1271,18 +1249,18 @@ mod tests {
         let mut parsed = 0;
         for round in 0..6000 {
             let mut source = String::new();
-            let len = rng.below(40);
+            let len = rng.below(40) as usize;
             for _ in 0..len {
                 if round % 3 == 0 {
-                    source.push(CHARS[rng.below(CHARS.len())] as char);
+                    source.push(CHARS[rng.below(CHARS.len() as u64) as usize] as char);
                 } else {
-                    source.push_str(FRAGMENTS[rng.below(FRAGMENTS.len())]);
+                    source.push_str(FRAGMENTS[rng.below(FRAGMENTS.len() as u64) as usize]);
                 }
             }
             match parse(&source) {
                 Ok(expr) => {
                     parsed += 1;
-                    let point = rng.point();
+                    let point = random_point(&mut rng);
                     let value = expr.eval(point);
                     assert!(expr.node_count() >= 1);
                     let printed = expr.to_string();

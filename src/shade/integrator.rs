@@ -14,13 +14,12 @@
 //! transmitted ray and the internally reflected one. Paths whose weight drops below 1/1000,
 //! and paths beyond `shading.max_bounces`, are dropped.
 
-use super::material::MaterialParams;
 use super::optics::{reflect, refract, schlick};
 use super::{SurfacePoint, shade, surface_offset};
 use crate::geom::Ray;
 use crate::scene::MAX_BOUNCES;
 use crate::sdf::tape::MaterialVec;
-use crate::trace::SceneTracer;
+use crate::trace::{SceneTracer, Surface};
 use glam::Vec3;
 
 /// What one camera sample sees: its radiance and the first hit's auxiliary values (AOVs).
@@ -47,7 +46,7 @@ struct PendingRay {
     ray: Ray,
     weight: Vec3,
     bounces: u32,
-    inside: Option<(usize, f32)>,
+    inside: Option<(Surface, f32)>,
 }
 
 /// Paths lighter than this are not followed.
@@ -94,7 +93,7 @@ pub fn trace_camera_ray(tracer: &SceneTracer, materials: &[MaterialVec], ray: Ra
             };
             let p = item.ray.at(t);
             let d = item.ray.direction;
-            let offset = surface_offset(tracer, t);
+            let offset = surface_offset(tracer, t, p);
             let cos_i = d.dot(n).clamp(0.0, 1.0);
             let f = schlick(cos_i, ior, 1.0);
             if let Some(out) = refract(d, -n, ior) {
@@ -118,11 +117,7 @@ pub fn trace_camera_ray(tracer: &SceneTracer, materials: &[MaterialVec], ray: Ra
             continue;
         };
         let p = item.ray.at(hit.t);
-        let (_, m) = scene.objects[hit.object]
-            .lowered
-            .shading
-            .eval_material(p, materials);
-        let m = MaterialParams::from_vec(&m);
+        let m = tracer.material_at(&hit, p, materials);
         let d = item.ray.direction;
         // Shade the side the ray arrives on (rays can start inside a solid).
         let n = if hit.normal.dot(d) > 0.0 {
@@ -160,7 +155,7 @@ pub fn trace_camera_ray(tracer: &SceneTracer, materials: &[MaterialVec], ray: Ra
             };
             sample.radiance += item.weight * local_weight * shade(tracer, &sp);
         }
-        let offset = surface_offset(tracer, hit.t);
+        let offset = surface_offset(tracer, hit.t, p);
         let reflect_weight = opaque * f_r + m.transparency * f_t;
         if reflect_weight > 0.0 {
             spawn(
@@ -177,7 +172,7 @@ pub fn trace_camera_ray(tracer: &SceneTracer, materials: &[MaterialVec], ray: Ra
                     &mut stack,
                     Ray::new(p - n * offset, t),
                     item.weight * transmit_weight * m.color,
-                    Some((hit.object, m.ior)),
+                    Some((hit.surface, m.ior)),
                 );
             }
         }

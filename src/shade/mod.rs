@@ -36,11 +36,12 @@ pub struct SurfacePoint {
     pub material: MaterialParams,
 }
 
-/// The offset that moves secondary-ray origins off a surface found at ray distance t: the
-/// tracer stopped within ε(t) of it, so a few ε clear it (and a ray starting on the surface
-/// would report the surface itself).
-pub fn surface_offset(tracer: &SceneTracer, t: f32) -> f32 {
-    4.0 * epsilon_at(&tracer.scene().tracer, t)
+/// The offset that moves secondary-ray origins off a surface found at ray distance t at
+/// point p: the tracer stopped within ε(t) of an SDF surface, so a few ε clear it; and a
+/// triangle hit is exact only to the f32 rounding of p's coordinates, so the offset also grows
+/// with |p| (2⁻¹⁶ relative, well above f32's 2⁻²⁴) and scales with the scene.
+pub fn surface_offset(tracer: &SceneTracer, t: f32, p: Vec3) -> f32 {
+    4.0 * epsilon_at(&tracer.scene().tracer, t) + p.abs().max_element() * (1.0 / 65536.0)
 }
 
 /// Local (direct) radiance from `sp` toward the eye.
@@ -48,7 +49,7 @@ pub fn shade(tracer: &SceneTracer, sp: &SurfacePoint) -> Vec3 {
     let scene = tracer.scene();
     let m = &sp.material;
     let n = sp.normal;
-    let offset = surface_offset(tracer, sp.t);
+    let offset = surface_offset(tracer, sp.t, sp.position);
     let origin = sp.position + n * offset;
     let mut out = Vec3::ZERO;
     for light in &scene.lights {

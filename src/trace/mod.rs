@@ -1,23 +1,44 @@
-//! Tracing: sphere tracing of SDF tapes, normals, and the scene's closest-hit and occlusion queries.
+//! Tracing: sphere tracing of SDF tapes, normals, and the scene's closest-hit and occlusion
+//! queries over SDF objects and triangle meshes together.
 
 pub mod normal;
 pub mod sphere;
 
-use crate::accel::SdfAccel;
+use crate::accel::bvh::BuildQuality;
+use crate::accel::{MeshAccel, SdfAccel};
 use crate::geom::Ray;
 use crate::scene::{Scene, Shadow, TracerSettings};
-use crate::sdf::tape::Registers;
+use crate::sdf::tape::{MaterialVec, Registers};
+use crate::shade::material::MaterialParams;
 use glam::Vec3;
 use std::ops::ControlFlow;
+
+/// What a ray hit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Surface {
+    /// An SDF object (index into `Scene::objects`).
+    Sdf(usize),
+    /// A triangle of a mesh instance, at barycentrics (u, v).
+    Mesh {
+        /// Index into `SceneMeshes::instances`.
+        instance: u32,
+        /// Triangle of the instance's mesh.
+        triangle: u32,
+        /// Barycentric weight of the second vertex.
+        u: f32,
+        /// Barycentric weight of the third vertex.
+        v: f32,
+    },
+}
 
 /// The closest intersection of a ray with the scene.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Hit {
     /// Ray parameter (distance along the unit direction).
     pub t: f32,
-    /// Index of the object hit.
-    pub object: usize,
-    /// Unit surface normal (pointing out of the solid).
+    /// What was hit.
+    pub surface: Surface,
+    /// Unit surface normal: out of the solid for SDFs, as the file orients it for meshes.
     pub normal: Vec3,
     /// |∇f| at the hit as the normal estimator measured it: 1 for an exact field, below 1
     /// for a conservative bound, above 1 for a broken one (the `gradient` debug view).
@@ -34,19 +55,58 @@ pub fn epsilon_at(s: &TracerSettings, t: f32) -> f32 {
     s.epsilon + s.epsilon_per_unit * t.max(0.0)
 }
 
-/// Answers ray queries against a scene's SDF objects on the CPU.
+/// How to build the acceleration structures.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AccelOptions {
+    /// A BVH over the SDF objects' bounds (else a linear scan, the reference).
+    pub sdf_bvh: bool,
+    /// Build quality of the mesh BVHs.
+    pub mesh_quality: BuildQuality,
+}
+
+impl Default for AccelOptions {
+    fn default() -> Self {
+        AccelOptions {
+            sdf_bvh: true,
+            mesh_quality: BuildQuality::Medium,
+        }
+    }
+}
+
+/// Answers ray queries against a scene's SDF objects and meshes on the CPU.
 pub struct SceneTracer<'a> {
     scene: &'a Scene,
     accel: SdfAccel,
+    meshes: MeshAccel,
 }
 
 impl<'a> SceneTracer<'a> {
-    /// Prepares the acceleration structure.
+    /// Prepares the acceleration structures with the default options.
     pub fn new(scene: &'a Scene) -> Self {
+        Self::with_options(scene, AccelOptions::default())
+    }
+
+    /// Prepares the acceleration structures.
+    pub fn with_options(scene: &'a Scene, options: AccelOptions) -> Self {
         SceneTracer {
             scene,
-            accel: SdfAccel::new(&scene.objects),
+            accel: if options.sdf_bvh {
+                SdfAccel::new(&scene.objects)
+            } else {
+                SdfAccel::linear(&scene.objects)
+            },
+            meshes: MeshAccel::new(&scene.meshes, options.mesh_quality),
         }
+    }
+
+    /// The SDF objects' acceleration structure.
+    pub fn sdf_accel(&self) -> &SdfAccel {
+        &self.accel
+    }
+
+    /// The meshes' acceleration structure.
+    pub fn mesh_accel(&self) -> &MeshAccel {
+        &self.meshes
     }
 
     /// The scene being traced.
@@ -54,37 +114,61 @@ impl<'a> SceneTracer<'a> {
         self.scene
     }
 
-    /// The closest hit in (tmin, tmax), with its normal.
+    /// The closest hit in (tmin, tmax) over meshes and SDFs, with its normal. Meshes are
+    /// tried first: their hit (cheap to find) shortens every SDF object's march.
     pub fn closest_hit(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<Hit> {
         let s = &self.scene.tracer;
+        let mut limit = tmax.min(s.max_distance);
+        let mesh_hit = if self.meshes.is_empty() {
+            None
+        } else {
+            self.meshes.tlas.closest_hit(&self.meshes.blas, ray, tmin, limit)
+        };
+        if let Some(h) = &mesh_hit {
+            limit = h.t;
+        }
         let mut regs = Registers::new();
         let mut best: Option<(f32, usize)> = None;
         let mut steps = 0;
-        let mut limit = tmax.min(s.max_distance);
         self.accel.visit(ray, tmin, &mut limit, |i, t0, t1, limit| {
             let tape = &self.scene.objects[i].lowered.distance;
             let r = sphere::trace(tape, ray, t0, t1, s, &mut regs);
             steps += r.steps;
+            // the march stays within [t0, t1] ⊆ [tmin, limit]: any hit is the nearest so far
             if let Some(t) = r.t {
-                if best.is_none_or(|(bt, _)| t < bt) {
-                    best = Some((t, i));
-                    *limit = t;
-                }
+                best = Some((t, i));
+                *limit = t;
             }
             ControlFlow::Continue(())
         });
-        best.map(|(t, object)| {
+        if let Some((t, object)) = best {
             let tape = &self.scene.objects[object].lowered.distance;
             let p = ray.at(t);
             let h = normal::step_for(s, t);
             let (n, gradient) = normal::estimate(tape, p, h, s.normals, &mut regs);
-            Hit {
+            return Some(Hit {
                 t,
-                object,
+                surface: Surface::Sdf(object),
                 normal: n,
                 gradient,
                 steps,
-            }
+            });
+        }
+        mesh_hit.map(|h| Hit {
+            t: h.t,
+            surface: Surface::Mesh {
+                instance: h.instance,
+                triangle: h.triangle,
+                u: h.u,
+                v: h.v,
+            },
+            normal: self
+                .scene
+                .meshes
+                .surface(h.instance as usize, h.triangle as usize, h.u, h.v)
+                .normal,
+            gradient: 1.0,
+            steps,
         })
     }
 
@@ -96,6 +180,8 @@ impl<'a> SceneTracer<'a> {
         let (k, improved) = match shadow {
             Shadow::None => return 1.0,
             Shadow::Hard => return if self.occluded(ray, tmin, tmax) { 0.0 } else { 1.0 },
+            // Meshes have no distance field to estimate a penumbra from: they block or not.
+            _ if self.mesh_blocks(ray, tmin, tmax) => return 0.0,
             Shadow::Soft(k) => (k, false),
             Shadow::SoftImproved(k) => (k, true),
         };
@@ -135,10 +221,69 @@ impl<'a> SceneTracer<'a> {
         d
     }
 
-    /// The distance at which a ray that starts inside `object` leaves it, with the outward
-    /// normal there.
-    pub fn exit(&self, object: usize, ray: &Ray, tmax: f32) -> Option<(f32, Vec3)> {
+    /// The material at a hit: the SDF's blended material from its shading tape, or the mesh
+    /// triangle's material with its base-colour texture applied. `materials` is the scene's
+    /// table as the tapes expect it.
+    pub fn material_at(&self, hit: &Hit, p: Vec3, materials: &[MaterialVec]) -> MaterialParams {
+        match hit.surface {
+            Surface::Sdf(object) => {
+                let (_, m) = self.scene.objects[object]
+                    .lowered
+                    .shading
+                    .eval_material(p, materials);
+                MaterialParams::from_vec(&m)
+            }
+            Surface::Mesh {
+                instance,
+                triangle,
+                u,
+                v,
+            } => {
+                let surf = self
+                    .scene
+                    .meshes
+                    .surface(instance as usize, triangle as usize, u, v);
+                let mut m = self.scene.materials[surf.material as usize];
+                m.color *= surf.tint;
+                m
+            }
+        }
+    }
+
+    /// Whether a mesh blocks the ray within (tmin, tmax).
+    fn mesh_blocks(&self, ray: &Ray, tmin: f32, tmax: f32) -> bool {
+        !self.meshes.is_empty()
+            && self.meshes.tlas.any_hit(
+                &self.meshes.blas,
+                ray,
+                tmin,
+                tmax.min(self.scene.tracer.max_distance),
+            )
+    }
+
+    /// The distance at which a ray that starts inside the solid `surface` belongs to leaves
+    /// it, with the outward normal there. For a mesh, the solid is bounded by the meshes: the
+    /// next mesh surface along the ray is the exit.
+    pub fn exit(&self, surface: Surface, ray: &Ray, tmax: f32) -> Option<(f32, Vec3)> {
         let s = &self.scene.tracer;
+        let object = match surface {
+            Surface::Sdf(object) => object,
+            Surface::Mesh { .. } => {
+                let h = self.meshes.tlas.closest_hit(
+                    &self.meshes.blas,
+                    ray,
+                    0.0,
+                    tmax.min(s.max_distance),
+                )?;
+                let n = self
+                    .scene
+                    .meshes
+                    .surface(h.instance as usize, h.triangle as usize, h.u, h.v)
+                    .normal;
+                // leaving the solid: the outward normal points along the ray
+                return Some((h.t, if n.dot(ray.direction) < 0.0 { -n } else { n }));
+            }
+        };
         let tape = &self.scene.objects[object].lowered.distance;
         let mut regs = Registers::new();
         let t = sphere::exit(tape, ray, 0.0, tmax.min(s.max_distance), s, &mut regs)?;
@@ -149,6 +294,9 @@ impl<'a> SceneTracer<'a> {
     /// Whether anything blocks the ray within (tmin, tmax) (shadow rays): stops at the first
     /// object hit, in any order.
     pub fn occluded(&self, ray: &Ray, tmin: f32, tmax: f32) -> bool {
+        if self.mesh_blocks(ray, tmin, tmax) {
+            return true;
+        }
         let s = &self.scene.tracer;
         let mut regs = Registers::new();
         let mut blocked = false;

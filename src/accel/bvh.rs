@@ -1,0 +1,760 @@
+//! Bounding volume hierarchies for meshes, instances of meshes, and boxes.
+//!
+//! - [`MeshBvh`]: a bottom-level tree (BLAS) over one triangle mesh, queried with the
+//!   watertight test of [`super::triangle`];
+//! - [`InstanceBvh`]: a top-level tree (TLAS) over instances `(mesh, object→world transform)`
+//!   of [`MeshBvh`]es; instances of one mesh share its tree (a two-level BVH);
+//! - [`AabbBvh`]: a tree over arbitrary boxes (the SDF objects' world bounds) with a
+//!   nearest-first walk that the caller steers (shrink `tmax`, or stop).
+//!
+//! All three are built by obvhs 0.4 (PLOC + reinsertion + conversion to an 8-wide compressed
+//! BVH) and traversed by our own code over the decoded nodes; `wide.rs` explains why (obvhs's
+//! node test clamps the entry distance at 1e-4 and ignores the ray's tmin, among other things)
+//! and how the traversal stays conservative in floating point.
+//!
+//! **Query contract** (all three): a ray is `origin + t·direction`; the direction need not be
+//! unit length (t is in units of it) but must be finite and non-zero. Hits are reported for
+//! `tmin <= t <= tmax` (closed); `tmin > tmax` or NaN bounds give no hit. Closest-hit queries
+//! return the smallest t, ties broken by the smallest (instance, then) triangle index, so the
+//! answer is a function of the geometry alone: identical for every [`BuildQuality`], equal to a
+//! brute-force loop over the triangles with the same test, and independent of threads.
+//!
+//! **Rays that start on a surface.** With `tmin = 0` a ray whose origin lies on a triangle may
+//! or may not report that triangle: its computed t is a rounding-level number (0 when the
+//! origin is exactly a vertex, otherwise of either sign), and it is reported exactly when that
+//! number is ≥ 0. The tree never loses it — unlike obvhs's own traversal, nothing clamps the
+//! entry distance — so the answer is the same as the brute-force one. Secondary rays should
+//! therefore use a `tmin` larger than the rounding error of the hit point (a small multiple of
+//! `f32::EPSILON` times the scene's coordinates) or offset the origin along the normal.
+//!
+//! **Determinism.** obvhs's `parallel` feature (rayon in PLOC) is off, which this crate relies
+//! on: every build is single-threaded and a function of its input.
+
+mod wide;
+
+use std::ops::ControlFlow;
+use std::time::{Duration, Instant};
+
+use glam::{Affine3A, Vec3, Vec3A};
+use obvhs::BvhBuildParams;
+use obvhs::aabb::Aabb as OAabb;
+
+use super::triangle::{self, WatertightRay};
+use crate::geom::{Aabb, Ray};
+use wide::{NodeRay, WideNode};
+
+/// How much time the builder spends on the tree, mapped to obvhs's presets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum BuildQuality {
+    /// `BvhBuildParams::fast_build()`: PLOC search radius 6, little reinsertion.
+    Fast,
+    /// `BvhBuildParams::medium_build()`: PLOC radius 14, more reinsertion ("about Embree's
+    /// build time with faster traversal", says obvhs).
+    #[default]
+    Medium,
+    /// `BvhBuildParams::slow_build()`: PLOC radius 24, 128-bit Morton codes, more reinsertion,
+    /// and spatial pre-splits of large triangles (so a triangle may sit in several leaves;
+    /// the split boxes are padded to stay conservative, see `split_boxes`).
+    High,
+}
+
+impl BuildQuality {
+    /// The obvhs parameters of this preset.
+    pub fn params(self) -> BvhBuildParams {
+        match self {
+            BuildQuality::Fast => BvhBuildParams::fast_build(),
+            BuildQuality::Medium => BvhBuildParams::medium_build(),
+            BuildQuality::High => BvhBuildParams::slow_build(),
+        }
+    }
+}
+
+/// What a build kept, dropped and produced.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BuildStats {
+    /// Number of primitives given (triangles, instances or boxes).
+    pub input: usize,
+    /// Primitives in the tree.
+    pub kept: usize,
+    /// Primitive references in the leaves: more than `kept` when spatial splits put one
+    /// triangle into several leaves ([`BuildQuality::High`]).
+    pub references: usize,
+    /// Triangles with a NaN or infinite coordinate, dropped.
+    pub dropped_nonfinite: usize,
+    /// Zero-area triangles (never hit, see [`triangle::is_degenerate`]) or empty boxes
+    /// (min > max on some axis), dropped.
+    pub dropped_degenerate: usize,
+    /// Triangles with a vertex index outside the positions; instances of an unknown or empty
+    /// mesh or with a singular or non-finite transform. Dropped.
+    pub dropped_invalid: usize,
+    /// Nodes of the tree (8-wide; as many as obvhs's CWBVH has).
+    pub nodes: usize,
+    /// Levels of nodes.
+    pub max_depth: u32,
+    /// Wall-clock time of the whole build call, filtering and decoding included.
+    pub build_time: Duration,
+}
+
+fn to_oaabb(lo: Vec3, hi: Vec3) -> OAabb {
+    OAabb::new(lo.into(), hi.into())
+}
+
+fn geom_bounds(b: (Vec3, Vec3)) -> Aabb {
+    if b.0.cmple(b.1).all() {
+        Aabb::new(b.0, b.1)
+    } else {
+        Aabb::EMPTY
+    }
+}
+
+/// Spatial pre-splits as in `obvhs::cwbvh::builder::build_cwbvh_from_tris` (obvhs 0.4), with
+/// one change: obvhs clips the triangle against the split plane in `f32`, so the clipped
+/// corners are off by a few ulps and the split boxes may not quite cover their triangle. Each
+/// split box is grown by 16·ε·(largest |coordinate| of its triangle) — several times the
+/// clipping error — and clamped back to the triangle's own box. Returns the boxes and, per
+/// box, the triangle it bounds.
+fn split_boxes(tris: &[[Vec3; 3]]) -> (Vec<OAabb>, Vec<u32>) {
+    let tri_box = |t: &[Vec3; 3]| (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
+    let mut largest_half_area = 0.0f32;
+    let mut avg_area = 0.0f32;
+    let mut boxes: Vec<OAabb> = tris
+        .iter()
+        .map(|t| {
+            let (lo, hi) = tri_box(t);
+            let b = to_oaabb(lo, hi);
+            let half_area = b.half_area();
+            largest_half_area = largest_half_area.max(half_area);
+            avg_area += half_area;
+            b
+        })
+        .collect();
+    avg_area /= tris.len() as f32;
+    let mut owner: Vec<u32> = (0..tris.len() as u32).collect();
+    let otris: Vec<obvhs::triangle::Triangle> = tris
+        .iter()
+        .map(|t| obvhs::triangle::Triangle {
+            v0: t[0].into(),
+            v1: t[1].into(),
+            v2: t[2].into(),
+        })
+        .collect();
+    obvhs::splits::split_aabbs_preset(
+        &mut boxes,
+        &mut owner,
+        &otris,
+        avg_area,
+        largest_half_area,
+    );
+    for (b, &o) in boxes.iter_mut().zip(&owner) {
+        let t = &tris[o as usize];
+        let (lo, hi) = tri_box(t);
+        let m = t[0].abs().max(t[1].abs()).max(t[2].abs()).max_element();
+        let pad = Vec3A::splat(16.0 * f32::EPSILON * m);
+        b.min = (b.min - pad).max(lo.into());
+        b.max = (b.max + pad).min(hi.into());
+    }
+    (boxes, owner)
+}
+
+/// A closest hit on a mesh.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeshHit {
+    /// Ray parameter of the hit.
+    pub t: f32,
+    /// Index of the triangle in the slice given to [`MeshBvh::build`].
+    pub triangle: u32,
+    /// Barycentric weight of the triangle's second vertex.
+    pub u: f32,
+    /// Barycentric weight of the triangle's third vertex (the point is
+    /// `(1 − u − v)·p0 + u·p1 + v·p2`).
+    pub v: f32,
+}
+
+/// A bottom-level BVH over one triangle mesh.
+///
+/// Built once from positions and index triples; it keeps its own copy of the triangles'
+/// vertices in leaf order (36 bytes per triangle reference) and the map back to the original
+/// triangle indices, so the caller's buffers can be dropped. Triangles with non-finite
+/// coordinates, out-of-range indices or zero area are left out and counted in
+/// [`MeshBvh::stats`]; none of them could be hit.
+#[derive(Debug, Clone)]
+pub struct MeshBvh {
+    nodes: Vec<WideNode>,
+    tris: Vec<[Vec3; 3]>,
+    ids: Vec<u32>,
+    bounds: Aabb,
+    stats: BuildStats,
+}
+
+impl MeshBvh {
+    /// Builds the tree over `triangles` (indices into `positions`). Never panics on bad
+    /// geometry: an empty mesh gives an empty tree that nothing hits.
+    pub fn build(positions: &[Vec3], triangles: &[[u32; 3]], quality: BuildQuality) -> MeshBvh {
+        let start = Instant::now();
+        let mut stats = BuildStats {
+            input: triangles.len(),
+            ..Default::default()
+        };
+        let mut kept: Vec<[Vec3; 3]> = Vec::with_capacity(triangles.len());
+        let mut kept_ids: Vec<u32> = Vec::with_capacity(triangles.len());
+        for (i, idx) in triangles.iter().enumerate() {
+            let v = idx.map(|k| positions.get(k as usize).copied());
+            let [Some(a), Some(b), Some(c)] = v else {
+                stats.dropped_invalid += 1;
+                continue;
+            };
+            if !triangle::is_finite(a, b, c) {
+                stats.dropped_nonfinite += 1;
+            } else if triangle::is_degenerate(a, b, c) {
+                stats.dropped_degenerate += 1;
+            } else {
+                kept.push([a, b, c]);
+                kept_ids.push(i as u32);
+            }
+        }
+        let params = quality.params();
+        let (boxes, owner) = if params.pre_split && !kept.is_empty() {
+            split_boxes(&kept)
+        } else {
+            let boxes = kept
+                .iter()
+                .map(|t| to_oaabb(t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2])))
+                .collect();
+            (boxes, (0..kept.len() as u32).collect())
+        };
+        let tree = wide::build(&boxes, &params);
+        let tris: Vec<[Vec3; 3]> = tree
+            .order
+            .iter()
+            .map(|&b| kept[owner[b as usize] as usize])
+            .collect();
+        let ids: Vec<u32> = tree
+            .order
+            .iter()
+            .map(|&b| kept_ids[owner[b as usize] as usize])
+            .collect();
+        stats.kept = kept.len();
+        stats.references = tris.len();
+        stats.nodes = tree.nodes.len();
+        stats.max_depth = tree.max_depth;
+        stats.build_time = start.elapsed();
+        MeshBvh {
+            nodes: tree.nodes,
+            tris,
+            ids,
+            bounds: geom_bounds(tree.bounds),
+            stats,
+        }
+    }
+
+    /// The nearest hit with `tmin <= t <= tmax` (see the module's query contract).
+    pub fn closest_hit(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<MeshHit> {
+        self.closest_in(
+            &WatertightRay::new(ray.origin, ray.direction),
+            &NodeRay::new(ray.origin, ray.direction),
+            tmin,
+            tmax,
+        )
+    }
+
+    /// Whether any triangle is hit with `tmin <= t <= tmax` (shadow rays); stops at the first.
+    pub fn any_hit(&self, ray: &Ray, tmin: f32, tmax: f32) -> bool {
+        self.any_in(
+            &WatertightRay::new(ray.origin, ray.direction),
+            &NodeRay::new(ray.origin, ray.direction),
+            tmin,
+            tmax,
+        )
+    }
+
+    fn closest_in(
+        &self,
+        wr: &WatertightRay,
+        nr: &NodeRay,
+        tmin: f32,
+        mut tmax: f32,
+    ) -> Option<MeshHit> {
+        let mut best: Option<MeshHit> = None;
+        wide::traverse::<false>(&self.nodes, nr, tmin, &mut tmax, 0.0, |first, count, tmax| {
+            for j in first as usize..(first + count) as usize {
+                let [a, b, c] = self.tris[j];
+                if let Some(h) = wr.intersect_nondegenerate(a, b, c, tmin, *tmax) {
+                    let id = self.ids[j];
+                    // h.t <= *tmax = best.t: ties go to the smaller triangle index, which
+                    // makes the answer independent of the traversal order.
+                    let better = match &best {
+                        None => true,
+                        Some(b) => h.t < b.t || (h.t == b.t && id < b.triangle),
+                    };
+                    if better {
+                        best = Some(MeshHit {
+                            t: h.t,
+                            triangle: id,
+                            u: h.u,
+                            v: h.v,
+                        });
+                        *tmax = h.t;
+                    }
+                }
+            }
+            ControlFlow::Continue(())
+        });
+        best
+    }
+
+    fn any_in(&self, wr: &WatertightRay, nr: &NodeRay, tmin: f32, mut tmax: f32) -> bool {
+        let mut found = false;
+        wide::traverse::<false>(&self.nodes, nr, tmin, &mut tmax, 0.0, |first, count, tmax| {
+            for [a, b, c] in &self.tris[first as usize..(first + count) as usize] {
+                if wr.intersect_nondegenerate(*a, *b, *c, tmin, *tmax).is_some() {
+                    found = true;
+                    return ControlFlow::Break(());
+                }
+            }
+            ControlFlow::Continue(())
+        });
+        found
+    }
+
+    /// Number of nodes (8-wide) in the tree; 0 for an empty mesh.
+    pub fn node_count(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// Exact bounds of the triangles in the tree ([`Aabb::EMPTY`] when there are none).
+    pub fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+
+    /// Whether the tree holds no triangle.
+    pub fn is_empty(&self) -> bool {
+        self.nodes.is_empty()
+    }
+
+    /// Triangles dropped because a coordinate is NaN or infinite.
+    pub fn dropped_nonfinite(&self) -> usize {
+        self.stats.dropped_nonfinite
+    }
+
+    /// Counts and timing of the build.
+    pub fn stats(&self) -> &BuildStats {
+        &self.stats
+    }
+}
+
+/// One placement of a mesh: `transform` maps the mesh's object space to world space.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Instance {
+    /// Index of the mesh in the `&[MeshBvh]` given to [`InstanceBvh::build`] and the queries.
+    pub mesh: usize,
+    /// Object → world.
+    pub transform: Affine3A,
+}
+
+impl From<(usize, Affine3A)> for Instance {
+    fn from((mesh, transform): (usize, Affine3A)) -> Self {
+        Instance { mesh, transform }
+    }
+}
+
+/// A closest hit on an instanced scene.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InstanceHit {
+    /// Ray parameter of the hit, in the world ray's units (the object-space ray is not
+    /// renormalised, so this is the same t).
+    pub t: f32,
+    /// Index of the instance in the slice given to [`InstanceBvh::build`].
+    pub instance: u32,
+    /// Index of the triangle in its mesh.
+    pub triangle: u32,
+    /// Barycentric weight of the triangle's second vertex.
+    pub u: f32,
+    /// Barycentric weight of the triangle's third vertex.
+    pub v: f32,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct PlacedInstance {
+    index: u32,
+    mesh: u32,
+    world_to_object: Affine3A,
+}
+
+/// A top-level BVH over instances of [`MeshBvh`]es (a two-level BVH: instances of one mesh
+/// share its tree).
+///
+/// A query walks this tree in world space; at an instance it maps the ray into object space
+/// with the stored inverse transform — origin as a point, direction as a vector, *not*
+/// renormalised, so t stays the world ray's parameter — recomputes the watertight shear for
+/// that ray (it depends on the direction) and walks the mesh's tree with the current `tmax`.
+#[derive(Debug, Clone)]
+pub struct InstanceBvh {
+    nodes: Vec<WideNode>,
+    placed: Vec<PlacedInstance>,
+    bounds: Aabb,
+    /// Per-ray node margin = this × max |origin component| (see `build`).
+    origin_margin: f32,
+    mesh_count: usize,
+    stats: BuildStats,
+}
+
+impl InstanceBvh {
+    /// Builds over `instances` of `meshes`. Instances of a mesh index out of range, of an
+    /// empty mesh, or with a singular or non-finite transform are left out (counted in
+    /// [`BuildStats::dropped_invalid`]).
+    pub fn build(meshes: &[MeshBvh], instances: &[Instance], quality: BuildQuality) -> Self {
+        let start = Instant::now();
+        let mut stats = BuildStats {
+            input: instances.len(),
+            ..Default::default()
+        };
+        let mut placed = Vec::with_capacity(instances.len());
+        let mut boxes = Vec::with_capacity(instances.len());
+        let mut max_cond = 1.0f32;
+        for (i, inst) in instances.iter().enumerate() {
+            let Some(mesh) = meshes.get(inst.mesh).filter(|m| !m.is_empty()) else {
+                stats.dropped_invalid += 1;
+                continue;
+            };
+            let m = inst.transform;
+            let inv = m.inverse();
+            let finite = |a: &Affine3A| {
+                a.matrix3.x_axis.is_finite()
+                    && a.matrix3.y_axis.is_finite()
+                    && a.matrix3.z_axis.is_finite()
+                    && a.translation.is_finite()
+            };
+            if !(m.matrix3.determinant() != 0.0 && finite(&m) && finite(&inv)) {
+                stats.dropped_invalid += 1;
+                continue;
+            }
+            // World box: the transformed corners of the exact object box, grown so that the
+            // world-space cull never rejects what the object-space test would hit. The ray
+            // is mapped with rounding, so the object-space ray is the exact preimage only up
+            // to about γ·cond(M)·(|p| + |origin|) at a point p; cond(M) is bounded by the
+            // product of the Frobenius norms. The |p| part is padded here, the |origin| part
+            // per ray (`origin_margin`).
+            let frob = |a: &Affine3A| {
+                (a.matrix3.x_axis.length_squared()
+                    + a.matrix3.y_axis.length_squared()
+                    + a.matrix3.z_axis.length_squared())
+                .sqrt()
+            };
+            let cond = frob(&m) * frob(&inv);
+            max_cond = max_cond.max(cond);
+            let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+            for c in mesh.bounds().corners() {
+                let w = m.transform_point3(c);
+                lo = lo.min(w);
+                hi = hi.max(w);
+            }
+            let scale = lo.abs().max(hi.abs()).max_element();
+            let pad = Vec3::splat(64.0 * f32::EPSILON * cond * scale);
+            boxes.push(to_oaabb(lo - pad, hi + pad));
+            placed.push(PlacedInstance {
+                index: i as u32,
+                mesh: inst.mesh as u32,
+                world_to_object: inv,
+            });
+        }
+        let tree = wide::build(&boxes, &quality.params());
+        let placed: Vec<PlacedInstance> = tree.order.iter().map(|&k| placed[k as usize]).collect();
+        stats.kept = placed.len();
+        stats.references = placed.len();
+        stats.nodes = tree.nodes.len();
+        stats.max_depth = tree.max_depth;
+        stats.build_time = start.elapsed();
+        InstanceBvh {
+            nodes: tree.nodes,
+            placed,
+            bounds: geom_bounds(tree.bounds),
+            origin_margin: 64.0 * f32::EPSILON * max_cond,
+            mesh_count: meshes.len(),
+            stats,
+        }
+    }
+
+    /// Walks the instances the world ray may meet; `f(instance, object-space ray, tmax)`.
+    fn walk(
+        &self,
+        meshes: &[MeshBvh],
+        ray: &Ray,
+        tmin: f32,
+        mut tmax: f32,
+        mut f: impl FnMut(&PlacedInstance, &MeshBvh, &WatertightRay, &NodeRay, &mut f32) -> ControlFlow<()>,
+    ) {
+        debug_assert_eq!(
+            meshes.len(),
+            self.mesh_count,
+            "query with the meshes the instances were built on"
+        );
+        let nr = NodeRay::new(ray.origin, ray.direction);
+        let margin = self.origin_margin * ray.origin.abs().max_element();
+        let visit = |first: u32, count: u32, tmax: &mut f32| {
+            for p in &self.placed[first as usize..(first + count) as usize] {
+                let Some(mesh) = meshes.get(p.mesh as usize) else {
+                    continue;
+                };
+                let o = p.world_to_object.transform_point3(ray.origin);
+                let d = p.world_to_object.transform_vector3(ray.direction);
+                // The shear depends on the direction: recomputed per instance.
+                let wr = WatertightRay::new(o, d);
+                let onr = NodeRay::new(o, d);
+                f(p, mesh, &wr, &onr, tmax)?;
+            }
+            ControlFlow::Continue(())
+        };
+        if margin > 0.0 {
+            wide::traverse::<true>(&self.nodes, &nr, tmin, &mut tmax, margin, visit);
+        } else {
+            wide::traverse::<false>(&self.nodes, &nr, tmin, &mut tmax, 0.0, visit);
+        }
+    }
+
+    /// The nearest hit with `tmin <= t <= tmax` over all instances; ties go to the smaller
+    /// instance index, then the smaller triangle index. `meshes` must be the slice the tree
+    /// was built with.
+    pub fn closest_hit(
+        &self,
+        meshes: &[MeshBvh],
+        ray: &Ray,
+        tmin: f32,
+        tmax: f32,
+    ) -> Option<InstanceHit> {
+        let mut best: Option<InstanceHit> = None;
+        self.walk(meshes, ray, tmin, tmax, |p, mesh, wr, nr, tmax| {
+            if let Some(h) = mesh.closest_in(wr, nr, tmin, *tmax) {
+                let better = match &best {
+                    None => true,
+                    Some(b) => {
+                        h.t < b.t
+                            || (h.t == b.t
+                                && (p.index < b.instance
+                                    || (p.index == b.instance && h.triangle < b.triangle)))
+                    }
+                };
+                if better {
+                    best = Some(InstanceHit {
+                        t: h.t,
+                        instance: p.index,
+                        triangle: h.triangle,
+                        u: h.u,
+                        v: h.v,
+                    });
+                    *tmax = h.t;
+                }
+            }
+            ControlFlow::Continue(())
+        });
+        best
+    }
+
+    /// Whether any instance is hit with `tmin <= t <= tmax`; stops at the first.
+    pub fn any_hit(&self, meshes: &[MeshBvh], ray: &Ray, tmin: f32, tmax: f32) -> bool {
+        let mut found = false;
+        self.walk(meshes, ray, tmin, tmax, |_, mesh, wr, nr, tmax| {
+            if mesh.any_in(wr, nr, tmin, *tmax) {
+                found = true;
+                return ControlFlow::Break(());
+            }
+            ControlFlow::Continue(())
+        });
+        found
+    }
+
+    /// Number of nodes of the top-level tree.
+    pub fn node_count(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// World bounds of the instances in the tree (slightly padded, see `build`).
+    pub fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+
+    /// Counts and timing of the build.
+    pub fn stats(&self) -> &BuildStats {
+        &self.stats
+    }
+}
+
+/// The parametric interval `[t0, t1]` in which the ray is inside the closed box `b`, clipped
+/// to `[tmin, tmax]`; `None` when it misses. This is [`Aabb::ray_interval`]'s slab method
+/// (Kay & Kajiya 1986) with the same arithmetic, except on an axis where `1/d` is not finite
+/// (d = ±0 or subnormal): there the ray is parallel to the slab and the axis is a containment
+/// test `min <= o <= max`. `ray_interval` instead evaluates `0·∞` = NaN when the origin lies
+/// exactly on a slab plane, and glam 0.34's `min`/`max`/`max_element` propagate that NaN (they
+/// are `if a < b { a } else { b }`, not `f32::min`), so the result can become the whole
+/// `[tmin, tmax]` for a box the ray does not meet (e.g. a ray along +x starting on a box
+/// corner, with `tmin` past the box). Infinite bounds are fine; NaN bounds give `None`.
+pub fn ray_box_interval(b: &Aabb, ray: &Ray, tmin: f32, tmax: f32) -> Option<(f32, f32)> {
+    let (mut t_near, mut t_far) = (tmin, tmax);
+    for axis in 0..3 {
+        let (o, lo, hi) = (ray.origin[axis], b.min[axis], b.max[axis]);
+        let inv = 1.0 / ray.direction[axis];
+        if inv.is_finite() {
+            let t_a = (lo - o) * inv;
+            let t_b = (hi - o) * inv;
+            let (n, f) = if inv < 0.0 { (t_b, t_a) } else { (t_a, t_b) };
+            // Written so that a NaN (only from NaN input) makes the test fail.
+            if !(n <= t_far && f >= t_near) {
+                return None;
+            }
+            t_near = t_near.max(n);
+            t_far = t_far.min(f);
+        } else if !(lo <= o && o <= hi) {
+            return None;
+        }
+    }
+    (t_near <= t_far).then_some((t_near, t_far))
+}
+
+/// A BVH over arbitrary boxes, e.g. the world bounds of the SDF objects, walked nearest-first.
+///
+/// Finite boxes go into the tree. Boxes with an infinite or NaN coordinate cannot be bounded:
+/// they are kept in a separate list ([`AabbBvh::unbounded`]) and offered to every walk before
+/// the tree (an infinite box through [`ray_box_interval`], a NaN box as `[tmin, tmax]`: its
+/// extent is unknown). Empty boxes (min > max on an axis) contain nothing and are never
+/// visited — note that [`Aabb::ray_interval`] on its own treats the inverted [`Aabb::EMPTY`]
+/// like an infinite box.
+#[derive(Debug, Clone)]
+pub struct AabbBvh {
+    nodes: Vec<WideNode>,
+    /// Leaf order → (original index, box).
+    boxes: Vec<(u32, Aabb)>,
+    unbounded: Vec<u32>,
+    unbounded_boxes: Vec<Aabb>,
+    bounds: Aabb,
+    stats: BuildStats,
+}
+
+impl AabbBvh {
+    /// Builds with [`BuildQuality::Medium`].
+    pub fn build(boxes: &[Aabb]) -> Self {
+        Self::build_with_quality(boxes, BuildQuality::Medium)
+    }
+
+    /// Builds with the given quality ([`BuildQuality::High`]'s pre-splits only apply to
+    /// triangles; boxes are never split).
+    pub fn build_with_quality(boxes: &[Aabb], quality: BuildQuality) -> Self {
+        let start = Instant::now();
+        let mut stats = BuildStats {
+            input: boxes.len(),
+            ..Default::default()
+        };
+        let mut kept = Vec::with_capacity(boxes.len());
+        let mut oboxes = Vec::with_capacity(boxes.len());
+        let mut unbounded = Vec::new();
+        for (i, b) in boxes.iter().enumerate() {
+            if b.min.cmpgt(b.max).any() {
+                stats.dropped_degenerate += 1;
+            } else if !b.is_finite() {
+                unbounded.push(i as u32);
+            } else {
+                kept.push((i as u32, *b));
+                oboxes.push(to_oaabb(b.min, b.max));
+            }
+        }
+        let mut params = quality.params();
+        params.pre_split = false;
+        let tree = wide::build(&oboxes, &params);
+        let leaf_boxes: Vec<(u32, Aabb)> = tree.order.iter().map(|&k| kept[k as usize]).collect();
+        stats.kept = leaf_boxes.len();
+        stats.references = leaf_boxes.len();
+        stats.nodes = tree.nodes.len();
+        stats.max_depth = tree.max_depth;
+        stats.build_time = start.elapsed();
+        AabbBvh {
+            nodes: tree.nodes,
+            boxes: leaf_boxes,
+            unbounded_boxes: unbounded.iter().map(|&i| boxes[i as usize]).collect(),
+            unbounded,
+            bounds: geom_bounds(tree.bounds),
+            stats,
+        }
+    }
+
+    /// Calls `visit(index, t_enter, t_exit, tmax)` for every box the ray crosses within
+    /// `[tmin, *tmax]`, where `(t_enter, t_exit)` is exactly [`ray_box_interval`] of that box
+    /// (so the set of boxes visited when `visit` never shrinks `tmax` is exactly the set a
+    /// linear scan with `ray_box_interval` finds; that is `Aabb::ray_interval`'s set except in
+    /// the NaN cases described at [`ray_box_interval`]). Unbounded boxes come first, then the tree's
+    /// boxes roughly front to back (children sorted by entry distance). `visit` may lower
+    /// `*tmax` — boxes entered beyond it are then skipped (closest-hit) — or return
+    /// `ControlFlow::Break` to stop the walk (any-hit). Same interface as
+    /// [`super::SdfAccel::visit`].
+    pub fn visit(
+        &self,
+        ray: &Ray,
+        tmin: f32,
+        tmax: &mut f32,
+        visit: impl FnMut(usize, f32, f32, &mut f32) -> ControlFlow<()>,
+    ) {
+        self.visit_within(ray, tmin, tmax, 0.0, visit)
+    }
+
+    /// Like [`AabbBvh::visit`], with every box grown by `margin` (when `margin > 0`, through
+    /// [`Aabb::expand`], as [`super::SdfAccel::visit_within`] does).
+    pub fn visit_within(
+        &self,
+        ray: &Ray,
+        tmin: f32,
+        tmax: &mut f32,
+        margin: f32,
+        mut visit: impl FnMut(usize, f32, f32, &mut f32) -> ControlFlow<()>,
+    ) {
+        let grow = margin > 0.0;
+        for (&i, b) in self.unbounded.iter().zip(&self.unbounded_boxes) {
+            if !(tmin <= *tmax) {
+                return;
+            }
+            let interval = if b.min.is_nan() || b.max.is_nan() {
+                Some((tmin, *tmax))
+            } else if grow {
+                ray_box_interval(&b.expand(margin), ray, tmin, *tmax)
+            } else {
+                ray_box_interval(b, ray, tmin, *tmax)
+            };
+            if let Some((t0, t1)) = interval {
+                if visit(i as usize, t0, t1, tmax).is_break() {
+                    return;
+                }
+            }
+        }
+        let nr = NodeRay::new(ray.origin, ray.direction);
+        let leaf = |first: u32, count: u32, tmax: &mut f32| {
+            for (i, b) in &self.boxes[first as usize..(first + count) as usize] {
+                let b = if grow { b.expand(margin) } else { *b };
+                if let Some((t0, t1)) = ray_box_interval(&b, ray, tmin, *tmax) {
+                    visit(*i as usize, t0, t1, tmax)?;
+                }
+            }
+            ControlFlow::Continue(())
+        };
+        if grow {
+            wide::traverse::<true>(&self.nodes, &nr, tmin, tmax, margin, leaf);
+        } else {
+            wide::traverse::<false>(&self.nodes, &nr, tmin, tmax, 0.0, leaf);
+        }
+    }
+
+    /// Indices of the boxes kept out of the tree because they are not finite.
+    pub fn unbounded(&self) -> &[u32] {
+        &self.unbounded
+    }
+
+    /// Number of nodes of the tree.
+    pub fn node_count(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// Exact bounds of the finite boxes ([`Aabb::EMPTY`] when there are none).
+    pub fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+
+    /// Counts and timing of the build.
+    pub fn stats(&self) -> &BuildStats {
+        &self.stats
+    }
+}

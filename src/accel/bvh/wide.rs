@@ -1,0 +1,388 @@
+//! The node layout and the traversal shared by [`MeshBvh`](super::MeshBvh),
+//! [`InstanceBvh`](super::InstanceBvh) and [`AabbBvh`](super::AabbBvh).
+//!
+//! **Building.** obvhs builds the tree: PLOC (Meister & Bittner, "Parallel Locally-Ordered
+//! Clustering for Bounding Volume Hierarchy Construction", IEEE TVCG 2018) over the primitive
+//! boxes, then its reinsertion optimiser (Meister & Bittner, "Parallel Reinsertion for Bounding
+//! Volume Hierarchy Optimization", CGF 2018), then the conversion to an 8-wide compressed BVH
+//! (Ylitie, Karras & Laine, "Efficient Incoherent Ray Traversal on GPUs Through Compressed Wide
+//! BVHs", HPG 2017). This is what `obvhs::cwbvh::builder::build_cwbvh_from_tris` does, repeated
+//! here step by step so that (a) pre-split boxes can be padded (see `super::split_boxes`) and
+//! (b) obvhs's debug-build validation pass is not run on every build.
+//!
+//! **Decoding.** The CWBVH topology (which children a node has, which primitives a leaf holds,
+//! the child order) is kept as it is, node for node, but each child box is replaced by the
+//! exact `f32` union of what lies below it. The quantised 8-bit child boxes of a `CwBvhNode`
+//! are *almost* conservative: the node origin plus `q·2^e` is rounded when decoded, and the
+//! grid exponent comes from a rounded `log2` whose result can make the top plane clamp at 255
+//! just short of the child. An exact box removes the question, is tighter, and costs 224 bytes
+//! a node instead of 80 (a few MB for a million triangles).
+//!
+//! **Node test.** obvhs's `CwBvhNode::intersect_ray` clamps the entry distance to a fixed
+//! `1e-4` and ignores `ray.tmin`, so a ray with `tmax < 1e-4`, or one that starts on a surface
+//! with `tmin = 0`, loses the boxes it needs; it also replaces 1/d by ±1/ε for |d| ≤ ε, which
+//! can cull a box when an axis-parallel ray runs exactly along one of its faces. Its stack holds
+//! 32 entries and overwrites the top when full. The traversal here instead:
+//! - uses the caller's `[tmin, tmax]` unchanged;
+//! - handles axis-parallel rays exactly: an axis whose 1/d is not finite is a containment test
+//!   `lo <= o <= hi` on that axis (the slab for that axis is all or nothing);
+//! - is conservative in floating point: each slab distance `(plane − o)·(1/d)` has a relative
+//!   error of at most γ₃ = 3u/(1 − 3u) (Ize, "Robust BVH Ray Traversal", JCGT 2(2), 2013), so
+//!   the entry distance is scaled down and the exit distance up by [`WIDEN`] before they are
+//!   compared: a box that the exact ray meets within `[tmin, tmax]` is never culled;
+//! - visits hit children nearest first (sorted by entry distance) and skips a popped entry
+//!   whose entry distance exceeds the current `tmax`;
+//! - keeps its stack in a 64-entry array that spills to the heap, so no depth loses entries.
+
+use std::ops::ControlFlow;
+
+use glam::{BVec4A, Vec3, Vec4};
+use obvhs::BvhBuildParams;
+use obvhs::aabb::Aabb as OAabb;
+use obvhs::bvh2::reinsertion::ReinsertionOptimizer;
+use obvhs::cwbvh::bvh2_to_cwbvh::bvh2_to_cwbvh;
+use obvhs::ploc::PlocBuilder;
+
+/// Marks a leaf child in [`WideNode::meta`]; the other bits of a leaf are `(count − 1) << 29 |
+/// first`, where `first` indexes the primitive order and `count` is 1..=3 (CWBVH leaves hold at
+/// most three primitives). An internal child's meta is its node index.
+pub(crate) const LEAF_BIT: u32 = 1 << 31;
+const FIRST_MASK: u32 = (1 << 29) - 1;
+/// Largest number of primitive references a tree can hold with this encoding.
+pub(crate) const MAX_PRIMS: usize = FIRST_MASK as usize;
+
+/// Relative widening of slab distances. Each computed distance is the exact one times
+/// (1 + θ), |θ| ≤ γ₃ ≈ 3·2⁻²⁴ (one rounding for `plane − o`, one for `1/d`, one for the
+/// product); 8·2⁻²³ = 16·2⁻²⁴ covers that with room for the rounding of the widening itself.
+pub(crate) const WIDEN: f32 = 8.0 * f32::EPSILON;
+
+/// One node: the boxes of its (up to) eight children, structure-of-arrays. Empty slots hold the
+/// inverted box (min = +∞, max = −∞), which no ray enters.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(32))]
+pub(crate) struct WideNode {
+    /// `bounds[2·axis]` are the children's minima on `axis`, `bounds[2·axis + 1]` the maxima.
+    pub bounds: [[f32; 8]; 6],
+    /// Per child: node index, or [`LEAF_BIT`]-tagged primitive range.
+    pub meta: [u32; 8],
+}
+
+impl WideNode {
+    const EMPTY: WideNode = WideNode {
+        bounds: [
+            [f32::INFINITY; 8],
+            [f32::NEG_INFINITY; 8],
+            [f32::INFINITY; 8],
+            [f32::NEG_INFINITY; 8],
+            [f32::INFINITY; 8],
+            [f32::NEG_INFINITY; 8],
+        ],
+        meta: [0; 8],
+    };
+}
+
+/// A built tree: nodes (root at 0, absent when there are no primitives) and the primitive
+/// order (`order[i]` is the index, in the slice given to [`build`], of the i-th primitive
+/// reference of the leaves).
+#[derive(Clone, Debug, Default)]
+pub(crate) struct WideBvh {
+    pub nodes: Vec<WideNode>,
+    pub order: Vec<u32>,
+    pub max_depth: u32,
+    /// Exact bounds of everything (min > max when empty).
+    pub bounds: (Vec3, Vec3),
+}
+
+/// Builds over `boxes`, which must be finite with min ≤ max (the callers filter).
+pub(crate) fn build(boxes: &[OAabb], params: &BvhBuildParams) -> WideBvh {
+    let empty = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+    if boxes.is_empty() {
+        return WideBvh {
+            bounds: empty,
+            ..Default::default()
+        };
+    }
+    assert!(
+        boxes.len() <= MAX_PRIMS,
+        "a BVH holds at most {MAX_PRIMS} primitive references"
+    );
+    // As in obvhs::cwbvh::builder::build_cwbvh (obvhs 0.4), without the debug validation.
+    let indices: Vec<u32> = (0..boxes.len() as u32).collect();
+    let mut bvh2 = PlocBuilder::with_capacity(boxes.len()).build(
+        params.ploc_search_distance,
+        boxes,
+        indices,
+        params.sort_precision,
+        params.search_depth_threshold,
+    );
+    bvh2.uses_spatial_splits = params.pre_split;
+    ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None);
+    let cw = bvh2_to_cwbvh(&bvh2, params.max_prims_per_leaf.clamp(1, 3), true, false);
+
+    // Decode. Children always have larger indices than their parent (the converter appends
+    // them after it), so one backward pass computes every subtree box from finished ones.
+    let order = cw.primitive_indices;
+    let n = cw.nodes.len();
+    let mut nodes = vec![WideNode::EMPTY; n];
+    let mut node_box = vec![empty; n];
+    for ni in (0..n).rev() {
+        let cn = &cw.nodes[ni];
+        let mut total = empty;
+        for slot in 0..8 {
+            if cn.is_child_empty(slot) {
+                continue;
+            }
+            let (lo, hi, meta) = if !cn.is_leaf(slot) {
+                let ci = cn.child_node_index(slot) as usize;
+                debug_assert!(ci > ni);
+                let (lo, hi) = node_box[ci];
+                (lo, hi, ci as u32)
+            } else {
+                let (first, count) = cn.child_primitives(slot);
+                debug_assert!((1..=3).contains(&count));
+                let (mut lo, mut hi) = empty;
+                for &p in &order[first as usize..(first + count) as usize] {
+                    let b = &boxes[p as usize];
+                    lo = lo.min(b.min.into());
+                    hi = hi.max(b.max.into());
+                }
+                (lo, hi, LEAF_BIT | (count - 1) << 29 | first)
+            };
+            for axis in 0..3 {
+                nodes[ni].bounds[2 * axis][slot] = lo[axis];
+                nodes[ni].bounds[2 * axis + 1][slot] = hi[axis];
+            }
+            nodes[ni].meta[slot] = meta;
+            total = (total.0.min(lo), total.1.max(hi));
+        }
+        node_box[ni] = total;
+    }
+    // Depth, forwards.
+    let mut depth = vec![0u32; n];
+    let mut max_depth = 0;
+    for ni in 0..n {
+        max_depth = max_depth.max(depth[ni] + 1);
+        for slot in 0..8 {
+            let m = nodes[ni].meta[slot];
+            if nodes[ni].bounds[0][slot] <= nodes[ni].bounds[1][slot] && m & LEAF_BIT == 0 {
+                depth[m as usize] = depth[ni] + 1;
+            }
+        }
+    }
+    WideBvh {
+        nodes,
+        order,
+        max_depth,
+        bounds: node_box[0],
+    }
+}
+
+/// Per-ray constants of the node test.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct NodeRay {
+    o: [f32; 3],
+    /// 1/d, or 0 on a parallel axis.
+    inv: [f32; 3],
+    /// Index into [`WideNode::bounds`] of the entry plane per axis (max plane when d < 0).
+    near: [usize; 3],
+    /// Axes where 1/d is not finite (d = ±0, subnormal, or NaN): containment test.
+    parallel: [bool; 3],
+}
+
+impl NodeRay {
+    /// For a ray `origin + t·direction` (any length).
+    pub fn new(origin: Vec3, direction: Vec3) -> Self {
+        let mut r = NodeRay {
+            o: origin.to_array(),
+            inv: [0.0; 3],
+            near: [0, 2, 4],
+            parallel: [false; 3],
+        };
+        for axis in 0..3 {
+            let inv = 1.0 / direction[axis];
+            if inv.is_finite() {
+                r.inv[axis] = inv;
+                // The sign of 1/d, not of d, decides which plane is entered first (−0 has
+                // been excluded: its inverse is −∞).
+                r.near[axis] = 2 * axis + usize::from(inv < 0.0);
+            } else {
+                // |d| < 2^-128: treated as exactly parallel. The real ray drifts by |d|·t on
+                // this axis, under 3e-39·t: far below any f32 box tolerance.
+                r.parallel[axis] = true;
+            }
+        }
+        r
+    }
+}
+
+#[inline(always)]
+fn lanes(a: &[f32; 8], group: usize) -> Vec4 {
+    Vec4::from_slice(&a[4 * group..4 * group + 4])
+}
+
+/// Entry distances (widened) and the hit mask of the node's children against `[tmin, tmax]`,
+/// each box grown by `margin` when `MARGIN` (the grown bound is `fl(min − margin)`, the same
+/// rounding as [`crate::geom::Aabb::expand`], so it contains every grown child box).
+#[inline(always)]
+fn child_hits<const MARGIN: bool>(
+    node: &WideNode,
+    r: &NodeRay,
+    tmin: f32,
+    tmax: f32,
+    margin: f32,
+) -> ([f32; 8], u32) {
+    let mut t_out = [0.0f32; 8];
+    let mut mask = 0u32;
+    for group in 0..2 {
+        let mut tn = Vec4::splat(tmin);
+        let mut tf = Vec4::splat(tmax);
+        let mut inside = BVec4A::splat(true);
+        for axis in 0..3 {
+            let o = Vec4::splat(r.o[axis]);
+            if r.parallel[axis] {
+                let mut lo = lanes(&node.bounds[2 * axis], group);
+                let mut hi = lanes(&node.bounds[2 * axis + 1], group);
+                if MARGIN {
+                    lo -= margin;
+                    hi += margin;
+                }
+                inside &= lo.cmple(o) & hi.cmpge(o);
+            } else {
+                let near = r.near[axis];
+                // near ^ 1 is the other plane of the same axis.
+                let mut pn = lanes(&node.bounds[near], group);
+                let mut pf = lanes(&node.bounds[near ^ 1], group);
+                if MARGIN {
+                    // Entry plane is the min plane when near is even.
+                    if near & 1 == 0 {
+                        pn -= margin;
+                        pf += margin;
+                    } else {
+                        pn += margin;
+                        pf -= margin;
+                    }
+                }
+                let inv = Vec4::splat(r.inv[axis]);
+                // No NaN can arise: inv is finite and non-zero, planes are finite or the
+                // ±∞ of an empty slot.
+                tn = tn.max((pn - o) * inv);
+                tf = tf.min((pf - o) * inv);
+            }
+        }
+        // Conservative comparison (Ize 2013): entry scaled towards −∞, exit towards +∞.
+        // Multiplicative, so ±∞ stay ±∞.
+        let zero = Vec4::ZERO;
+        let tn = tn * Vec4::select(tn.cmpge(zero), Vec4::splat(1.0 - WIDEN), Vec4::splat(1.0 + WIDEN));
+        let tf = tf * Vec4::select(tf.cmpge(zero), Vec4::splat(1.0 + WIDEN), Vec4::splat(1.0 - WIDEN));
+        let hit = tn.cmple(tf) & inside;
+        mask |= hit.bitmask() << (4 * group);
+        tn.write_to_slice(&mut t_out[4 * group..4 * group + 4]);
+    }
+    (t_out, mask)
+}
+
+#[derive(Clone, Copy, Default)]
+struct Entry {
+    t: f32,
+    meta: u32,
+}
+
+/// LIFO of pending children: a fixed array, spilling to a `Vec` only for trees deeper than
+/// about nine levels (each level pushes at most seven entries).
+struct Stack {
+    arr: [Entry; 64],
+    len: usize,
+    spill: Vec<Entry>,
+}
+
+impl Stack {
+    #[inline(always)]
+    fn new() -> Self {
+        Stack {
+            arr: [Entry::default(); 64],
+            len: 0,
+            spill: Vec::new(),
+        }
+    }
+    #[inline(always)]
+    fn push(&mut self, e: Entry) {
+        if self.len < self.arr.len() {
+            self.arr[self.len] = e;
+            self.len += 1;
+        } else {
+            self.spill.push(e);
+        }
+    }
+    #[inline(always)]
+    fn pop(&mut self) -> Option<Entry> {
+        // Spilled entries are the newest.
+        if let Some(e) = self.spill.pop() {
+            return Some(e);
+        }
+        if self.len == 0 {
+            return None;
+        }
+        self.len -= 1;
+        Some(self.arr[self.len])
+    }
+}
+
+/// Walks the tree nearest-child-first, calling `leaf(first, count, tmax)` for every leaf whose
+/// box the ray meets within `[tmin, *tmax]` (the primitives are `order[first..first + count]`).
+/// The callback may shrink `*tmax` (closest hit) or break (any hit).
+#[inline(always)]
+pub(crate) fn traverse<const MARGIN: bool>(
+    nodes: &[WideNode],
+    r: &NodeRay,
+    tmin: f32,
+    tmax: &mut f32,
+    margin: f32,
+    mut leaf: impl FnMut(u32, u32, &mut f32) -> ControlFlow<()>,
+) {
+    if nodes.is_empty() || !(tmin <= *tmax) {
+        return;
+    }
+    let mut stack = Stack::new();
+    let mut next = Some(Entry { t: tmin, meta: 0 });
+    while let Some(e) = next.take().or_else(|| stack.pop()) {
+        if e.t > *tmax {
+            continue;
+        }
+        if e.meta & LEAF_BIT != 0 {
+            let first = e.meta & FIRST_MASK;
+            let count = ((e.meta >> 29) & 3) + 1;
+            if leaf(first, count, tmax).is_break() {
+                return;
+            }
+            continue;
+        }
+        let node = &nodes[e.meta as usize];
+        let (t, mut mask) = child_hits::<MARGIN>(node, r, tmin, *tmax, margin);
+        if mask == 0 {
+            continue;
+        }
+        // Gather and insertion-sort the hit children by entry distance (at most eight).
+        let mut hits = [Entry::default(); 8];
+        let mut n = 0;
+        while mask != 0 {
+            let i = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            let e = Entry {
+                t: t[i],
+                meta: node.meta[i],
+            };
+            let mut j = n;
+            while j > 0 && hits[j - 1].t > e.t {
+                hits[j] = hits[j - 1];
+                j -= 1;
+            }
+            hits[j] = e;
+            n += 1;
+        }
+        // Farthest first onto the stack; the nearest is handled next without a round trip.
+        for h in hits[1..n].iter().rev() {
+            stack.push(*h);
+        }
+        next = Some(hits[0]);
+    }
+}

@@ -1,0 +1,1213 @@
+//! glTF 2.0: `.gltf` (external or base64-embedded buffers) and `.glb`.
+//!
+//! The `gltf` crate parses and validates the JSON; everything that touches binary data (the
+//! GLB container, buffers, accessors with their sparse substitutions, images) is read here
+//! with explicit bounds checks, so malformed files give errors instead of panics.
+
+use super::texture::{self, Texture, Wrap};
+use super::{
+    CameraProjection, LightKind, MeshAsset, MeshError, MeshInstance, MeshMaterial, NamedCamera,
+    NamedLight, TriangleMesh, pbr_material, repair_normals, vertex_normals,
+};
+use ::gltf::json;
+use glam::{Affine3A, Mat4, Quat, Vec2, Vec3};
+use json::accessor::{ComponentType, Type};
+use json::mesh::{Mode, Semantic};
+use json::validation::Checked;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+/// The most node instances a scene may expand to (a node graph where nodes are shared by
+/// several parents grows exponentially with its depth).
+const MAX_NODE_INSTANCES: usize = 4_000_000;
+
+/// The most elements an accessor without a buffer view (all zeros plus sparse values) may have.
+const MAX_ZERO_ACCESSOR: usize = 1 << 26;
+
+/// Loads a `.gltf` or `.glb` file whose bytes are `bytes`.
+pub(super) fn load(file: &Path, bytes: &[u8]) -> Result<MeshAsset, MeshError> {
+    let err = |place: &str, message: String| MeshError::Gltf {
+        file: file.to_path_buf(),
+        place: place.to_string(),
+        message,
+    };
+    let (json_bytes, bin) = if bytes.starts_with(b"glTF") {
+        split_glb(bytes).map_err(|m| err("", m))?
+    } else {
+        let first = bytes.iter().find(|b| !b.is_ascii_whitespace());
+        let bom = bytes.starts_with(&[0xEF, 0xBB, 0xBF]);
+        if first != Some(&b'{') && !bom {
+            return Err(err(
+                "",
+                "not a glTF file: neither binary glTF (magic \"glTF\") nor a JSON object".into(),
+            ));
+        }
+        let start = if bom { 3 } else { 0 };
+        (&bytes[start..], None)
+    };
+    let mut root = parse_root(json_bytes).map_err(|m| err("", m))?;
+    precheck(&root).map_err(|(place, m)| err(&place, m))?;
+    // Quantized attributes are read like any other accessor here.
+    root.extensions_required
+        .retain(|e| e != "KHR_mesh_quantization");
+    let draco = root
+        .extensions_used
+        .iter()
+        .any(|e| e == "KHR_draco_mesh_compression");
+    let document = ::gltf::Document::from_json(root).map_err(|e| match e {
+        ::gltf::Error::Validation(list) => {
+            let describe =
+                |(p, e): &(json::Path, json::validation::Error)| format!("{}: {}", p.0, e);
+            let place = list.first().map(|(p, _)| p.0.clone()).unwrap_or_default();
+            let mut message = match list.first() {
+                Some((_, e)) => format!("invalid glTF: {e}"),
+                None => "invalid glTF".to_string(),
+            };
+            if list.len() > 1 {
+                let others: Vec<String> = list[1..].iter().take(6).map(describe).collect();
+                message += &format!(" (also {}", others.join("; "));
+                if list.len() > 7 {
+                    message += &format!("; and {} more", list.len() - 7);
+                }
+                message += ")";
+            }
+            if draco {
+                message = format!(
+                    "Draco-compressed meshes (KHR_draco_mesh_compression) are not supported; \
+                     {message}"
+                );
+            }
+            err(&place, message)
+        }
+        other => err("", format!("invalid glTF: {other}")),
+    })?;
+    let root = document.as_json();
+    let base = file.parent().unwrap_or(Path::new("."));
+    let buffers = load_buffers(root, base, bin).map_err(|(place, m)| err(&place, m))?;
+    let mut cx = Cx {
+        root,
+        base,
+        buffers,
+        asset: MeshAsset::empty(),
+        mesh_slot: HashMap::new(),
+        texture_slot: HashMap::new(),
+    };
+    cx.run().map_err(|(place, m)| err(&place, m))?;
+    Ok(cx.asset)
+}
+
+/// The JSON document. glTF 2.0 makes `scene.nodes` optional but `gltf-json` requires it, so
+/// when the plain parse fails the document is retried with empty `nodes` filled in.
+fn parse_root(bytes: &[u8]) -> Result<json::Root, String> {
+    let first = match json::deserialize::from_slice::<json::Root>(bytes) {
+        Ok(root) => return Ok(root),
+        Err(e) => format!("invalid glTF JSON: {e}"),
+    };
+    let Ok(mut value) = json::deserialize::from_slice::<json::Value>(bytes) else {
+        return Err(first);
+    };
+    let mut patched = false;
+    if let Some(scenes) = value.get_mut("scenes").and_then(|s| s.as_array_mut()) {
+        for scene in scenes.iter_mut().filter_map(|s| s.as_object_mut()) {
+            if !scene.contains_key("nodes") {
+                scene.insert("nodes".into(), json::Value::Array(Vec::new()));
+                patched = true;
+            }
+        }
+    }
+    if !patched {
+        return Err(first);
+    }
+    json::deserialize::from_value::<json::Root>(value).map_err(|_| first)
+}
+
+/// A place in the JSON and what is wrong there.
+type Fail = (String, String);
+
+fn fail<T>(place: impl Into<String>, message: impl Into<String>) -> Result<T, Fail> {
+    Err((place.into(), message.into()))
+}
+
+/// Splits a GLB container into its JSON chunk and its first BIN chunk.
+fn split_glb(bytes: &[u8]) -> Result<(&[u8], Option<&[u8]>), String> {
+    let u32_at = |at: usize| -> Option<u32> {
+        let b = bytes.get(at..at.checked_add(4)?)?;
+        Some(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    };
+    let (Some(version), Some(length)) = (u32_at(4), u32_at(8)) else {
+        return Err("binary glTF: truncated header (fewer than 12 bytes)".into());
+    };
+    if version != 2 {
+        return Err(format!(
+            "binary glTF version {version} is not supported (only glTF 2.0)"
+        ));
+    }
+    let length = length as usize;
+    if length > bytes.len() {
+        return Err(format!(
+            "binary glTF: the header gives a length of {length} bytes but the file has only {} \
+             (truncated?)",
+            bytes.len()
+        ));
+    }
+    if length < 12 {
+        return Err(format!("binary glTF: invalid total length {length}"));
+    }
+    let mut at = 12usize;
+    let mut json = None;
+    let mut bin = None;
+    while at < length {
+        let (Some(chunk_len), Some(kind)) = (u32_at(at), bytes.get(at + 4..at + 8)) else {
+            return Err(format!("binary glTF: truncated chunk header at byte {at}"));
+        };
+        let start = at + 8;
+        let end = start
+            .checked_add(chunk_len as usize)
+            .filter(|&e| e <= length)
+            .ok_or_else(|| {
+                format!(
+                    "binary glTF: chunk at byte {at} claims {chunk_len} bytes, past the end of \
+                     the file (truncated?)"
+                )
+            })?;
+        let data = &bytes[start..end];
+        match kind {
+            b"JSON" if json.is_none() => json = Some(data),
+            b"BIN\0" if bin.is_none() => bin = Some(data),
+            _ => {}
+        }
+        if json.is_none() {
+            return Err("binary glTF: the first chunk is not JSON".into());
+        }
+        at = end;
+    }
+    let json = json.ok_or("binary glTF: no JSON chunk")?;
+    Ok((json, bin))
+}
+
+/// Checks what the `gltf` crate's validation would index without checking: the accessor
+/// indices of mesh primitives.
+fn precheck(root: &json::Root) -> Result<(), Fail> {
+    let n = root.accessors.len();
+    for (mi, mesh) in root.meshes.iter().enumerate() {
+        for (pi, prim) in mesh.primitives.iter().enumerate() {
+            for (sem, index) in &prim.attributes {
+                if index.value() >= n {
+                    let name = match sem {
+                        Checked::Valid(s) => s.to_string(),
+                        Checked::Invalid => "?".to_string(),
+                    };
+                    return fail(
+                        format!("meshes[{mi}].primitives[{pi}].attributes.{name}"),
+                        format!("accessor {} does not exist ({n} accessors)", index.value()),
+                    );
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Reads every buffer: the GLB BIN chunk, a base64 `data:` URI or a file next to the glTF.
+fn load_buffers(
+    root: &json::Root,
+    base: &Path,
+    mut bin: Option<&[u8]>,
+) -> Result<Vec<Vec<u8>>, Fail> {
+    let mut out = Vec::with_capacity(root.buffers.len());
+    for (i, b) in root.buffers.iter().enumerate() {
+        let place = format!("buffers[{i}]");
+        let data = match &b.uri {
+            None => match bin.take() {
+                Some(d) => d.to_vec(),
+                None => {
+                    return fail(
+                        place,
+                        "has no uri and there is no (unclaimed) GLB BIN chunk to use",
+                    );
+                }
+            },
+            Some(uri) => {
+                read_uri(uri, base)
+                    .map_err(|m| (format!("{place}.uri"), m))?
+                    .0
+            }
+        };
+        let want = b.byte_length.0;
+        if (data.len() as u64) < want {
+            return fail(
+                place,
+                format!(
+                    "byteLength is {want} but only {} bytes could be read (truncated buffer?)",
+                    data.len()
+                ),
+            );
+        }
+        out.push(data);
+    }
+    Ok(out)
+}
+
+/// The bytes a URI names (and the MIME type of a `data:` URI): base64 data, or a file
+/// relative to `base` (percent-decoded).
+fn read_uri(uri: &str, base: &Path) -> Result<(Vec<u8>, Option<String>), String> {
+    if let Some(rest) = uri.strip_prefix("data:") {
+        let Some((mime, data)) = rest.split_once(";base64,") else {
+            return Err("only base64 data: URIs are supported".into());
+        };
+        let bytes = base64_decode(data).ok_or("invalid base64 data in the data: URI")?;
+        return Ok((bytes, Some(mime.to_string())));
+    }
+    let path_part = uri
+        .strip_prefix("file://")
+        .or_else(|| uri.strip_prefix("file:"))
+        .unwrap_or(uri);
+    if path_part.contains("://") {
+        return Err(format!(
+            "unsupported URI {uri:?} (only relative files and data: URIs)"
+        ));
+    }
+    let decoded = percent_decode(path_part).ok_or_else(|| format!("invalid URI {uri:?}"))?;
+    let path: PathBuf = base.join(&decoded);
+    std::fs::read(&path)
+        .map(|b| (b, None))
+        .map_err(|e| format!("cannot read {}: {e}", path.display()))
+}
+
+/// `%XX` escapes decoded; `None` when an escape is malformed or the result is not UTF-8.
+fn percent_decode(s: &str) -> Option<String> {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' {
+            let hex = std::str::from_utf8(b.get(i + 1..i + 3)?).ok()?;
+            out.push(u8::from_str_radix(hex, 16).ok()?);
+            i += 3;
+        } else {
+            out.push(b[i]);
+            i += 1;
+        }
+    }
+    String::from_utf8(out).ok()
+}
+
+/// Standard base64 (with optional padding, ignoring ASCII whitespace); `None` on bad input.
+fn base64_decode(s: &str) -> Option<Vec<u8>> {
+    let mut out = Vec::with_capacity(s.len() / 4 * 3);
+    let (mut acc, mut bits) = (0u32, 0u32);
+    let mut padding = false;
+    for &c in s.as_bytes() {
+        let v = match c {
+            b'A'..=b'Z' => c - b'A',
+            b'a'..=b'z' => c - b'a' + 26,
+            b'0'..=b'9' => c - b'0' + 52,
+            b'+' | b'-' => 62,
+            b'/' | b'_' => 63,
+            b'=' => {
+                padding = true;
+                continue;
+            }
+            c if c.is_ascii_whitespace() => continue,
+            _ => return None,
+        };
+        if padding {
+            return None;
+        }
+        acc = (acc << 6) | u32::from(v);
+        bits += 6;
+        if bits >= 8 {
+            bits -= 8;
+            out.push((acc >> bits) as u8);
+            acc &= (1 << bits) - 1;
+        }
+    }
+    Some(out)
+}
+
+/// Loader state: the validated document, its buffers and the asset being built.
+struct Cx<'a> {
+    root: &'a json::Root,
+    base: &'a Path,
+    buffers: Vec<Vec<u8>>,
+    asset: MeshAsset,
+    /// glTF mesh index → index in `asset.meshes`.
+    mesh_slot: HashMap<usize, usize>,
+    /// glTF texture index → index in `asset.textures` (`None`: failed, already warned).
+    texture_slot: HashMap<usize, Option<usize>>,
+}
+
+impl Cx<'_> {
+    fn warn(&mut self, message: String) {
+        self.asset.warnings.push(message);
+    }
+
+    fn run(&mut self) -> Result<(), Fail> {
+        for i in 0..self.root.materials.len() {
+            let m = self.material(i);
+            self.asset.materials.push(m);
+        }
+        let roots = self.scene_roots()?;
+        self.traverse(&roots)
+    }
+
+    /// The root nodes to draw: the default scene's, else scene 0's, else every node that is
+    /// nobody's child.
+    fn scene_roots(&mut self) -> Result<Vec<(usize, String)>, Fail> {
+        let root = self.root;
+        let scene = root.scene.map(|s| s.value()).or(if root.scenes.is_empty() {
+            None
+        } else {
+            Some(0)
+        });
+        if let Some(s) = scene {
+            let Some(sc) = root.scenes.get(s) else {
+                return fail("scene", format!("scene {s} does not exist"));
+            };
+            return Ok(sc
+                .nodes
+                .iter()
+                .enumerate()
+                .map(|(k, n)| (n.value(), format!("scenes[{s}].nodes[{k}]")))
+                .collect());
+        }
+        let mut is_child = vec![false; root.nodes.len()];
+        for node in &root.nodes {
+            for c in node.children.iter().flatten() {
+                if let Some(f) = is_child.get_mut(c.value()) {
+                    *f = true;
+                }
+            }
+        }
+        if !root.nodes.is_empty() {
+            self.warn("no scene: drawing every root node".to_string());
+        }
+        Ok((0..root.nodes.len())
+            .filter(|&i| !is_child[i])
+            .map(|i| (i, format!("nodes[{i}]")))
+            .collect())
+    }
+
+    /// Depth-first over the node graph from `roots`, composing transforms parent → child and
+    /// emitting instances, cameras and lights. Errors on cycles.
+    fn traverse(&mut self, roots: &[(usize, String)]) -> Result<(), Fail> {
+        let root = self.root;
+        let nodes = &root.nodes;
+        let mut on_path = vec![false; nodes.len()];
+        let mut visits = 0usize;
+        for (r, place) in roots {
+            let r = *r;
+            if r >= nodes.len() {
+                return fail(place.clone(), format!("node {r} does not exist"));
+            }
+            let world = local_transform(root, r)?;
+            self.emit(r, world)?;
+            on_path[r] = true;
+            // (node, its world transform, next child to visit)
+            let mut stack: Vec<(usize, Affine3A, usize)> = vec![(r, world, 0)];
+            while let Some(top) = stack.last_mut() {
+                let (node, world, k) = *top;
+                let children = nodes[node].children.as_deref().unwrap_or(&[]);
+                if k >= children.len() {
+                    on_path[node] = false;
+                    stack.pop();
+                    continue;
+                }
+                top.2 += 1;
+                let c = children[k].value();
+                let place = format!("nodes[{node}].children[{k}]");
+                if c >= nodes.len() {
+                    return fail(place, format!("node {c} does not exist"));
+                }
+                if on_path[c] {
+                    return fail(
+                        place,
+                        format!(
+                            "node {c} is its own ancestor: the node hierarchy has a cycle \
+                             (glTF requires a forest)"
+                        ),
+                    );
+                }
+                visits += 1;
+                if visits > MAX_NODE_INSTANCES {
+                    return fail(
+                        place,
+                        format!(
+                            "the node hierarchy expands to more than {MAX_NODE_INSTANCES} node \
+                             instances"
+                        ),
+                    );
+                }
+                let child_world = world * local_transform(root, c)?;
+                self.emit(c, child_world)?;
+                on_path[c] = true;
+                stack.push((c, child_world, 0));
+            }
+        }
+        Ok(())
+    }
+
+    /// What one node instance contributes: a mesh instance, a camera, a light.
+    fn emit(&mut self, index: usize, world: Affine3A) -> Result<(), Fail> {
+        let root = self.root;
+        let node = &root.nodes[index];
+        let node_name = node
+            .name
+            .clone()
+            .unwrap_or_else(|| format!("nodes[{index}]"));
+        if let Some(m) = node.mesh {
+            let slot = match self.mesh_slot.get(&m.value()) {
+                Some(&s) => s,
+                None => {
+                    let mesh = self.mesh(m.value())?;
+                    self.asset.meshes.push(mesh);
+                    let s = self.asset.meshes.len() - 1;
+                    self.mesh_slot.insert(m.value(), s);
+                    s
+                }
+            };
+            self.asset.instances.push(MeshInstance {
+                mesh: slot,
+                transform: world,
+                name: node_name.clone(),
+            });
+        }
+        let position: Vec3 = world.translation.into();
+        let minus_z = Vec3::from(world.matrix3 * glam::Vec3A::NEG_Z)
+            .try_normalize()
+            .unwrap_or(Vec3::NEG_Z);
+        if let Some(c) = node.camera {
+            let place = format!("nodes[{index}].camera");
+            let Some(cam) = root.cameras.get(c.value()) else {
+                return fail(place, format!("camera {} does not exist", c.value()));
+            };
+            let projection = match (cam.type_, &cam.perspective, &cam.orthographic) {
+                (Checked::Valid(json::camera::Type::Perspective), Some(p), _) => {
+                    CameraProjection::Perspective {
+                        yfov_radians: p.yfov,
+                        aspect: p.aspect_ratio,
+                    }
+                }
+                (Checked::Valid(json::camera::Type::Orthographic), _, Some(o)) => {
+                    CameraProjection::Orthographic {
+                        ymag: o.ymag,
+                        xmag: o.xmag,
+                    }
+                }
+                _ => {
+                    self.warn(format!(
+                        "cameras[{}]: type and projection do not match; camera skipped",
+                        c.value()
+                    ));
+                    return Ok(());
+                }
+            };
+            let y = Vec3::from(world.matrix3 * glam::Vec3A::Y);
+            let up = (y - minus_z * y.dot(minus_z))
+                .try_normalize()
+                .unwrap_or_else(|| minus_z.any_orthonormal_vector());
+            self.asset.cameras.push(NamedCamera {
+                name: cam.name.clone().unwrap_or_else(|| node_name.clone()),
+                position,
+                forward: minus_z,
+                up,
+                projection,
+            });
+        }
+        let light = node
+            .extensions
+            .as_ref()
+            .and_then(|e| e.khr_lights_punctual.as_ref())
+            .map(|l| l.light.value());
+        if let Some(l) = light {
+            use json::extensions::scene::khr_lights_punctual::Type as LightType;
+            let lights = root
+                .extensions
+                .as_ref()
+                .and_then(|e| e.khr_lights_punctual.as_ref())
+                .map(|k| k.lights.as_slice())
+                .unwrap_or(&[]);
+            let Some(light) = lights.get(l) else {
+                return fail(
+                    format!("nodes[{index}].extensions.KHR_lights_punctual.light"),
+                    format!("light {l} does not exist"),
+                );
+            };
+            let kind = match light.type_ {
+                Checked::Valid(LightType::Point) => LightKind::Point { position },
+                Checked::Valid(LightType::Directional) => {
+                    LightKind::Directional { direction: minus_z }
+                }
+                Checked::Valid(LightType::Spot) => LightKind::Spot {
+                    position,
+                    direction: minus_z,
+                },
+                Checked::Invalid => {
+                    self.warn(format!(
+                        "extensions.KHR_lights_punctual.lights[{l}]: unknown type; light skipped"
+                    ));
+                    return Ok(());
+                }
+            };
+            self.asset.lights.push(NamedLight {
+                name: light.name.clone().unwrap_or_else(|| node_name.clone()),
+                kind,
+                color: Vec3::from_array(light.color),
+                intensity: light.intensity,
+            });
+        }
+        Ok(())
+    }
+
+    /// One glTF mesh: its triangle primitives merged, with per-triangle materials.
+    fn mesh(&mut self, mi: usize) -> Result<TriangleMesh, Fail> {
+        let root = self.root;
+        let Some(mesh) = root.meshes.get(mi) else {
+            return fail(format!("meshes[{mi}]"), "mesh does not exist");
+        };
+        let mut out = TriangleMesh {
+            name: mesh.name.clone().unwrap_or_else(|| format!("meshes[{mi}]")),
+            ..TriangleMesh::default()
+        };
+        let drawn = |p: &json::mesh::Primitive| {
+            matches!(
+                p.mode,
+                Checked::Valid(Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan)
+            )
+        };
+        let uv_key = Checked::Valid(Semantic::TexCoords(0));
+        let any_uv = mesh
+            .primitives
+            .iter()
+            .any(|p| drawn(p) && p.attributes.contains_key(&uv_key));
+        for (pi, prim) in mesh.primitives.iter().enumerate() {
+            let place = format!("meshes[{mi}].primitives[{pi}]");
+            if !drawn(prim) {
+                let mode = match prim.mode {
+                    Checked::Valid(Mode::Points) => "POINTS",
+                    Checked::Valid(Mode::Lines) => "LINES",
+                    Checked::Valid(Mode::LineLoop) => "LINE_LOOP",
+                    Checked::Valid(Mode::LineStrip) => "LINE_STRIP",
+                    _ => "an unknown mode",
+                };
+                self.warn(format!(
+                    "{place}: mode {mode} skipped (only triangles are drawn)"
+                ));
+                continue;
+            }
+            let attr = |s: Semantic| prim.attributes.get(&Checked::Valid(s)).map(|i| i.value());
+            let pos_place = format!("{place}.attributes.POSITION");
+            let Some(pos_acc) = attr(Semantic::Positions) else {
+                return fail(pos_place, "missing (every primitive needs POSITION)");
+            };
+            let positions: Vec<[f32; 3]> = self.read_vecs(pos_acc, &pos_place)?;
+            if let Some(k) = positions
+                .iter()
+                .position(|p| !p.iter().all(|c| c.is_finite()))
+            {
+                return fail(
+                    pos_place,
+                    format!(
+                        "accessors[{pos_acc}] element {k} is {:?}: positions must be finite",
+                        positions[k]
+                    ),
+                );
+            }
+            let nv = positions.len();
+            let base = out.positions.len();
+            if base + nv > u32::MAX as usize {
+                return fail(pos_place, "the mesh has more than 2³² vertices");
+            }
+            let normals = match attr(Semantic::Normals) {
+                None => None,
+                Some(a) => {
+                    let p = format!("{place}.attributes.NORMAL");
+                    let n: Vec<[f32; 3]> = self.read_vecs(a, &p)?;
+                    if n.len() != nv {
+                        return fail(
+                            p,
+                            format!(
+                                "accessors[{a}] has {} elements but POSITION has {nv}",
+                                n.len()
+                            ),
+                        );
+                    }
+                    Some(n)
+                }
+            };
+            let uvs = match attr(Semantic::TexCoords(0)) {
+                None => None,
+                Some(a) => {
+                    let p = format!("{place}.attributes.TEXCOORD_0");
+                    let t: Vec<[f32; 2]> = self.read_vecs(a, &p)?;
+                    if t.len() != nv {
+                        return fail(
+                            p,
+                            format!(
+                                "accessors[{a}] has {} elements but POSITION has {nv}",
+                                t.len()
+                            ),
+                        );
+                    }
+                    Some(t)
+                }
+            };
+            let indices: Vec<u32> = match prim.indices {
+                Some(a) => {
+                    let a = a.value();
+                    let p = format!("{place}.indices");
+                    let idx = self.read_indices(a, &p)?;
+                    if let Some(k) = idx.iter().position(|&i| i as usize >= nv) {
+                        return fail(
+                            p,
+                            format!(
+                                "accessors[{a}] element {k} is {} but POSITION has only {nv} \
+                                 vertices",
+                                idx[k]
+                            ),
+                        );
+                    }
+                    idx
+                }
+                None => (0..nv as u32).collect(),
+            };
+            let mut tris: Vec<[u32; 3]> = Vec::new();
+            match prim.mode {
+                Checked::Valid(Mode::TriangleStrip) => {
+                    for i in 0..indices.len().saturating_sub(2) {
+                        // Every other triangle is flipped to keep the winding.
+                        let t = if i % 2 == 0 {
+                            [indices[i], indices[i + 1], indices[i + 2]]
+                        } else {
+                            [indices[i + 1], indices[i], indices[i + 2]]
+                        };
+                        tris.push(t);
+                    }
+                }
+                Checked::Valid(Mode::TriangleFan) => {
+                    for i in 1..indices.len().saturating_sub(1) {
+                        tris.push([indices[0], indices[i], indices[i + 1]]);
+                    }
+                }
+                _ => {
+                    if indices.len() % 3 != 0 {
+                        self.warn(format!(
+                            "{place}: {} indices is not a multiple of 3; the last {} ignored",
+                            indices.len(),
+                            indices.len() % 3
+                        ));
+                    }
+                    tris.extend(indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]]));
+                }
+            }
+            let pos: Vec<Vec3> = positions.iter().map(|&p| Vec3::from_array(p)).collect();
+            let nrm = match normals {
+                Some(n) => {
+                    let mut n: Vec<Vec3> = n.iter().map(|&v| Vec3::from_array(v)).collect();
+                    let bad = repair_normals(&mut n, &pos, &tris);
+                    if bad > 0 {
+                        self.warn(format!(
+                            "{place}: {bad} normals are zero or not finite; computed instead"
+                        ));
+                    }
+                    n
+                }
+                None => vertex_normals(&pos, &tris),
+            };
+            let material = match prim.material {
+                Some(m) if m.value() < root.materials.len() => m.value() as u32 + 1,
+                _ => 0,
+            };
+            out.positions.extend(pos);
+            out.normals.extend(nrm);
+            if any_uv {
+                match uvs {
+                    Some(t) => out.uvs.extend(t.iter().map(|&t| Vec2::from_array(t))),
+                    None => out.uvs.extend(std::iter::repeat_n(Vec2::ZERO, nv)),
+                }
+            }
+            let b = base as u32;
+            out.triangles
+                .extend(tris.iter().map(|t| [t[0] + b, t[1] + b, t[2] + b]));
+            out.triangle_material
+                .extend(std::iter::repeat_n(material, tris.len()));
+        }
+        Ok(out)
+    }
+
+    /// Material `i` of the file (asset material i + 1).
+    fn material(&mut self, i: usize) -> MeshMaterial {
+        let root = self.root;
+        let m = &root.materials[i];
+        let pbr = &m.pbr_metallic_roughness;
+        let [r, g, b, _alpha] = pbr.base_color_factor.0;
+        let ext = m.extensions.as_ref();
+        let transmission = ext
+            .and_then(|e| e.transmission.as_ref())
+            .map(|t| t.transmission_factor.0)
+            .unwrap_or(0.0);
+        let ior = ext
+            .and_then(|e| e.ior.as_ref())
+            .map(|x| x.ior.0)
+            .unwrap_or(1.5);
+        let params = pbr_material(
+            Vec3::new(r, g, b),
+            pbr.metallic_factor.0,
+            pbr.roughness_factor.0,
+            transmission,
+            ior,
+        );
+        let name = m.name.clone().unwrap_or_else(|| format!("materials[{i}]"));
+        let base_color_texture = match &pbr.base_color_texture {
+            None => None,
+            Some(info) if info.tex_coord != 0 => {
+                self.warn(format!(
+                    "materials[{i}].pbrMetallicRoughness.baseColorTexture: uses TEXCOORD_{}; \
+                     only TEXCOORD_0 is supported, texture ignored",
+                    info.tex_coord
+                ));
+                None
+            }
+            Some(info) => self.texture(info.index.value(), i),
+        };
+        MeshMaterial {
+            name,
+            params,
+            base_color_texture,
+        }
+    }
+
+    /// glTF texture `t` decoded (once), or `None` with a warning when it cannot be.
+    fn texture(&mut self, t: usize, material: usize) -> Option<usize> {
+        if let Some(&slot) = self.texture_slot.get(&t) {
+            return slot;
+        }
+        let slot = match self.decode_texture(t) {
+            Ok(tex) => {
+                self.asset.textures.push(tex);
+                Some(self.asset.textures.len() - 1)
+            }
+            Err((place, m)) => {
+                self.warn(format!(
+                    "{place}: {m}; materials[{material}] is drawn without its base colour \
+                     texture"
+                ));
+                None
+            }
+        };
+        self.texture_slot.insert(t, slot);
+        slot
+    }
+
+    fn decode_texture(&self, t: usize) -> Result<Texture, Fail> {
+        let root = self.root;
+        let Some(tex) = root.textures.get(t) else {
+            return fail(format!("textures[{t}]"), "does not exist");
+        };
+        let (wrap_u, wrap_v) = match tex.sampler.and_then(|s| root.samplers.get(s.value())) {
+            Some(s) => (wrap_mode(s.wrap_s), wrap_mode(s.wrap_t)),
+            None => (Wrap::Repeat, Wrap::Repeat),
+        };
+        let ii = tex.source.value();
+        let place = format!("images[{ii}]");
+        let Some(img) = root.images.get(ii) else {
+            return fail(
+                format!("textures[{t}].source"),
+                format!("image {ii} does not exist"),
+            );
+        };
+        let mut mime = img.mime_type.as_ref().map(|m| m.0.clone());
+        let (bytes, name): (Vec<u8>, String) = match (&img.uri, img.buffer_view) {
+            (Some(uri), _) => {
+                let (b, data_mime) =
+                    read_uri(uri, self.base).map_err(|m| (format!("{place}.uri"), m))?;
+                let name = if uri.starts_with("data:") {
+                    img.name.clone().unwrap_or_else(|| place.clone())
+                } else {
+                    uri.clone()
+                };
+                mime = mime.or(data_mime);
+                (b, name)
+            }
+            (None, Some(v)) => {
+                let slice = self.view_bytes(v.value(), &format!("{place}.bufferView"))?;
+                (
+                    slice.to_vec(),
+                    img.name.clone().unwrap_or_else(|| place.clone()),
+                )
+            }
+            (None, None) => return fail(place, "has neither uri nor bufferView"),
+        };
+        texture::decode(&bytes, mime.as_deref(), name, wrap_u, wrap_v)
+            .map_err(|m| (place, format!("cannot decode the image: {m}")))
+    }
+
+    /// The bytes of buffer view `v`, checked against its buffer.
+    fn view_bytes(&self, v: usize, place: &str) -> Result<&[u8], Fail> {
+        let Some(view) = self.root.buffer_views.get(v) else {
+            return fail(place, format!("buffer view {v} does not exist"));
+        };
+        let b = view.buffer.value();
+        let Some(buf) = self.buffers.get(b) else {
+            return fail(
+                format!("bufferViews[{v}].buffer"),
+                format!("buffer {b} does not exist"),
+            );
+        };
+        let off = view.byte_offset.map(|o| o.0).unwrap_or(0);
+        let len = view.byte_length.0;
+        match off.checked_add(len) {
+            Some(end) if end <= buf.len() as u64 => Ok(&buf[off as usize..end as usize]),
+            _ => fail(
+                format!("bufferViews[{v}]"),
+                format!(
+                    "bytes {off}..{} lie outside buffer {b} ({} bytes)",
+                    off.saturating_add(len),
+                    buf.len()
+                ),
+            ),
+        }
+    }
+
+    /// Accessor `a` as `N`-component float vectors (any component type; normalized integers
+    /// mapped to [0, 1] or [−1, 1]), with sparse substitution applied.
+    fn read_vecs<const N: usize>(&self, a: usize, place: &str) -> Result<Vec<[f32; N]>, Fail> {
+        let acc = self.accessor(a, place)?;
+        let want = match N {
+            1 => Type::Scalar,
+            2 => Type::Vec2,
+            3 => Type::Vec3,
+            _ => Type::Vec4,
+        };
+        let (ty, ct) = self.types(a, place)?;
+        if ty != want {
+            return fail(
+                place,
+                format!(
+                    "accessors[{a}] has type {} {}, expected {}",
+                    type_name(ty),
+                    component_name(ct),
+                    type_name(want)
+                ),
+            );
+        }
+        let normalized = acc.normalized;
+        self.read_elements(
+            a,
+            place,
+            ct,
+            N,
+            [0.0; N],
+            &|bytes: &[u8], out: &mut [f32; N]| {
+                let size = ct.size();
+                for (c, o) in out.iter_mut().enumerate() {
+                    *o = component_f32(ct, normalized, &bytes[c * size..(c + 1) * size]);
+                }
+            },
+        )
+    }
+
+    /// Accessor `a` as vertex indices (SCALAR of unsigned bytes, shorts or ints).
+    fn read_indices(&self, a: usize, place: &str) -> Result<Vec<u32>, Fail> {
+        let (ty, ct) = self.types(a, place)?;
+        if ty != Type::Scalar
+            || !matches!(
+                ct,
+                ComponentType::U8 | ComponentType::U16 | ComponentType::U32
+            )
+        {
+            return fail(
+                place,
+                format!(
+                    "accessors[{a}] has type {} {}; indices must be SCALAR unsigned byte, \
+                     short or int",
+                    type_name(ty),
+                    component_name(ct)
+                ),
+            );
+        }
+        self.read_elements(a, place, ct, 1, 0u32, &|bytes: &[u8], out: &mut u32| {
+            *out = component_u32(ct, bytes);
+        })
+    }
+
+    fn accessor(&self, a: usize, place: &str) -> Result<&json::Accessor, Fail> {
+        match self.root.accessors.get(a) {
+            Some(acc) => Ok(acc),
+            None => fail(place, format!("accessor {a} does not exist")),
+        }
+    }
+
+    fn types(&self, a: usize, place: &str) -> Result<(Type, ComponentType), Fail> {
+        let acc = self.accessor(a, place)?;
+        match (acc.type_, acc.component_type) {
+            (Checked::Valid(t), Checked::Valid(c)) => Ok((t, c.0)),
+            _ => fail(format!("accessors[{a}]"), "invalid type or componentType"),
+        }
+    }
+
+    /// Reads every element of accessor `a` (`ncomp` components of type `ct` each) with
+    /// `decode`, checking every byte range, then applies its sparse substitution.
+    #[allow(clippy::too_many_arguments)]
+    fn read_elements<T: Copy>(
+        &self,
+        a: usize,
+        place: &str,
+        ct: ComponentType,
+        ncomp: usize,
+        zero: T,
+        decode: &dyn Fn(&[u8], &mut T),
+    ) -> Result<Vec<T>, Fail> {
+        let acc = self.accessor(a, place)?;
+        let at = format!("accessors[{a}]");
+        let count = usize::try_from(acc.count.0).unwrap_or(usize::MAX);
+        let elem = ct.size() * ncomp;
+        let mut out: Vec<T>;
+        match acc.buffer_view {
+            Some(v) => {
+                let v = v.value();
+                let data = self.view_bytes(v, &format!("{at}.bufferView"))?;
+                let stride = self
+                    .root
+                    .buffer_views
+                    .get(v)
+                    .and_then(|bv| bv.byte_stride)
+                    .map(|s| s.0)
+                    .filter(|&s| s > 0)
+                    .unwrap_or(elem);
+                if stride < elem {
+                    return fail(
+                        format!("bufferViews[{v}].byteStride"),
+                        format!("{stride} is smaller than an element of {at} ({elem} bytes)"),
+                    );
+                }
+                let offset = acc.byte_offset.map(|o| o.0).unwrap_or(0);
+                let need = if count == 0 {
+                    Some(0)
+                } else {
+                    (count as u64 - 1)
+                        .checked_mul(stride as u64)
+                        .and_then(|x| x.checked_add(elem as u64))
+                        .and_then(|x| x.checked_add(offset))
+                };
+                match need {
+                    Some(n) if n <= data.len() as u64 => {}
+                    _ => {
+                        return fail(
+                            at,
+                            format!(
+                                "{count} elements of {elem} bytes (stride {stride}) from byte \
+                                 {offset} do not fit in buffer view {v} ({} bytes)",
+                                data.len()
+                            ),
+                        );
+                    }
+                }
+                let data = &data[offset as usize..];
+                out = vec![zero; count];
+                for (k, o) in out.iter_mut().enumerate() {
+                    decode(&data[k * stride..k * stride + elem], o);
+                }
+            }
+            None => {
+                if acc.sparse.is_none() {
+                    return fail(at, "has neither bufferView nor sparse");
+                }
+                if count > MAX_ZERO_ACCESSOR {
+                    return fail(
+                        at,
+                        format!("{count} elements without a buffer view is implausibly many"),
+                    );
+                }
+                out = vec![zero; count];
+            }
+        }
+        if let Some(sparse) = &acc.sparse {
+            let sp = format!("{at}.sparse");
+            let n = usize::try_from(sparse.count.0).unwrap_or(usize::MAX);
+            if n > count {
+                return fail(
+                    format!("{sp}.count"),
+                    format!("{n} substitutions for an accessor of {count} elements"),
+                );
+            }
+            let ict = match sparse.indices.component_type {
+                Checked::Valid(c) => c.0,
+                Checked::Invalid => {
+                    return fail(format!("{sp}.indices.componentType"), "invalid");
+                }
+            };
+            let iv = sparse.indices.buffer_view.value();
+            let idata = self.view_bytes(iv, &format!("{sp}.indices.bufferView"))?;
+            let ioff = sparse.indices.byte_offset.0;
+            let isize = ict.size();
+            let vv = sparse.values.buffer_view.value();
+            let vdata = self.view_bytes(vv, &format!("{sp}.values.bufferView"))?;
+            let voff = sparse.values.byte_offset.0;
+            let fits = |off: u64, size: usize, len: usize| {
+                (n as u64)
+                    .checked_mul(size as u64)
+                    .and_then(|x| x.checked_add(off))
+                    .is_some_and(|end| end <= len as u64)
+            };
+            if !fits(ioff, isize, idata.len()) {
+                return fail(
+                    format!("{sp}.indices"),
+                    format!("{n} indices from byte {ioff} do not fit in buffer view {iv}"),
+                );
+            }
+            if !fits(voff, elem, vdata.len()) {
+                return fail(
+                    format!("{sp}.values"),
+                    format!("{n} values from byte {voff} do not fit in buffer view {vv}"),
+                );
+            }
+            let idata = &idata[ioff as usize..];
+            let vdata = &vdata[voff as usize..];
+            for k in 0..n {
+                let target = component_u32(ict, &idata[k * isize..(k + 1) * isize]) as usize;
+                let Some(slot) = out.get_mut(target) else {
+                    return fail(
+                        format!("{sp}.indices"),
+                        format!(
+                            "substitution {k} targets element {target} of an accessor of \
+                             {count}"
+                        ),
+                    );
+                };
+                decode(&vdata[k * elem..(k + 1) * elem], slot);
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// A node's own transform (matrix, or translation · rotation · scale), checked finite.
+fn local_transform(root: &json::Root, index: usize) -> Result<Affine3A, Fail> {
+    let node = &root.nodes[index];
+    let m = match node.matrix {
+        Some(m) => Mat4::from_cols_array(&m),
+        None => {
+            let t = Vec3::from_array(node.translation.unwrap_or([0.0; 3]));
+            let r = node.rotation.map(|r| r.0).unwrap_or([0.0, 0.0, 0.0, 1.0]);
+            let r = glam::Vec4::from_array(r)
+                .try_normalize()
+                .map(Quat::from_vec4)
+                .unwrap_or(Quat::IDENTITY);
+            let s = Vec3::from_array(node.scale.unwrap_or([1.0; 3]));
+            Mat4::from_scale_rotation_translation(s, r, t)
+        }
+    };
+    if !m.is_finite() {
+        return fail(format!("nodes[{index}]"), "the transform is not finite");
+    }
+    Ok(Affine3A::from_mat4(m))
+}
+
+/// The glTF spelling of an accessor type.
+fn type_name(t: Type) -> &'static str {
+    match t {
+        Type::Scalar => "SCALAR",
+        Type::Vec2 => "VEC2",
+        Type::Vec3 => "VEC3",
+        Type::Vec4 => "VEC4",
+        Type::Mat2 => "MAT2",
+        Type::Mat3 => "MAT3",
+        Type::Mat4 => "MAT4",
+    }
+}
+
+/// A readable name of a component type.
+fn component_name(c: ComponentType) -> &'static str {
+    match c {
+        ComponentType::I8 => "BYTE",
+        ComponentType::U8 => "UNSIGNED_BYTE",
+        ComponentType::I16 => "SHORT",
+        ComponentType::U16 => "UNSIGNED_SHORT",
+        ComponentType::U32 => "UNSIGNED_INT",
+        ComponentType::F32 => "FLOAT",
+    }
+}
+
+fn wrap_mode(w: Checked<json::texture::WrappingMode>) -> Wrap {
+    use json::texture::WrappingMode as W;
+    match w {
+        Checked::Valid(W::ClampToEdge) => Wrap::ClampToEdge,
+        Checked::Valid(W::MirroredRepeat) => Wrap::MirroredRepeat,
+        _ => Wrap::Repeat,
+    }
+}
+
+/// One little-endian component as a float; normalized integers map to [0, 1] (unsigned) or
+/// [−1, 1] (signed) as the glTF specification says.
+fn component_f32(ct: ComponentType, normalized: bool, b: &[u8]) -> f32 {
+    match ct {
+        ComponentType::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+        ComponentType::I8 => {
+            let v = b[0] as i8 as f32;
+            if normalized { (v / 127.0).max(-1.0) } else { v }
+        }
+        ComponentType::U8 => {
+            let v = b[0] as f32;
+            if normalized { v / 255.0 } else { v }
+        }
+        ComponentType::I16 => {
+            let v = i16::from_le_bytes([b[0], b[1]]) as f32;
+            if normalized {
+                (v / 32767.0).max(-1.0)
+            } else {
+                v
+            }
+        }
+        ComponentType::U16 => {
+            let v = u16::from_le_bytes([b[0], b[1]]) as f32;
+            if normalized { v / 65535.0 } else { v }
+        }
+        ComponentType::U32 => {
+            let v = u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32;
+            if normalized { v / 4294967295.0 } else { v }
+        }
+    }
+}
+
+/// One little-endian unsigned component (signed types reinterpreted).
+fn component_u32(ct: ComponentType, b: &[u8]) -> u32 {
+    match ct {
+        ComponentType::U8 | ComponentType::I8 => u32::from(b[0]),
+        ComponentType::U16 | ComponentType::I16 => u32::from(u16::from_le_bytes([b[0], b[1]])),
+        ComponentType::U32 | ComponentType::F32 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn base64_round_trip() {
+        assert_eq!(base64_decode("aGVsbG8=").unwrap(), b"hello");
+        assert_eq!(base64_decode("aGVsbG8").unwrap(), b"hello");
+        assert!(base64_decode("a$b").is_none());
+        assert_eq!(percent_decode("a%20b").unwrap(), "a b");
+        assert!(percent_decode("a%2").is_none());
+        assert!(percent_decode("%FF").is_none());
+    }
+
+    #[test]
+    fn glb_container_errors() {
+        assert!(split_glb(b"glTF").is_err());
+        let mut b = b"glTF".to_vec();
+        b.extend(2u32.to_le_bytes());
+        b.extend(1000u32.to_le_bytes());
+        assert!(split_glb(&b).is_err());
+        let mut b = b"glTF".to_vec();
+        b.extend(2u32.to_le_bytes());
+        b.extend(28u32.to_le_bytes());
+        b.extend(8u32.to_le_bytes());
+        b.extend(b"JSON{}      ");
+        assert_eq!(split_glb(&b).unwrap().0, b"{}      ");
+        let mut c = b.clone();
+        c[12] = 200;
+        assert!(split_glb(&c).is_err());
+    }
+}

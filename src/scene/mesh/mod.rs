@@ -1,0 +1,471 @@
+//! Triangle meshes from files: glTF 2.0, OBJ/MTL and PLY, loaded into one form.
+//!
+//! [`load`] picks the reader by the file's extension (case-insensitive): `gltf` and `glb`
+//! (glTF 2.0 with external, base64-embedded or GLB-chunk buffers), `obj` (Wavefront OBJ with
+//! its MTL libraries) and `ply` (ASCII and binary PLY). Every reader produces a [`MeshAsset`]:
+//! meshes stored once, placed by [`MeshInstance`]s, with materials, textures, cameras and
+//! lights already in the file's world space.
+//!
+//! Conventions shared by every format:
+//!
+//! - Triangles wind counter-clockwise seen from the front, as in all three formats; polygons
+//!   (OBJ, PLY) are split by ear clipping in their best-fit plane, so concave polygons keep
+//!   their shape.
+//! - Normals are per vertex and unit length. When the file has none (or a vertex's normal is
+//!   zero or not finite) they are the normalised sum of the adjacent faces' area-weighted
+//!   normals.
+//! - Texture coordinates follow glTF: (0, 0) is the top-left corner of the image. OBJ and PLY
+//!   store v upwards, so their v is flipped (v ↦ 1 − v) while loading.
+//! - Colours are linear RGB; texture texels are decoded from sRGB at load.
+//! - Material 0 is always the default grey ([`MaterialParams::default_grey`]); triangles
+//!   without a material use it.
+//!
+//! Material mapping from glTF's metallic-roughness model to the renderer's Lambert + Phong
+//! parameters (see [`pbr_material`]):
+//!
+//! | parameter | value |
+//! |---|---|
+//! | `color` | `baseColorFactor.rgb` (alpha ignored) |
+//! | `diffuse` | 1 − metallic |
+//! | `specular` | mix(0.04, base colour, metallic) |
+//! | `shininess` | 2/α⁴ − 2 with α = max(roughness, 0.05), at least 1 |
+//! | `reflectivity` | metallic · (1 − roughness)² |
+//! | `transparency` | `KHR_materials_transmission.transmissionFactor` (0 without it) |
+//! | `ior` | `KHR_materials_ior.ior` (1.5 without it) |
+//!
+//! and from MTL: `Kd` → `color` (default 0.8 grey), `Ks` → `specular` (default black), `Ns` →
+//! `shininess` (at least 1), `d` → transparency 1 − d (or `Tr` → transparency Tr when there
+//! is no `d`), `Ni` → `ior`, `map_Kd` → base colour texture, `diffuse` = 1, `reflectivity` = 0.
+
+mod gltf;
+mod obj;
+mod ply;
+mod polygon;
+mod texture;
+
+use crate::geom::Aabb;
+use crate::shade::material::MaterialParams;
+use glam::{Affine3A, Vec2, Vec3};
+use std::path::{Path, PathBuf};
+
+pub use texture::{Texture, Wrap};
+
+/// Everything a mesh file holds that the renderer uses.
+#[derive(Debug, Clone)]
+pub struct MeshAsset {
+    /// The meshes, each stored once; [`MeshAsset::instances`] places them.
+    pub meshes: Vec<TriangleMesh>,
+    /// Materials; index 0 is always the default grey.
+    pub materials: Vec<MeshMaterial>,
+    /// Textures referenced by [`MeshMaterial::base_color_texture`].
+    pub textures: Vec<Texture>,
+    /// Placements of meshes in the file's world space.
+    pub instances: Vec<MeshInstance>,
+    /// glTF cameras, already in world space.
+    pub cameras: Vec<NamedCamera>,
+    /// `KHR_lights_punctual` lights, already in world space.
+    pub lights: Vec<NamedLight>,
+    /// What was skipped or replaced while loading (points and lines primitives, missing `.mtl`
+    /// files or textures, ...), one sentence each.
+    pub warnings: Vec<String>,
+}
+
+/// A triangle mesh in its own object space.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TriangleMesh {
+    /// Name from the file (glTF mesh name, OBJ group or object name, PLY file stem).
+    pub name: String,
+    /// Vertex positions.
+    pub positions: Vec<Vec3>,
+    /// Unit normals, one per vertex; computed (area-weighted face normals) when the file has
+    /// none.
+    pub normals: Vec<Vec3>,
+    /// Texture coordinates, one per vertex (glTF `TEXCOORD_0`, OBJ `vt`, PLY `u v`), with
+    /// (0, 0) at the image's top-left corner; empty when the file has none.
+    pub uvs: Vec<Vec2>,
+    /// Triangles as vertex indices, counter-clockwise seen from the front.
+    pub triangles: Vec<[u32; 3]>,
+    /// Per triangle, an index into [`MeshAsset::materials`].
+    pub triangle_material: Vec<u32>,
+}
+
+/// One placement of a mesh.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeshInstance {
+    /// Index into [`MeshAsset::meshes`].
+    pub mesh: usize,
+    /// Object → world.
+    pub transform: Affine3A,
+    /// Name of the placing node (glTF), or of the mesh (OBJ, PLY).
+    pub name: String,
+}
+
+/// A surface material.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeshMaterial {
+    /// Name from the file (`(default)` for material 0).
+    pub name: String,
+    /// Shading parameters; see the module documentation for how they are derived.
+    pub params: MaterialParams,
+    /// Index into [`MeshAsset::textures`], sampled with the mesh's uvs; the sample multiplies
+    /// `params.color`.
+    pub base_color_texture: Option<usize>,
+}
+
+/// A camera from the file, in world space.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NamedCamera {
+    /// Camera or node name.
+    pub name: String,
+    /// Eye position.
+    pub position: Vec3,
+    /// Unit viewing direction (the node's −Z axis).
+    pub forward: Vec3,
+    /// Unit up vector orthogonal to `forward` (the node's +Y axis).
+    pub up: Vec3,
+    /// Projection.
+    pub projection: CameraProjection,
+}
+
+/// A camera's projection as glTF gives it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CameraProjection {
+    /// Pinhole camera.
+    Perspective {
+        /// Vertical field of view in radians.
+        yfov_radians: f32,
+        /// Width / height, when the file fixes it.
+        aspect: Option<f32>,
+    },
+    /// Parallel projection.
+    Orthographic {
+        /// Half the view's height.
+        ymag: f32,
+        /// Half the view's width.
+        xmag: f32,
+    },
+}
+
+/// A punctual light from the file, in world space.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NamedLight {
+    /// Light or node name.
+    pub name: String,
+    /// Kind and placement.
+    pub kind: LightKind,
+    /// Linear RGB colour.
+    pub color: Vec3,
+    /// Intensity as the file gives it (candela for point and spot lights, lux for
+    /// directional lights in glTF).
+    pub intensity: f32,
+}
+
+/// Kind and placement of a [`NamedLight`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LightKind {
+    /// Light from a point.
+    Point {
+        /// World position.
+        position: Vec3,
+    },
+    /// Parallel light.
+    Directional {
+        /// Unit direction in which the light travels (the node's −Z axis).
+        direction: Vec3,
+    },
+    /// Cone of light from a point.
+    Spot {
+        /// World position.
+        position: Vec3,
+        /// Unit direction of the cone's axis (the node's −Z axis).
+        direction: Vec3,
+    },
+}
+
+/// Why a mesh file could not be loaded. Every message names the file and, where known, the
+/// place in it: a glTF JSON path (`meshes[2].primitives[0].attributes.POSITION`,
+/// `accessors[5]`) or an OBJ/PLY line number.
+#[derive(Debug, thiserror::Error)]
+pub enum MeshError {
+    /// The file could not be read (missing, a directory, no permission...).
+    #[error("{}: cannot read: {error}", .file.display())]
+    Io {
+        /// The file.
+        file: PathBuf,
+        /// Why (shown in the message itself, so not chained as a source).
+        error: std::io::Error,
+    },
+    /// The extension is none of `gltf`, `glb`, `obj`, `ply`.
+    #[error(
+        "{}: unsupported mesh file type (the extension must be .gltf, .glb, .obj or .ply)",
+        .file.display()
+    )]
+    Unsupported {
+        /// The file.
+        file: PathBuf,
+    },
+    /// The file has no bytes.
+    #[error("{}: the file is empty", .file.display())]
+    Empty {
+        /// The file.
+        file: PathBuf,
+    },
+    /// Invalid glTF: bad JSON or binary container, failed validation, data out of range,
+    /// unreadable buffers.
+    #[error("{}: {}{message}", .file.display(), place_prefix(.place))]
+    Gltf {
+        /// The file.
+        file: PathBuf,
+        /// JSON path of the offending item, such as `accessors[5]`; empty when the whole file
+        /// is concerned.
+        place: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// Invalid OBJ data.
+    #[error("{}{}: {message}", .file.display(), line_suffix(.line))]
+    Obj {
+        /// The file.
+        file: PathBuf,
+        /// Line, from 1, when known.
+        line: Option<usize>,
+        /// What is wrong.
+        message: String,
+    },
+    /// Invalid PLY data.
+    #[error("{}{}: {message}", .file.display(), line_suffix(.line))]
+    Ply {
+        /// The file.
+        file: PathBuf,
+        /// Line, from 1, when known (ASCII files, and the header of binary ones).
+        line: Option<usize>,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+fn place_prefix(place: &str) -> String {
+    if place.is_empty() {
+        String::new()
+    } else {
+        format!("{place}: ")
+    }
+}
+
+fn line_suffix(line: &Option<usize>) -> String {
+    match line {
+        Some(l) => format!(":{l}"),
+        None => String::new(),
+    }
+}
+
+/// Loads a mesh file, choosing the reader by its extension (case-insensitive): `gltf`, `glb`,
+/// `obj` or `ply`. Bad input of any kind is a [`MeshError`] naming the file, never a panic.
+pub fn load(path: &Path) -> Result<MeshAsset, MeshError> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase())
+        .unwrap_or_default();
+    let kind = match ext.as_str() {
+        "gltf" | "glb" => Kind::Gltf,
+        "obj" => Kind::Obj,
+        "ply" => Kind::Ply,
+        _ => {
+            return Err(MeshError::Unsupported {
+                file: path.to_path_buf(),
+            });
+        }
+    };
+    let bytes = std::fs::read(path).map_err(|error| MeshError::Io {
+        file: path.to_path_buf(),
+        error,
+    })?;
+    if bytes.is_empty() {
+        return Err(MeshError::Empty {
+            file: path.to_path_buf(),
+        });
+    }
+    let mut asset = match kind {
+        Kind::Gltf => gltf::load(path, &bytes)?,
+        Kind::Obj => obj::load(path, &bytes)?,
+        Kind::Ply => ply::load(path, &bytes)?,
+    };
+    for mesh in &mut asset.meshes {
+        debug_assert_eq!(mesh.triangles.len(), mesh.triangle_material.len());
+        debug_assert_eq!(mesh.positions.len(), mesh.normals.len());
+        debug_assert!(mesh.uvs.is_empty() || mesh.uvs.len() == mesh.positions.len());
+        mesh.triangle_material.resize(mesh.triangles.len(), 0);
+    }
+    Ok(asset)
+}
+
+enum Kind {
+    Gltf,
+    Obj,
+    Ply,
+}
+
+impl MeshAsset {
+    /// An asset holding only the default material.
+    fn empty() -> MeshAsset {
+        MeshAsset {
+            meshes: Vec::new(),
+            materials: vec![MeshMaterial::default_grey()],
+            textures: Vec::new(),
+            instances: Vec::new(),
+            cameras: Vec::new(),
+            lights: Vec::new(),
+            warnings: Vec::new(),
+        }
+    }
+
+    /// Triangles over all instances (a mesh placed twice counts twice).
+    pub fn triangle_count(&self) -> usize {
+        self.instances
+            .iter()
+            .filter_map(|i| self.meshes.get(i.mesh))
+            .map(|m| m.triangles.len())
+            .sum()
+    }
+
+    /// Triangles over the stored meshes (each mesh once).
+    pub fn unique_triangle_count(&self) -> usize {
+        self.meshes.iter().map(|m| m.triangles.len()).sum()
+    }
+
+    /// World bounds over all instances: every vertex of each placed mesh, transformed.
+    /// Empty ([`Aabb::EMPTY`]) when nothing is placed.
+    pub fn bounds(&self) -> Aabb {
+        let mut b = Aabb::EMPTY;
+        for inst in &self.instances {
+            let Some(mesh) = self.meshes.get(inst.mesh) else {
+                continue;
+            };
+            let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+            for p in &mesh.positions {
+                let q = inst.transform.transform_point3(*p);
+                lo = lo.min(q);
+                hi = hi.max(q);
+            }
+            b = b.union(&Aabb::new(lo, hi));
+        }
+        b
+    }
+}
+
+impl MeshMaterial {
+    /// Material 0 of every asset.
+    fn default_grey() -> MeshMaterial {
+        MeshMaterial {
+            name: "(default)".to_string(),
+            params: MaterialParams::default_grey(),
+            base_color_texture: None,
+        }
+    }
+}
+
+/// Phong parameters for a metallic-roughness material (the table in the module
+/// documentation). Factors are clamped to their valid ranges first.
+pub fn pbr_material(
+    base_color: Vec3,
+    metallic: f32,
+    roughness: f32,
+    transmission: f32,
+    ior: f32,
+) -> MaterialParams {
+    let clamp01 = |x: f32| {
+        if x.is_finite() {
+            x.clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
+    };
+    let base = Vec3::new(
+        clamp01(base_color.x),
+        clamp01(base_color.y),
+        clamp01(base_color.z),
+    );
+    let metallic = clamp01(metallic);
+    let roughness = if roughness.is_finite() {
+        roughness.clamp(0.0, 1.0)
+    } else {
+        1.0
+    };
+    let alpha = roughness.max(0.05);
+    let shininess = (2.0 / alpha.powi(4) - 2.0).max(1.0);
+    MaterialParams {
+        color: base,
+        diffuse: 1.0 - metallic,
+        specular: Vec3::splat(0.04).lerp(base, metallic),
+        shininess,
+        reflectivity: metallic * (1.0 - roughness) * (1.0 - roughness),
+        transparency: clamp01(transmission),
+        ior: if ior.is_finite() && ior > 0.0 {
+            ior
+        } else {
+            1.5
+        },
+    }
+}
+
+/// Area-weighted vertex normals: each vertex gets the normalised sum of the (unnormalised)
+/// cross products of its triangles; vertices without any non-degenerate triangle get +Z.
+fn vertex_normals(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
+    let mut acc = vec![Vec3::ZERO; positions.len()];
+    accumulate_face_normals(positions, triangles, |i, n| {
+        if let Some(a) = acc.get_mut(i) {
+            *a += n;
+        }
+    });
+    acc.into_iter()
+        .map(|n| n.try_normalize().unwrap_or(Vec3::Z))
+        .collect()
+}
+
+/// Calls `add(vertex, n)` for each corner of each triangle with the triangle's cross product
+/// (twice its area times its unit normal).
+fn accumulate_face_normals(
+    positions: &[Vec3],
+    triangles: &[[u32; 3]],
+    mut add: impl FnMut(usize, Vec3),
+) {
+    for t in triangles {
+        let [a, b, c] = t.map(|i| i as usize);
+        let (Some(pa), Some(pb), Some(pc)) = (positions.get(a), positions.get(b), positions.get(c))
+        else {
+            continue;
+        };
+        let n = (*pb - *pa).cross(*pc - *pa);
+        if !n.is_finite() {
+            continue;
+        }
+        add(a, n);
+        add(b, n);
+        add(c, n);
+    }
+}
+
+/// Makes file normals unit length; those that are zero or not finite are replaced by the
+/// area-weighted normals of `triangles`. Returns how many were replaced.
+fn repair_normals(normals: &mut [Vec3], positions: &[Vec3], triangles: &[[u32; 3]]) -> usize {
+    let mut bad = 0;
+    for n in normals.iter_mut() {
+        match n.try_normalize() {
+            Some(u) => *n = u,
+            None => {
+                *n = Vec3::NAN;
+                bad += 1;
+            }
+        }
+    }
+    if bad > 0 {
+        let computed = vertex_normals(positions, triangles);
+        for (n, c) in normals.iter_mut().zip(computed) {
+            if n.is_nan() {
+                *n = c;
+            }
+        }
+    }
+    bad
+}

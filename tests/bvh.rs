@@ -1,0 +1,1026 @@
+//! Mesh acceleration: `MeshBvh`, `InstanceBvh` and `AabbBvh` against brute force, watertightness
+//! on the Stanford bunny (with a control showing that a non-watertight test leaks on the same
+//! rays), instancing against flattened geometry, the tmin/tmax contract, and bad input.
+//!
+//! The bunny is read from `$HYTRACE_ASSETS/obj/common-3d-test-models/stanford-bunny.obj`
+//! (`HYTRACE_ASSETS` defaults to `../shared/assets` beside the crate); when it is missing the
+//! test says so loudly, and fails under `CI=true`.
+
+use std::collections::HashMap;
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+
+use glam::{Affine3A, Quat, Vec3};
+use hytrace::accel::bvh::{
+    AabbBvh, BuildQuality, Instance, InstanceBvh, MeshBvh, MeshHit, ray_box_interval,
+};
+use hytrace::accel::triangle::{self, WatertightRay};
+use hytrace::geom::{Aabb, Ray};
+use rayon::prelude::*;
+
+const QUALITIES: [BuildQuality; 3] = [BuildQuality::Fast, BuildQuality::Medium, BuildQuality::High];
+
+/// SplitMix64 (Steele, Lea & Flood 2014): small, deterministic, good enough for test data.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+    /// Uniform in [0, 1).
+    fn f(&mut self) -> f32 {
+        (self.next() >> 40) as f32 / (1u64 << 24) as f32
+    }
+    fn range(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * self.f()
+    }
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n as u64) as usize
+    }
+    fn v3(&mut self, lo: f32, hi: f32) -> Vec3 {
+        Vec3::new(self.range(lo, hi), self.range(lo, hi), self.range(lo, hi))
+    }
+    /// Uniform on the unit sphere (rejection from the cube).
+    fn dir(&mut self) -> Vec3 {
+        loop {
+            let v = self.v3(-1.0, 1.0);
+            let l = v.length_squared();
+            if l > 1e-4 && l <= 1.0 {
+                return v / l.sqrt();
+            }
+        }
+    }
+}
+
+/// Closest hit over every triangle with the same watertight test and the same tie-break
+/// (smallest t, then smallest index) as the BVH.
+fn brute_closest(
+    pos: &[Vec3],
+    tris: &[[u32; 3]],
+    o: Vec3,
+    d: Vec3,
+    tmin: f32,
+    tmax: f32,
+) -> Option<MeshHit> {
+    let r = WatertightRay::new(o, d);
+    let mut best: Option<MeshHit> = None;
+    let mut tmax = tmax;
+    for (i, t) in tris.iter().enumerate() {
+        let [a, b, c] = t.map(|k| pos[k as usize]);
+        if !triangle::is_finite(a, b, c) {
+            continue;
+        }
+        if let Some(h) = triangle::intersect(&r, a, b, c, tmin, tmax) {
+            if best.is_none_or(|b| h.t < b.t) {
+                best = Some(MeshHit {
+                    t: h.t,
+                    triangle: i as u32,
+                    u: h.u,
+                    v: h.v,
+                });
+                tmax = h.t;
+            }
+        }
+    }
+    best
+}
+
+fn brute_any(pos: &[Vec3], tris: &[[u32; 3]], o: Vec3, d: Vec3, tmin: f32, tmax: f32) -> bool {
+    let r = WatertightRay::new(o, d);
+    tris.iter().any(|t| {
+        let [a, b, c] = t.map(|k| pos[k as usize]);
+        triangle::is_finite(a, b, c) && triangle::intersect(&r, a, b, c, tmin, tmax).is_some()
+    })
+}
+
+fn ray(o: Vec3, d: Vec3) -> Ray {
+    // Deliberately not normalised here: the BVH accepts any non-zero direction.
+    Ray {
+        origin: o,
+        direction: d,
+    }
+}
+
+/// A soup of random triangles of very different sizes in [-1, 1]³, plus a few shared-edge
+/// strips (so rays through shared edges and vertices occur) and axis-aligned triangles (so
+/// axis-parallel rays run exactly along box faces).
+fn soup(rng: &mut Rng, n: usize) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let mut pos = Vec::new();
+    let mut tris = Vec::new();
+    for i in 0..n {
+        let size = [0.02, 0.1, 0.5][i % 3];
+        let c = rng.v3(-1.0, 1.0);
+        let base = pos.len() as u32;
+        if i % 17 == 0 {
+            // Axis-aligned right triangle in a coordinate plane through c.
+            let axis = i % 3;
+            let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+            let mut e1 = Vec3::ZERO;
+            e1[u] = size;
+            let mut e2 = Vec3::ZERO;
+            e2[v] = size;
+            pos.extend([c, c + e1, c + e2]);
+        } else {
+            pos.extend([c, c + rng.v3(-size, size), c + rng.v3(-size, size)]);
+        }
+        tris.push([base, base + 1, base + 2]);
+    }
+    // Strips: a row of quads sharing edges.
+    for _ in 0..20 {
+        let o = rng.v3(-1.0, 1.0);
+        let (e1, e2) = (rng.v3(-0.1, 0.1), rng.v3(-0.1, 0.1));
+        let base = pos.len() as u32;
+        for k in 0..10 {
+            pos.push(o + k as f32 * e1);
+            pos.push(o + k as f32 * e1 + e2);
+        }
+        for k in 0..9 {
+            let q = base + 2 * k;
+            tris.push([q, q + 2, q + 1]);
+            tris.push([q + 1, q + 2, q + 3]);
+        }
+    }
+    (pos, tris)
+}
+
+/// Rays of every kind: from outside at points inside, from inside, from points on triangles
+/// (tmin = 0), along the axes (from vertices, so exactly on box planes), short and long.
+fn soup_rays(rng: &mut Rng, pos: &[Vec3], tris: &[[u32; 3]], n: usize) -> Vec<(Vec3, Vec3, f32, f32)> {
+    let mut rays = Vec::with_capacity(n);
+    for i in 0..n {
+        let (o, d, tmin, tmax) = match i % 6 {
+            0 => {
+                let o = rng.dir() * 3.0;
+                (o, rng.v3(-1.0, 1.0) - o, 0.0, f32::INFINITY)
+            }
+            1 => (rng.v3(-1.0, 1.0), rng.dir(), 0.0, f32::INFINITY),
+            2 => {
+                // Origin on a triangle (rounded, so on it up to an ulp).
+                let t = tris[rng.below(tris.len())].map(|k| pos[k as usize]);
+                let (mut u, mut v) = (rng.f(), rng.f());
+                if u + v > 1.0 {
+                    (u, v) = (1.0 - u, 1.0 - v);
+                }
+                let o = (1.0 - u - v) * t[0] + u * t[1] + v * t[2];
+                (o, rng.dir() * rng.range(0.5, 2.0), 0.0, f32::INFINITY)
+            }
+            3 => {
+                // Axis-parallel, from a vertex (on the planes of its triangle's boxes).
+                let o = pos[rng.below(pos.len())];
+                let mut d = Vec3::ZERO;
+                d[rng.below(3)] = if rng.f() < 0.5 { 1.0 } else { -1.0 };
+                (o, d, 0.0, f32::INFINITY)
+            }
+            4 => {
+                // Bounded segment with tmin > 0.
+                let o = rng.v3(-1.5, 1.5);
+                (o, rng.dir(), rng.range(0.0, 0.3), rng.range(0.3, 1.5))
+            }
+            _ => {
+                // Ray at a vertex from far away (through a shared vertex in the strips).
+                let p = pos[rng.below(pos.len())];
+                let o = rng.dir() * 4.0;
+                (o, (p - o).normalize(), 0.0, f32::INFINITY)
+            }
+        };
+        rays.push((o, d, tmin, tmax));
+    }
+    rays
+}
+
+#[test]
+fn random_soups_match_brute_force_for_every_quality() {
+    for seed in [1u64, 2] {
+        let mut rng = Rng(seed);
+        let (pos, tris) = soup(&mut rng, 4000);
+        let rays = soup_rays(&mut rng, &pos, &tris, 12_000);
+        let expected: Vec<(Option<MeshHit>, bool)> = rays
+            .par_iter()
+            .map(|&(o, d, tmin, tmax)| {
+                (
+                    brute_closest(&pos, &tris, o, d, tmin, tmax),
+                    brute_any(&pos, &tris, o, d, tmin, tmax),
+                )
+            })
+            .collect();
+        let hits = expected.iter().filter(|e| e.0.is_some()).count();
+        assert!(hits > 3000, "the rays must hit something: {hits}");
+        for q in QUALITIES {
+            let bvh = MeshBvh::build(&pos, &tris, q);
+            assert_eq!(bvh.stats().kept, tris.len());
+            for (&(o, d, tmin, tmax), (closest, any)) in rays.iter().zip(&expected) {
+                let r = ray(o, d);
+                // Exact equality: same test, same tie-break, nothing lost by the tree.
+                assert_eq!(
+                    bvh.closest_hit(&r, tmin, tmax),
+                    *closest,
+                    "{q:?} closest: o={o} d={d} [{tmin}, {tmax}]"
+                );
+                assert_eq!(bvh.any_hit(&r, tmin, tmax), *any, "{q:?} any: o={o} d={d}");
+            }
+            println!(
+                "seed {seed} {q:?}: {} nodes, depth {}, {} refs, built in {:?}; {hits} of {} rays hit",
+                bvh.node_count(),
+                bvh.stats().max_depth,
+                bvh.stats().references,
+                bvh.stats().build_time,
+                rays.len()
+            );
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Watertightness on the bunny.
+
+fn assets_dir() -> Option<PathBuf> {
+    let dir = std::env::var_os("HYTRACE_ASSETS")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets"));
+    Some(dir)
+}
+
+/// The bunny as (positions, triangles), or `None` (after a loud message; a panic under
+/// `CI=true`) when the file is missing.
+fn load_bunny() -> Option<(Vec<Vec3>, Vec<[u32; 3]>)> {
+    let path = assets_dir()?.join("obj/common-3d-test-models/stanford-bunny.obj");
+    if !path.is_file() {
+        let msg = format!(
+            "\n!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!\n\
+             !!! the Stanford bunny is missing at {}\n\
+             !!! set HYTRACE_ASSETS to the shared assets folder; the bunny tests are SKIPPED\n\
+             !!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!\n",
+            path.display()
+        );
+        eprintln!("{msg}");
+        if std::env::var("CI").is_ok_and(|v| v == "true") {
+            panic!("CI=true and the bunny is missing at {}", path.display());
+        }
+        return None;
+    }
+    let opts = tobj::LoadOptions {
+        single_index: true,
+        triangulate: true,
+        ..Default::default()
+    };
+    let (models, _) = tobj::load_obj(&path, &opts).expect("bunny loads");
+    let mut pos = Vec::new();
+    let mut tris = Vec::new();
+    for m in models {
+        let base = pos.len() as u32;
+        pos.extend(
+            m.mesh
+                .positions
+                .chunks_exact(3)
+                .map(|p| Vec3::new(p[0], p[1], p[2])),
+        );
+        tris.extend(
+            m.mesh
+                .indices
+                .chunks_exact(3)
+                .map(|t| [base + t[0], base + t[1], base + t[2]]),
+        );
+    }
+    Some((pos, tris))
+}
+
+/// Möller & Trumbore ("Fast, minimum storage ray-triangle intersection", JGT 1997) with strict
+/// inequalities at the edges: the classic test, deliberately *not* watertight.
+fn moller_trumbore_strict(o: Vec3, d: Vec3, a: Vec3, b: Vec3, c: Vec3) -> Option<f32> {
+    let e1 = b - a;
+    let e2 = c - a;
+    let p = d.cross(e2);
+    let det = e1.dot(p);
+    if det == 0.0 {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = o - a;
+    let u = s.dot(p) * inv;
+    if !(u > 0.0 && u < 1.0) {
+        return None;
+    }
+    let q = s.cross(e1);
+    let v = d.dot(q) * inv;
+    if !(v > 0.0 && u + v < 1.0) {
+        return None;
+    }
+    let t = e2.dot(q) * inv;
+    (t >= 0.0).then_some(t)
+}
+
+struct Aimed {
+    origin: Vec3,
+    dir: Vec3,
+    /// Distance to the aimed-at point.
+    t_aim: f32,
+    /// The triangles around the aimed-at edge or vertex.
+    local: Vec<u32>,
+    vertex: bool,
+}
+
+/// Rays aimed exactly (up to the rounding of the aim point and of the normalised direction) at
+/// points of edges shared by exactly two consistently oriented triangles and at vertices whose
+/// whole fan is such a closed disc, from origins outside the bounds, in directions that see every
+/// triangle around the target from the same side with |cos| ≥ 0.1. Such a ray crosses the surface
+/// at the target (the triangles around it project onto a neighbourhood of the target's
+/// projection), so it must hit *something* at t ≤ t_aim + tolerance.
+fn aimed_rays(pos: &[Vec3], tris: &[[u32; 3]], n_edge: usize, n_vertex: usize) -> Vec<Aimed> {
+    // Undirected edge → (triangles, sum of directions: 0 when used once each way).
+    let mut edges: HashMap<(u32, u32), (Vec<u32>, i32)> = HashMap::new();
+    for (i, t) in tris.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            let e = edges.entry((a.min(b), a.max(b))).or_default();
+            e.0.push(i as u32);
+            e.1 += if a < b { 1 } else { -1 };
+        }
+    }
+    let good = |a: u32, b: u32| {
+        edges
+            .get(&(a.min(b), a.max(b)))
+            .is_some_and(|(ts, dir)| ts.len() == 2 && *dir == 0)
+    };
+    let normal = |t: u32| {
+        let [a, b, c] = tris[t as usize].map(|k| pos[k as usize]);
+        (b - a).cross(c - a).normalize()
+    };
+    let mut good_edges: Vec<(u32, u32, [u32; 2])> = edges
+        .iter()
+        .filter(|(_, (ts, dir))| ts.len() == 2 && *dir == 0)
+        .map(|(&(a, b), (ts, _))| (a, b, [ts[0], ts[1]]))
+        .collect();
+    good_edges.sort_unstable();
+    let mut fans: HashMap<u32, Vec<u32>> = HashMap::new();
+    for (i, t) in tris.iter().enumerate() {
+        for &v in t {
+            fans.entry(v).or_default().push(i as u32);
+        }
+    }
+    let mut good_vertices: Vec<(u32, Vec<u32>)> = fans
+        .into_iter()
+        .filter(|(v, fan)| {
+            fan.len() >= 3
+                && fan.iter().all(|&t| {
+                    let t = tris[t as usize];
+                    t.iter().filter(|&&w| w != *v).all(|&w| good(*v, w))
+                })
+        })
+        .collect();
+    good_vertices.sort_unstable();
+    let bounds = pos
+        .iter()
+        .fold(Aabb::EMPTY, |b, p| b.union(&Aabb::new(*p, *p)));
+    let reach = 2.0 * bounds.diagonal();
+    let mut rng = Rng(0xB0_77E5);
+    let mut out = Vec::with_capacity(n_edge + n_vertex);
+    // A direction w (from the target towards the origin) that sees all of `local` from one
+    // side with |cos| >= 0.1.
+    let pick = |rng: &mut Rng, local: &[u32]| -> Option<Vec3> {
+        let normals: Vec<Vec3> = local.iter().map(|&t| normal(t)).collect();
+        for _ in 0..64 {
+            let w = rng.dir();
+            let s: Vec<f32> = normals.iter().map(|n| n.dot(w)).collect();
+            if s.iter().all(|&c| c >= 0.1) || s.iter().all(|&c| c <= -0.1) {
+                return Some(w);
+            }
+        }
+        None
+    };
+    while out.len() < n_edge {
+        let (a, b, ts) = good_edges[rng.below(good_edges.len())];
+        let Some(w) = pick(&mut rng, &ts) else { continue };
+        let s = rng.range(0.01, 0.99);
+        let (pa, pb) = (pos[a as usize], pos[b as usize]);
+        let target = pa + s * (pb - pa);
+        let origin = target + reach * w;
+        let d = target - origin;
+        out.push(Aimed {
+            origin,
+            dir: d.normalize(),
+            t_aim: d.length(),
+            local: ts.to_vec(),
+            vertex: false,
+        });
+    }
+    while out.len() < n_edge + n_vertex {
+        let (v, fan) = &good_vertices[rng.below(good_vertices.len())];
+        let Some(w) = pick(&mut rng, fan) else { continue };
+        let target = pos[*v as usize];
+        let origin = target + reach * w;
+        let d = target - origin;
+        out.push(Aimed {
+            origin,
+            dir: d.normalize(),
+            t_aim: d.length(),
+            local: fan.clone(),
+            vertex: true,
+        });
+    }
+    out
+}
+
+#[test]
+fn bunny_is_watertight_at_edges_and_vertices() {
+    let Some((pos, tris)) = load_bunny() else {
+        return;
+    };
+    assert!(tris.len() > 69_000, "{} triangles", tris.len());
+    let bvh = MeshBvh::build(&pos, &tris, BuildQuality::Medium);
+    let rays = aimed_rays(&pos, &tris, 80_000, 40_000);
+    let tol = |a: &Aimed| a.t_aim * (1.0 + 1e-4);
+
+    // Watertight test through the BVH: every ray hits something before it passes the target.
+    let leaks: Vec<usize> = rays
+        .par_iter()
+        .enumerate()
+        .filter(|(_, a)| !bvh.any_hit(&ray(a.origin, a.dir), 0.0, tol(a)))
+        .map(|(i, _)| i)
+        .collect();
+    // And locally: one of the triangles around the target is hit.
+    let local_leaks = rays
+        .par_iter()
+        .filter(|a| {
+            let r = WatertightRay::new(a.origin, a.dir);
+            !a.local.iter().any(|&t| {
+                let [p, q, s] = tris[t as usize].map(|k| pos[k as usize]);
+                triangle::intersect(&r, p, q, s, 0.0, tol(a)).is_some()
+            })
+        })
+        .count();
+    // The closest hit agrees with any_hit and lies at or before the target.
+    let closest_bad = rays
+        .par_iter()
+        .filter(|a| {
+            bvh.closest_hit(&ray(a.origin, a.dir), 0.0, f32::INFINITY)
+                .is_none_or(|h| h.t > tol(a))
+        })
+        .count();
+
+    // Control: Möller–Trumbore with strict edge tests on the same rays. First the triangles
+    // around the target, then, for the rays that miss those, every triangle (anything hit
+    // before the target saves the ray).
+    let mt_local_miss: Vec<&Aimed> = rays
+        .iter()
+        .filter(|a| {
+            !a.local.iter().any(|&t| {
+                let [p, q, s] = tris[t as usize].map(|k| pos[k as usize]);
+                moller_trumbore_strict(a.origin, a.dir, p, q, s).is_some_and(|t| t <= tol(a))
+            })
+        })
+        .collect();
+    // "Every triangle" through an AabbBvh over the triangles' boxes (grown by 1e-6, far more
+    // than the rounding of a hit point): a triangle the ray hits has a box the ray crosses.
+    let tri_boxes: Vec<Aabb> = tris
+        .iter()
+        .map(|t| {
+            let [p, q, s] = t.map(|k| pos[k as usize]);
+            Aabb::new(p.min(q).min(s), p.max(q).max(s))
+        })
+        .collect();
+    let box_bvh = AabbBvh::build(&tri_boxes);
+    let mt_leaks: Vec<&&Aimed> = mt_local_miss
+        .par_iter()
+        .filter(|a| {
+            let mut hit = false;
+            let mut tmax = tol(a);
+            box_bvh.visit_within(&ray(a.origin, a.dir), 0.0, &mut tmax, 1e-6, |k, _, _, _| {
+                let [p, q, s] = tris[k].map(|k| pos[k as usize]);
+                hit = moller_trumbore_strict(a.origin, a.dir, p, q, s).is_some_and(|t| t <= tol(a));
+                if hit { ControlFlow::Break(()) } else { ControlFlow::Continue(()) }
+            });
+            !hit
+        })
+        .collect();
+    let mt_vertex_leaks = mt_leaks.iter().filter(|a| a.vertex).count();
+    // The control itself is a correct test away from edges: rays at the centroids of the same
+    // triangles, from the same origins, do not miss them.
+    let mt_centroid_misses = rays
+        .par_iter()
+        .filter(|a| {
+            let t = a.local[0];
+            let [p, q, s] = tris[t as usize].map(|k| pos[k as usize]);
+            let d = ((p + q + s) / 3.0 - a.origin).normalize();
+            moller_trumbore_strict(a.origin, d, p, q, s).is_none()
+        })
+        .count();
+    println!(
+        "bunny: {} triangles, {} rays ({} at edges, {} at vertices); watertight leaks: {} (local {}), \
+         closest-hit misses: {}; strict Möller–Trumbore leaks: {} ({} at edges, {} at vertices), \
+         misses at centroids: {}",
+        tris.len(),
+        rays.len(),
+        rays.iter().filter(|a| !a.vertex).count(),
+        rays.iter().filter(|a| a.vertex).count(),
+        leaks.len(),
+        local_leaks,
+        closest_bad,
+        mt_leaks.len(),
+        mt_leaks.len() - mt_vertex_leaks,
+        mt_vertex_leaks,
+        mt_centroid_misses,
+    );
+    assert!(rays.len() >= 100_000);
+    assert!(leaks.is_empty(), "watertight BVH leaks on rays {:?}", &leaks[..leaks.len().min(10)]);
+    assert_eq!(local_leaks, 0);
+    assert_eq!(closest_bad, 0);
+    assert_eq!(mt_centroid_misses, 0, "the control is a working test away from edges");
+    assert!(
+        !mt_leaks.is_empty(),
+        "the control test must leak, or the rays do not really graze edges"
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// Instances.
+
+/// A closed, bumpy UV sphere (no self-intersections, so every closest hit is unambiguous away
+/// from edges).
+fn bumpy_sphere(rings: usize, segments: usize) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let mut pos = vec![Vec3::Y, -Vec3::Y];
+    for i in 1..rings {
+        let th = std::f32::consts::PI * i as f32 / rings as f32;
+        for j in 0..segments {
+            let ph = std::f32::consts::TAU * j as f32 / segments as f32;
+            let r = 1.0 + 0.15 * (3.0 * th).sin() * (5.0 * ph).cos();
+            pos.push(r * Vec3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin()));
+        }
+    }
+    let at = |i: usize, j: usize| (2 + (i - 1) * segments + j % segments) as u32;
+    let mut tris = Vec::new();
+    for j in 0..segments {
+        tris.push([0, at(1, j + 1), at(1, j)]);
+        tris.push([1, at(rings - 1, j), at(rings - 1, j + 1)]);
+    }
+    for i in 1..rings - 1 {
+        for j in 0..segments {
+            tris.push([at(i, j), at(i, j + 1), at(i + 1, j)]);
+            tris.push([at(i + 1, j), at(i, j + 1), at(i + 1, j + 1)]);
+        }
+    }
+    (pos, tris)
+}
+
+#[test]
+fn instances_match_flattened_geometry() {
+    let (pos, tris) = bumpy_sphere(24, 40);
+    let meshes = vec![MeshBvh::build(&pos, &tris, BuildQuality::Medium)];
+    let instances = [
+        Instance {
+            mesh: 0,
+            transform: Affine3A::from_scale_rotation_translation(
+                Vec3::new(1.0, 2.5, 0.6),
+                Quat::from_axis_angle(Vec3::new(1.0, 2.0, 0.5).normalize(), 0.7),
+                Vec3::new(-0.8, 0.2, 0.1),
+            ),
+        },
+        Instance {
+            mesh: 0,
+            transform: Affine3A::from_scale_rotation_translation(
+                Vec3::new(0.4, 1.3, 2.0),
+                Quat::from_rotation_z(-1.1) * Quat::from_rotation_x(0.4),
+                Vec3::new(0.9, -0.3, 0.4),
+            ),
+        },
+    ];
+    let tlas = InstanceBvh::build(&meshes, &instances, BuildQuality::Medium);
+    assert_eq!(tlas.stats().kept, 2);
+    // Flattened: instance k's triangle i is triangle k·n + i of the world mesh.
+    let n = tris.len() as u32;
+    let mut wpos = Vec::new();
+    let mut wtris = Vec::new();
+    for (k, inst) in instances.iter().enumerate() {
+        let base = wpos.len() as u32;
+        wpos.extend(pos.iter().map(|p| inst.transform.transform_point3(*p)));
+        wtris.extend(tris.iter().map(|t| t.map(|i| base + i)));
+        assert_eq!(base, k as u32 * pos.len() as u32);
+    }
+    let flat = MeshBvh::build(&wpos, &wtris, BuildQuality::Medium);
+
+    let mut rng = Rng(99);
+    let (mut hits, mut same_tri, mut edge_cases) = (0, 0, 0);
+    for i in 0..10_000 {
+        let (o, d) = if i % 2 == 0 {
+            let o = rng.dir() * 6.0;
+            (o, (rng.v3(-2.0, 2.0) - o).normalize())
+        } else {
+            (rng.v3(-1.0, 1.0), rng.dir())
+        };
+        let r = Ray::new(o, d);
+        let (o, d) = (r.origin, r.direction);
+        let a = tlas.closest_hit(&meshes, &r, 0.0, f32::INFINITY);
+        let b = flat.closest_hit(&r, 0.0, f32::INFINITY);
+        assert_eq!(
+            tlas.any_hit(&meshes, &r, 0.0, f32::INFINITY),
+            a.is_some(),
+            "any_hit agrees with closest_hit"
+        );
+        // The TLAS against brute force over the instances (object-space rays, same
+        // arithmetic): exact.
+        let mut brute: Option<(f32, u32, u32)> = None;
+        for (k, inst) in instances.iter().enumerate() {
+            let inv = inst.transform.inverse();
+            let (oo, od) = (inv.transform_point3(o), inv.transform_vector3(d));
+            if let Some(h) = brute_closest(&pos, &tris, oo, od, 0.0, f32::INFINITY) {
+                if brute.is_none_or(|b| h.t < b.0) {
+                    brute = Some((h.t, k as u32, h.triangle));
+                }
+            }
+        }
+        assert_eq!(a.map(|h| (h.t, h.instance, h.triangle)), brute, "TLAS vs brute force");
+        // Against the flattened world mesh: the same surface up to rounding.
+        match (a, b) {
+            (Some(a), Some(b)) => {
+                hits += 1;
+                // Relative, with t floored at 0.1 (a tenth of the mesh): the rounding of the
+                // transformed origin is an absolute error, which dominates for tiny t.
+                assert!(
+                    (a.t - b.t).abs() <= 1e-4 * a.t.max(b.t).max(0.1),
+                    "t: {} vs {} (o={o} d={d})",
+                    a.t,
+                    b.t
+                );
+                if a.instance * n + a.triangle == b.triangle {
+                    same_tri += 1;
+                    assert!((a.u - b.u).abs() < 1e-3 && (a.v - b.v).abs() < 1e-3);
+                } else {
+                    // Only on an edge between two triangles can rounding pick the other one.
+                    let near_edge = |u: f32, v: f32| u.min(v).min(1.0 - u - v) < 1e-3;
+                    assert!(near_edge(a.u, a.v) && near_edge(b.u, b.v), "{a:?} {b:?}");
+                    edge_cases += 1;
+                }
+            }
+            (None, None) => {}
+            (a, b) => {
+                // Only a silhouette-grazing ray may be a hit in one and a miss in the other.
+                let h = a.map(|h| (h.u, h.v)).or(b.map(|h| (h.u, h.v))).unwrap();
+                assert!(h.0.min(h.1).min(1.0 - h.0 - h.1) < 1e-3, "{a:?} vs {b:?}");
+                edge_cases += 1;
+            }
+        }
+    }
+    println!("instances: {hits} hits, {same_tri} on the same triangle, {edge_cases} edge cases");
+    assert!(hits > 3000 && edge_cases < 20, "{hits} {edge_cases}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// tmin / tmax.
+
+#[test]
+fn tmin_and_short_rays() {
+    // Two big parallel triangles, z = 0 and z = 1, and a tilted one further up.
+    let pos = vec![
+        Vec3::new(-5.0, -5.0, 0.0),
+        Vec3::new(5.0, -5.0, 0.0),
+        Vec3::new(0.0, 5.0, 0.0),
+        Vec3::new(-5.0, -5.0, 1.0),
+        Vec3::new(5.0, -5.0, 1.0),
+        Vec3::new(0.0, 5.0, 1.0),
+        Vec3::new(-5.0, -5.0, 2.0),
+        Vec3::new(5.0, -5.0, 2.5),
+        Vec3::new(0.0, 5.0, 3.0),
+    ];
+    let tris = vec![[0, 1, 2], [3, 4, 5], [6, 7, 8]];
+    let bvh = MeshBvh::build(&pos, &tris, BuildQuality::Medium);
+    let d = Vec3::new(0.3, 0.1, 1.0).normalize();
+
+    // Origin exactly on triangle 0 (its plane is z = 0 exactly): t is exactly 0, reported
+    // with tmin = 0 ...
+    let on = Ray::new(Vec3::new(0.1, 0.2, 0.0), d);
+    let h = bvh.closest_hit(&on, 0.0, f32::INFINITY).unwrap();
+    assert_eq!((h.triangle, h.t), (0, 0.0));
+    assert!(bvh.any_hit(&on, 0.0, 0.0), "a zero-length interval at the surface");
+    // ... and skipped with tmin = 1e-3: the next surface is triangle 1 at 1/cos θ.
+    let h = bvh.closest_hit(&on, 1e-3, f32::INFINITY).unwrap();
+    assert_eq!(h.triangle, 1);
+    assert!((h.t - 1.0 / d.z).abs() < 1e-5, "{}", h.t);
+
+    // Origin on the tilted triangle 2 (on it only up to rounding): with tmin = 0 the answer is
+    // either that triangle at |t| ≈ 0 or (if its rounded t is negative) nothing further up —
+    // exactly what brute force says; with tmin = 1e-3 it is skipped.
+    let mut rng = Rng(5);
+    let (mut self_hits, mut skipped) = (0, 0);
+    for _ in 0..1000 {
+        let (mut u, mut v) = (rng.f(), rng.f());
+        if u + v > 1.0 {
+            (u, v) = (1.0 - u, 1.0 - v);
+        }
+        let o = (1.0 - u - v) * pos[6] + u * pos[7] + v * pos[8];
+        let dir = rng.dir();
+        let n = (pos[7] - pos[6]).cross(pos[8] - pos[6]).normalize();
+        if n.dot(dir).abs() < 0.01 {
+            continue; // grazing: the start surface's rounded t could exceed any small tmin
+        }
+        let r = Ray::new(o, dir);
+        let got = bvh.closest_hit(&r, 0.0, f32::INFINITY);
+        assert_eq!(got, brute_closest(&pos, &tris, o, r.direction, 0.0, f32::INFINITY));
+        match got {
+            Some(h) if h.triangle == 2 => {
+                // The origin is off the plane by the rounding of its coordinates (≤ 5).
+                assert!(h.t.abs() < 4e-6 / n.dot(dir).abs(), "{}", h.t);
+                self_hits += 1;
+            }
+            _ => skipped += 1,
+        }
+        let far = bvh.closest_hit(&r, 1e-3, f32::INFINITY);
+        assert!(far.is_none_or(|h| h.triangle != 2), "tmin = 1e-3 skips the start surface");
+    }
+    println!("origin on a tilted triangle, tmin = 0: {self_hits} report it, {skipped} do not");
+    assert!(self_hits > 100, "{self_hits}");
+
+    // Short rays: a surface at t = 3e-5 is hit with tmax = 5e-5 (obvhs's node test would clamp
+    // the entry distance to 1e-4 and cull it), not with tmax = 2e-5.
+    let short = Ray::new(Vec3::new(0.1, 0.2, -3e-5), Vec3::Z);
+    let h = bvh.closest_hit(&short, 0.0, 5e-5).unwrap();
+    assert_eq!(h.triangle, 0);
+    assert!((h.t - 3e-5).abs() < 1e-9, "{}", h.t);
+    assert!(bvh.any_hit(&short, 0.0, 5e-5));
+    assert!(bvh.closest_hit(&short, 0.0, 2e-5).is_none());
+    assert!(!bvh.any_hit(&short, 0.0, 2e-5));
+    // The same in a deeper tree (the surface is then behind several levels of boxes).
+    let mut rng = Rng(8);
+    let (mut p2, mut t2) = soup(&mut rng, 3000);
+    let base = p2.len() as u32;
+    p2.extend([Vec3::new(0.30, 0.30, 0.5), Vec3::new(0.31, 0.30, 0.5), Vec3::new(0.30, 0.31, 0.5)]);
+    t2.push([base, base + 1, base + 2]);
+    let target = t2.len() as u32 - 1;
+    let big = MeshBvh::build(&p2, &t2, BuildQuality::High);
+    assert!(big.stats().max_depth >= 3);
+    let short = Ray::new(Vec3::new(0.302, 0.303, 0.5 - 3e-5), Vec3::Z);
+    assert_eq!(big.closest_hit(&short, 0.0, 5e-5).map(|h| h.triangle), Some(target));
+    // And obvhs's own traversal does lose it (which is why the traversal is ours).
+    let otris: Vec<obvhs::triangle::Triangle> = t2
+        .iter()
+        .map(|t| obvhs::triangle::Triangle {
+            v0: p2[t[0] as usize].into(),
+            v1: p2[t[1] as usize].into(),
+            v2: p2[t[2] as usize].into(),
+        })
+        .collect();
+    let cw = obvhs::cwbvh::builder::build_cwbvh_from_tris(
+        &otris,
+        obvhs::BvhBuildParams::medium_build(),
+        &mut std::time::Duration::default(),
+    );
+    let oray = obvhs::ray::Ray::new(short.origin.into(), short.direction.into(), 0.0, 5e-5);
+    let mut ohit = obvhs::ray::RayHit::none();
+    let found = cw.ray_traverse(oray, &mut ohit, |r, id| {
+        otris[cw.primitive_indices[id] as usize].intersect(r)
+    });
+    assert!(!found, "obvhs 0.4's 1e-4 clamp is expected to cull this short ray");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Boxes.
+
+fn brute_boxes(boxes: &[Aabb], r: &Ray, tmin: f32, tmax: f32, margin: f32) -> Vec<(usize, f32, f32)> {
+    let mut v: Vec<(usize, f32, f32)> = boxes
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| !b.is_empty())
+        .filter_map(|(i, b)| {
+            let b = if margin > 0.0 { b.expand(margin) } else { *b };
+            ray_box_interval(&b, r, tmin, tmax).map(|(t0, t1)| (i, t0, t1))
+        })
+        .collect();
+    v.sort_by_key(|e| e.0);
+    v
+}
+
+#[test]
+fn aabb_bvh_visits_exactly_the_crossed_boxes() {
+    let mut rng = Rng(1234);
+    let mut boxes: Vec<Aabb> = (0..10_000)
+        .map(|i| {
+            let c = rng.v3(-10.0, 10.0);
+            if i % 50 == 0 {
+                // Flat boxes (zero extent on an axis), like the bounds of a planar patch.
+                let mut h = rng.v3(0.0, 0.3);
+                h[i % 3] = 0.0;
+                Aabb::new(c - h, c + h)
+            } else {
+                let h = rng.v3(0.01, 0.3);
+                Aabb::new(c - h, c + h)
+            }
+        })
+        .collect();
+    // Box corners that coincide: several rays below start on box faces.
+    boxes.push(Aabb::new(Vec3::ZERO, Vec3::ONE));
+    boxes.push(Aabb::new(Vec3::ONE, Vec3::splat(2.0)));
+    let bvh = AabbBvh::build(&boxes);
+    assert_eq!(bvh.stats().kept, boxes.len());
+    assert!(bvh.unbounded().is_empty());
+    let mut total_visits = 0usize;
+    let mut closest_visits = 0usize;
+    for i in 0..3000 {
+        let (o, d) = match i % 4 {
+            0 => (rng.dir() * 20.0, rng.v3(-10.0, 10.0)),
+            1 => (rng.v3(-10.0, 10.0), rng.dir()),
+            2 => {
+                // Axis-parallel from a box corner (exactly on two of its planes).
+                let b = boxes[rng.below(boxes.len())];
+                let mut d = Vec3::ZERO;
+                d[rng.below(3)] = if rng.f() < 0.5 { 1.0 } else { -1.0 };
+                (b.min, d)
+            }
+            _ => (Vec3::new(0.5, 1.0, 0.5), rng.dir()),
+        };
+        let r = ray(o, d - if i % 4 == 0 { o } else { Vec3::ZERO });
+        let (tmin, tmax) = if i % 3 == 0 { (0.5, 15.0) } else { (0.0, f32::INFINITY) };
+        let expect = brute_boxes(&boxes, &r, tmin, tmax, 0.0);
+
+        // Every crossed box, once, with exactly ray_box_interval's interval.
+        let mut got = Vec::new();
+        let mut tm = tmax;
+        bvh.visit(&r, tmin, &mut tm, |k, t0, t1, _| {
+            got.push((k, t0, t1));
+            ControlFlow::Continue(())
+        });
+        got.sort_by_key(|e| e.0);
+        assert_eq!(got, expect, "ray {i}: o={o} d={}", r.direction);
+        total_visits += got.len();
+
+        // Closest-hit style: pretend every box is hit at its entry; shrinking tmax prunes.
+        let mut tm = tmax;
+        let mut best: Option<(f32, usize)> = None;
+        let mut visits = 0;
+        bvh.visit(&r, tmin, &mut tm, |k, t0, _, tmax| {
+            visits += 1;
+            if best.is_none_or(|b| (t0, k) < b) {
+                best = Some((t0, k));
+                *tmax = t0;
+            }
+            ControlFlow::Continue(())
+        });
+        let brute_best = expect
+            .iter()
+            .map(|e| (e.1, e.0))
+            .min_by(|a, b| a.partial_cmp(b).unwrap());
+        assert_eq!(best.map(|b| b.0), brute_best.map(|b| b.0));
+        closest_visits += visits;
+
+        // Any-hit style: stop at the first.
+        let mut visits = 0;
+        let mut tm = tmax;
+        bvh.visit(&r, tmin, &mut tm, |_, _, _, _| {
+            visits += 1;
+            ControlFlow::Break(())
+        });
+        assert_eq!(visits, usize::from(!expect.is_empty()));
+
+        // Grown boxes (soft-shadow queries).
+        if i % 5 == 0 {
+            let mut got = Vec::new();
+            let mut tm = tmax;
+            bvh.visit_within(&r, tmin, &mut tm, 0.25, |k, t0, t1, _| {
+                got.push((k, t0, t1));
+                ControlFlow::Continue(())
+            });
+            got.sort_by_key(|e| e.0);
+            assert_eq!(got, brute_boxes(&boxes, &r, tmin, tmax, 0.25));
+        }
+    }
+    println!(
+        "boxes: {} nodes; {total_visits} boxes crossed in all, {closest_visits} visited by the \
+         shrinking walk",
+        bvh.node_count()
+    );
+    assert!(closest_visits * 2 < total_visits, "front-to-back order prunes");
+}
+
+#[test]
+fn aabb_bvh_keeps_unbounded_and_drops_empty_boxes() {
+    let slab = Aabb::new(
+        Vec3::new(f32::NEG_INFINITY, -1.0, f32::NEG_INFINITY),
+        Vec3::new(f32::INFINITY, 0.0, f32::INFINITY),
+    );
+    let nan = Aabb::new(Vec3::new(f32::NAN, 0.0, 0.0), Vec3::ONE);
+    let boxes = [
+        Aabb::symmetric(Vec3::ONE),
+        slab,
+        Aabb::EMPTY,
+        Aabb::new(Vec3::ONE, Vec3::ZERO),
+        Aabb::INFINITE,
+        nan,
+        Aabb::new(Vec3::splat(5.0), Vec3::splat(6.0)),
+    ];
+    let bvh = AabbBvh::build(&boxes);
+    assert_eq!(bvh.unbounded(), &[1, 4, 5]);
+    assert_eq!(bvh.stats().dropped_degenerate, 2);
+    assert_eq!(bvh.stats().kept, 2);
+    let r = Ray::new(Vec3::new(0.0, 5.0, 0.0), -Vec3::Y);
+    let mut seen = Vec::new();
+    let mut tmax = 100.0;
+    bvh.visit(&r, 0.0, &mut tmax, |k, t0, t1, _| {
+        seen.push((k, t0, t1));
+        ControlFlow::Continue(())
+    });
+    assert_eq!(seen, vec![(1, 5.0, 6.0), (4, 0.0, 100.0), (5, 0.0, 100.0), (0, 4.0, 6.0)]);
+    // A ray missing the slab still meets the infinite and the NaN boxes.
+    let r = Ray::new(Vec3::new(0.0, 5.0, 0.0), Vec3::X);
+    let mut seen = Vec::new();
+    bvh.visit(&r, 0.0, &mut tmax, |k, _, _, _| {
+        seen.push(k);
+        ControlFlow::Continue(())
+    });
+    assert_eq!(seen, vec![4, 5]);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Bad input.
+
+#[test]
+fn degenerate_input_does_not_panic() {
+    let r = Ray::new(Vec3::new(0.2, 0.2, 5.0), -Vec3::Z);
+    for q in QUALITIES {
+        // Empty mesh, empty positions.
+        let e = MeshBvh::build(&[], &[], q);
+        assert!(e.is_empty() && e.node_count() == 0 && e.bounds().is_empty());
+        assert!(e.closest_hit(&r, 0.0, f32::INFINITY).is_none() && !e.any_hit(&r, 0.0, 1e9));
+        // One triangle.
+        let p = [Vec3::ZERO, Vec3::X, Vec3::Y];
+        let one = MeshBvh::build(&p, &[[0, 1, 2]], q);
+        let h = one.closest_hit(&r, 0.0, f32::INFINITY).unwrap();
+        assert_eq!(h.triangle, 0);
+        assert!((h.t - 5.0).abs() < 1e-5);
+        assert_eq!(one.bounds(), Aabb::new(Vec3::ZERO, Vec3::new(1.0, 1.0, 0.0)));
+        // All degenerate: collinear, repeated vertex, single point.
+        let p = [Vec3::ZERO, Vec3::X, Vec3::new(0.5, 0.0, 0.0), Vec3::splat(0.2)];
+        let deg = MeshBvh::build(&p, &[[0, 1, 2], [0, 0, 1], [3, 3, 3], [1, 1, 1]], q);
+        assert_eq!(deg.stats().dropped_degenerate, 4);
+        assert!(deg.is_empty() && deg.closest_hit(&r, 0.0, 1e9).is_none());
+        // NaN and infinite vertices, and an index out of range, next to a good triangle.
+        let p = [
+            Vec3::ZERO,
+            Vec3::X,
+            Vec3::Y,
+            Vec3::new(f32::NAN, 0.0, 0.0),
+            Vec3::new(0.0, f32::INFINITY, 0.0),
+        ];
+        let bad = MeshBvh::build(&p, &[[0, 1, 3], [0, 4, 2], [0, 1, 2], [0, 1, 99]], q);
+        assert_eq!(bad.dropped_nonfinite(), 2);
+        assert_eq!(bad.stats().dropped_invalid, 1);
+        assert_eq!(bad.closest_hit(&r, 0.0, 1e9).unwrap().triangle, 2);
+        // Many copies of one triangle (identical boxes and Morton codes): ties go to the
+        // smallest index.
+        let p = [Vec3::ZERO, Vec3::X, Vec3::Y];
+        let copies = MeshBvh::build(&p, &vec![[0, 1, 2]; 5000], q);
+        assert_eq!(copies.closest_hit(&r, 0.0, 1e9).unwrap().triangle, 0);
+        // Nonsense rays.
+        for bad_ray in [
+            Ray {
+                origin: Vec3::NAN,
+                direction: Vec3::Z,
+            },
+            Ray {
+                origin: Vec3::ZERO,
+                direction: Vec3::ZERO,
+            },
+            Ray {
+                origin: Vec3::ZERO,
+                direction: Vec3::NAN,
+            },
+        ] {
+            assert!(one.closest_hit(&bad_ray, 0.0, 1e9).is_none());
+            assert!(!copies.any_hit(&bad_ray, 0.0, 1e9));
+        }
+        assert!(one.closest_hit(&r, 1.0, 0.5).is_none(), "tmin > tmax");
+        assert!(one.closest_hit(&r, f32::NAN, 10.0).is_none());
+    }
+    // Instances: unknown mesh, empty mesh, singular and NaN transforms are skipped.
+    let meshes = vec![
+        MeshBvh::build(&[], &[], BuildQuality::Fast),
+        MeshBvh::build(&[Vec3::ZERO, Vec3::X, Vec3::Y], &[[0, 1, 2]], BuildQuality::Fast),
+    ];
+    let insts: Vec<Instance> = vec![
+        (0, Affine3A::IDENTITY).into(),
+        (7, Affine3A::IDENTITY).into(),
+        (1, Affine3A::from_scale(Vec3::new(1.0, 0.0, 1.0))).into(),
+        (1, Affine3A::from_translation(Vec3::NAN)).into(),
+        (1, Affine3A::IDENTITY).into(),
+    ];
+    let tlas = InstanceBvh::build(&meshes, &insts, BuildQuality::Fast);
+    assert_eq!(tlas.stats().dropped_invalid, 4);
+    let h = tlas.closest_hit(&meshes, &r, 0.0, f32::INFINITY).unwrap();
+    assert_eq!((h.instance, h.triangle), (4, 0));
+    assert!((h.t - 5.0).abs() < 1e-5);
+    let none = InstanceBvh::build(&meshes, &[], BuildQuality::Fast);
+    assert!(none.closest_hit(&meshes, &r, 0.0, 1e9).is_none());
+    assert!(!none.any_hit(&meshes, &r, 0.0, 1e9));
+    // Boxes: none, and many identical ones (including identical points).
+    let empty = AabbBvh::build(&[]);
+    let mut tmax = 1e9;
+    empty.visit(&r, 0.0, &mut tmax, |_, _, _, _| panic!("nothing to visit"));
+    let same = AabbBvh::build(&vec![Aabb::new(Vec3::splat(0.1), Vec3::splat(0.1)); 3000]);
+    let mut n = 0;
+    let r = ray(Vec3::new(0.1, 0.1, 5.0), -Vec3::Z);
+    same.visit(&r, 0.0, &mut tmax, |_, _, _, _| {
+        n += 1;
+        ControlFlow::Continue(())
+    });
+    assert_eq!(n, 3000, "a ray through a point box meets every copy");
+}
