@@ -4,4 +4,7 @@
 # the `embree` feature: it needs neither Embree nor any Debian package.
 set -euo pipefail
 REPO_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd -P)"
+# Scenes name shared third-party meshes as $HYTRACE_ASSETS/...: default to ../shared/assets
+# beside the checkout, whatever the working directory.
+export HYTRACE_ASSETS="${HYTRACE_ASSETS:-$REPO_ROOT/../shared/assets}"
 exec cargo run --release --manifest-path "$REPO_ROOT/Cargo.toml" -- render "$@"

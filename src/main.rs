@@ -69,7 +69,9 @@ fn load_any(path: Option<&Path>, camera: Option<&str>) -> Result<Scene> {
     Ok(match path {
         Some(p) if is_scene(p) => {
             if camera.is_some() {
-                anyhow::bail!("--camera applies to mesh files (.gltf, .glb, .obj, .ply), not scenes");
+                anyhow::bail!(
+                    "--camera applies to mesh files (.gltf, .glb, .obj, .ply), not scenes"
+                );
             }
             Scene::load(p)?
         }

@@ -149,7 +149,12 @@ fn soup(rng: &mut Rng, n: usize) -> (Vec<Vec3>, Vec<[u32; 3]>) {
 
 /// Rays of every kind: from outside at points inside, from inside, from points on triangles
 /// (tmin = 0), along the axes (from vertices, so exactly on box planes), short and long.
-fn soup_rays(rng: &mut Rng, pos: &[Vec3], tris: &[[u32; 3]], n: usize) -> Vec<(Vec3, Vec3, f32, f32)> {
+fn soup_rays(
+    rng: &mut Rng,
+    pos: &[Vec3],
+    tris: &[[u32; 3]],
+    n: usize,
+) -> Vec<(Vec3, Vec3, f32, f32)> {
     let mut rays = Vec::with_capacity(n);
     for i in 0..n {
         let (o, d, tmin, tmax) = match i % 6 {
@@ -393,7 +398,9 @@ fn aimed_rays(pos: &[Vec3], tris: &[[u32; 3]], n_edge: usize, n_vertex: usize) -
     };
     while out.len() < n_edge {
         let (a, b, ts) = good_edges[rng.below(good_edges.len())];
-        let Some(w) = pick(&mut rng, &ts) else { continue };
+        let Some(w) = pick(&mut rng, &ts) else {
+            continue;
+        };
         let s = rng.range(0.01, 0.99);
         let (pa, pb) = (pos[a as usize], pos[b as usize]);
         let target = pa + s * (pb - pa);
@@ -409,7 +416,9 @@ fn aimed_rays(pos: &[Vec3], tris: &[[u32; 3]], n_edge: usize, n_vertex: usize) -
     }
     while out.len() < n_edge + n_vertex {
         let (v, fan) = &good_vertices[rng.below(good_vertices.len())];
-        let Some(w) = pick(&mut rng, fan) else { continue };
+        let Some(w) = pick(&mut rng, fan) else {
+            continue;
+        };
         let target = pos[*v as usize];
         let origin = target + reach * w;
         let d = target - origin;
@@ -491,7 +500,11 @@ fn bunny_is_watertight_at_edges_and_vertices() {
             box_bvh.visit_within(&ray(a.origin, a.dir), 0.0, &mut tmax, 1e-6, |k, _, _, _| {
                 let [p, q, s] = tris[k].map(|k| pos[k as usize]);
                 hit = moller_trumbore_strict(a.origin, a.dir, p, q, s).is_some_and(|t| t <= tol(a));
-                if hit { ControlFlow::Break(()) } else { ControlFlow::Continue(()) }
+                if hit {
+                    ControlFlow::Break(())
+                } else {
+                    ControlFlow::Continue(())
+                }
             });
             !hit
         })
@@ -525,10 +538,17 @@ fn bunny_is_watertight_at_edges_and_vertices() {
         mt_centroid_misses,
     );
     assert!(rays.len() >= 100_000);
-    assert!(leaks.is_empty(), "watertight BVH leaks on rays {:?}", &leaks[..leaks.len().min(10)]);
+    assert!(
+        leaks.is_empty(),
+        "watertight BVH leaks on rays {:?}",
+        &leaks[..leaks.len().min(10)]
+    );
     assert_eq!(local_leaks, 0);
     assert_eq!(closest_bad, 0);
-    assert_eq!(mt_centroid_misses, 0, "the control is a working test away from edges");
+    assert_eq!(
+        mt_centroid_misses, 0,
+        "the control is a working test away from edges"
+    );
     assert!(
         !mt_leaks.is_empty(),
         "the control test must leak, or the rays do not really graze edges"
@@ -631,7 +651,11 @@ fn instances_match_flattened_geometry() {
                 }
             }
         }
-        assert_eq!(a.map(|h| (h.t, h.instance, h.triangle)), brute, "TLAS vs brute force");
+        assert_eq!(
+            a.map(|h| (h.t, h.instance, h.triangle)),
+            brute,
+            "TLAS vs brute force"
+        );
         // Against the flattened world mesh: the same surface up to rounding.
         match (a, b) {
             (Some(a), Some(b)) => {
@@ -693,7 +717,10 @@ fn tmin_and_short_rays() {
     let on = Ray::new(Vec3::new(0.1, 0.2, 0.0), d);
     let h = bvh.closest_hit(&on, 0.0, f32::INFINITY).unwrap();
     assert_eq!((h.triangle, h.t), (0, 0.0));
-    assert!(bvh.any_hit(&on, 0.0, 0.0), "a zero-length interval at the surface");
+    assert!(
+        bvh.any_hit(&on, 0.0, 0.0),
+        "a zero-length interval at the surface"
+    );
     // ... and skipped with tmin = 1e-3: the next surface is triangle 1 at 1/cos θ.
     let h = bvh.closest_hit(&on, 1e-3, f32::INFINITY).unwrap();
     assert_eq!(h.triangle, 1);
@@ -717,7 +744,10 @@ fn tmin_and_short_rays() {
         }
         let r = Ray::new(o, dir);
         let got = bvh.closest_hit(&r, 0.0, f32::INFINITY);
-        assert_eq!(got, brute_closest(&pos, &tris, o, r.direction, 0.0, f32::INFINITY));
+        assert_eq!(
+            got,
+            brute_closest(&pos, &tris, o, r.direction, 0.0, f32::INFINITY)
+        );
         match got {
             Some(h) if h.triangle == 2 => {
                 // The origin is off the plane by the rounding of its coordinates (≤ 5).
@@ -727,7 +757,10 @@ fn tmin_and_short_rays() {
             _ => skipped += 1,
         }
         let far = bvh.closest_hit(&r, 1e-3, f32::INFINITY);
-        assert!(far.is_none_or(|h| h.triangle != 2), "tmin = 1e-3 skips the start surface");
+        assert!(
+            far.is_none_or(|h| h.triangle != 2),
+            "tmin = 1e-3 skips the start surface"
+        );
     }
     println!("origin on a tilted triangle, tmin = 0: {self_hits} report it, {skipped} do not");
     assert!(self_hits > 100, "{self_hits}");
@@ -745,13 +778,20 @@ fn tmin_and_short_rays() {
     let mut rng = Rng(8);
     let (mut p2, mut t2) = soup(&mut rng, 3000);
     let base = p2.len() as u32;
-    p2.extend([Vec3::new(0.30, 0.30, 0.5), Vec3::new(0.31, 0.30, 0.5), Vec3::new(0.30, 0.31, 0.5)]);
+    p2.extend([
+        Vec3::new(0.30, 0.30, 0.5),
+        Vec3::new(0.31, 0.30, 0.5),
+        Vec3::new(0.30, 0.31, 0.5),
+    ]);
     t2.push([base, base + 1, base + 2]);
     let target = t2.len() as u32 - 1;
     let big = MeshBvh::build(&p2, &t2, BuildQuality::High);
     assert!(big.stats().max_depth >= 3);
     let short = Ray::new(Vec3::new(0.302, 0.303, 0.5 - 3e-5), Vec3::Z);
-    assert_eq!(big.closest_hit(&short, 0.0, 5e-5).map(|h| h.triangle), Some(target));
+    assert_eq!(
+        big.closest_hit(&short, 0.0, 5e-5).map(|h| h.triangle),
+        Some(target)
+    );
     // And obvhs's own traversal does lose it (which is why the traversal is ours).
     let otris: Vec<obvhs::triangle::Triangle> = t2
         .iter()
@@ -771,13 +811,22 @@ fn tmin_and_short_rays() {
     let found = cw.ray_traverse(oray, &mut ohit, |r, id| {
         otris[cw.primitive_indices[id] as usize].intersect(r)
     });
-    assert!(!found, "obvhs 0.4's 1e-4 clamp is expected to cull this short ray");
+    assert!(
+        !found,
+        "obvhs 0.4's 1e-4 clamp is expected to cull this short ray"
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
 // Boxes.
 
-fn brute_boxes(boxes: &[Aabb], r: &Ray, tmin: f32, tmax: f32, margin: f32) -> Vec<(usize, f32, f32)> {
+fn brute_boxes(
+    boxes: &[Aabb],
+    r: &Ray,
+    tmin: f32,
+    tmax: f32,
+    margin: f32,
+) -> Vec<(usize, f32, f32)> {
     let mut v: Vec<(usize, f32, f32)> = boxes
         .iter()
         .enumerate()
@@ -830,7 +879,11 @@ fn aabb_bvh_visits_exactly_the_crossed_boxes() {
             _ => (Vec3::new(0.5, 1.0, 0.5), rng.dir()),
         };
         let r = ray(o, d - if i % 4 == 0 { o } else { Vec3::ZERO });
-        let (tmin, tmax) = if i % 3 == 0 { (0.5, 15.0) } else { (0.0, f32::INFINITY) };
+        let (tmin, tmax) = if i % 3 == 0 {
+            (0.5, 15.0)
+        } else {
+            (0.0, f32::INFINITY)
+        };
         let expect = brute_boxes(&boxes, &r, tmin, tmax, 0.0);
 
         // Every crossed box, once, with exactly ray_box_interval's interval.
@@ -889,7 +942,10 @@ fn aabb_bvh_visits_exactly_the_crossed_boxes() {
          shrinking walk",
         bvh.node_count()
     );
-    assert!(closest_visits * 2 < total_visits, "front-to-back order prunes");
+    assert!(
+        closest_visits * 2 < total_visits,
+        "front-to-back order prunes"
+    );
 }
 
 #[test]
@@ -919,7 +975,15 @@ fn aabb_bvh_keeps_unbounded_and_drops_empty_boxes() {
         seen.push((k, t0, t1));
         ControlFlow::Continue(())
     });
-    assert_eq!(seen, vec![(1, 5.0, 6.0), (4, 0.0, 100.0), (5, 0.0, 100.0), (0, 4.0, 6.0)]);
+    assert_eq!(
+        seen,
+        vec![
+            (1, 5.0, 6.0),
+            (4, 0.0, 100.0),
+            (5, 0.0, 100.0),
+            (0, 4.0, 6.0)
+        ]
+    );
     // A ray missing the slab still meets the infinite and the NaN boxes.
     let r = Ray::new(Vec3::new(0.0, 5.0, 0.0), Vec3::X);
     let mut seen = Vec::new();
@@ -947,9 +1011,17 @@ fn degenerate_input_does_not_panic() {
         let h = one.closest_hit(&r, 0.0, f32::INFINITY).unwrap();
         assert_eq!(h.triangle, 0);
         assert!((h.t - 5.0).abs() < 1e-5);
-        assert_eq!(one.bounds(), Aabb::new(Vec3::ZERO, Vec3::new(1.0, 1.0, 0.0)));
+        assert_eq!(
+            one.bounds(),
+            Aabb::new(Vec3::ZERO, Vec3::new(1.0, 1.0, 0.0))
+        );
         // All degenerate: collinear, repeated vertex, single point.
-        let p = [Vec3::ZERO, Vec3::X, Vec3::new(0.5, 0.0, 0.0), Vec3::splat(0.2)];
+        let p = [
+            Vec3::ZERO,
+            Vec3::X,
+            Vec3::new(0.5, 0.0, 0.0),
+            Vec3::splat(0.2),
+        ];
         let deg = MeshBvh::build(&p, &[[0, 1, 2], [0, 0, 1], [3, 3, 3], [1, 1, 1]], q);
         assert_eq!(deg.stats().dropped_degenerate, 4);
         assert!(deg.is_empty() && deg.closest_hit(&r, 0.0, 1e9).is_none());
@@ -994,7 +1066,11 @@ fn degenerate_input_does_not_panic() {
     // Instances: unknown mesh, empty mesh, singular and NaN transforms are skipped.
     let meshes = vec![
         MeshBvh::build(&[], &[], BuildQuality::Fast),
-        MeshBvh::build(&[Vec3::ZERO, Vec3::X, Vec3::Y], &[[0, 1, 2]], BuildQuality::Fast),
+        MeshBvh::build(
+            &[Vec3::ZERO, Vec3::X, Vec3::Y],
+            &[[0, 1, 2]],
+            BuildQuality::Fast,
+        ),
     ];
     let insts: Vec<Instance> = vec![
         (0, Affine3A::IDENTITY).into(),

@@ -119,16 +119,26 @@ fn radial_visibility(fb: &Framebuffer, unshadowed: &Framebuffer) -> Vec<f32> {
 #[test]
 fn soft_shadows_darken_toward_the_umbra_and_approach_hard_shadows() {
     let sphere = "(shape: Sphere(radius: 0.5), translate: (0, 1, 0))";
-    let hard = render(&top_down("Point(position: (0, 3, 0), intensity: 10)", sphere, ""), 1);
-    let open = render(&top_down("Point(position: (0, 3, 0), intensity: 10)", "", ""), 1);
+    let hard = render(
+        &top_down("Point(position: (0, 3, 0), intensity: 10)", sphere, ""),
+        1,
+    );
+    let open = render(
+        &top_down("Point(position: (0, 3, 0), intensity: 10)", "", ""),
+        1,
+    );
     for kind in ["Soft", "SoftImproved"] {
         let mut last_difference = f32::INFINITY;
         for k in [2.0, 8.0, 32.0, 128.0, 1024.0] {
-            let light = format!("Point(position: (0, 3, 0), intensity: 10, shadow: {kind}(k: {k}))");
+            let light =
+                format!("Point(position: (0, 3, 0), intensity: 10, shadow: {kind}(k: {k}))");
             let fb = render(&top_down(&light, sphere, ""), 1);
             let profile = radial_visibility(&fb, &open);
             for w in profile.windows(2) {
-                assert!(w[1] >= w[0] - 1e-5, "{kind} k={k}: brightness falls away from the umbra: {profile:?}");
+                assert!(
+                    w[1] >= w[0] - 1e-5,
+                    "{kind} k={k}: brightness falls away from the umbra: {profile:?}"
+                );
             }
             // on the plane: the estimate widens the hard shadow outward (a ray grazing the
             // occluder has h → 0), so a soft shadow is never lighter than the hard one
@@ -137,7 +147,10 @@ fn soft_shadows_darken_toward_the_umbra_and_approach_hard_shadows() {
                     let (x, z) = world(i, j);
                     if x * x + z * z > 0.55 * 0.55 {
                         let (a, b, o) = (fb.get(i, j).y, hard.get(i, j).y, open.get(i, j).y);
-                        assert!(a >= -1e-7 && a <= b + 1e-5 && b <= o + 1e-5, "{kind} k={k}: {a} vs hard {b}, open {o}");
+                        assert!(
+                            a >= -1e-7 && a <= b + 1e-5 && b <= o + 1e-5,
+                            "{kind} k={k}: {a} vs hard {b}, open {o}"
+                        );
                     }
                 }
             }
@@ -148,11 +161,17 @@ fn soft_shadows_darken_toward_the_umbra_and_approach_hard_shadows() {
                 .map(|(a, b)| (a.y - b.y).abs())
                 .sum::<f32>()
                 / fb.pixels.len() as f32;
-            assert!(difference <= last_difference + 1e-6, "{kind}: k={k} is farther from hard than a smaller k");
+            assert!(
+                difference <= last_difference + 1e-6,
+                "{kind}: k={k} is farther from hard than a smaller k"
+            );
             last_difference = difference;
         }
         let mean: f32 = hard.pixels.iter().map(|p| p.y).sum::<f32>() / hard.pixels.len() as f32;
-        assert!(last_difference < 0.02 * mean, "{kind}: k = 1024 still differs by {last_difference}");
+        assert!(
+            last_difference < 0.02 * mean,
+            "{kind}: k = 1024 still differs by {last_difference}"
+        );
     }
 }
 
@@ -188,7 +207,10 @@ fn lossless_mirrors_and_glass_vanish_in_a_white_environment() {
         assert!(seen.len() > 1000, "the sphere is not in view");
         let mean_error = seen.iter().map(|v| (v - 1.0).abs()).sum::<f32>() / seen.len() as f32;
         let worst = seen.iter().map(|v| (v - 1.0).abs()).fold(0.0, f32::max);
-        assert!(mean_error < 0.01 && worst < 0.06, "{material}: mean |L − 1| = {mean_error}, worst {worst}");
+        assert!(
+            mean_error < 0.01 && worst < 0.06,
+            "{material}: mean |L − 1| = {mean_error}, worst {worst}"
+        );
     }
 }
 
@@ -200,12 +222,19 @@ fn ambient_occlusion_darkens_corners_only() {
         "shading: (ambient_occlusion: (strength: 1, steps: 5, step: 0.1)),",
     );
     let tracer = SceneTracer::new(&scene);
-    let ao = AmbientOcclusion { strength: 1.0, steps: 5, step: 0.1 };
+    let ao = AmbientOcclusion {
+        strength: 1.0,
+        steps: 5,
+        step: 0.1,
+    };
     let open = ambient_occlusion(&tracer, Vec3::new(-1.0, 0.0, 0.0), Vec3::Y, &ao);
     let corner = ambient_occlusion(&tracer, Vec3::new(0.98, 0.0, 0.0), Vec3::Y, &ao);
     let near = ambient_occlusion(&tracer, Vec3::new(0.8, 0.0, 0.0), Vec3::Y, &ao);
     assert!((open - 1.0).abs() < 1e-6, "open plane: {open}");
-    assert!(corner < near && near < open, "corner {corner}, near {near}, open {open}");
+    assert!(
+        corner < near && near < open,
+        "corner {corner}, near {near}, open {open}"
+    );
 }
 
 fn scenes() -> Vec<std::path::PathBuf> {
@@ -216,7 +245,11 @@ fn scenes() -> Vec<std::path::PathBuf> {
         .filter(|p| p.extension().is_some_and(|e| e == "ron"))
         .collect();
     v.sort();
-    assert!(v.len() >= 9, "expected the shipped scenes in {}", dir.display());
+    assert!(
+        v.len() >= 9,
+        "expected the shipped scenes in {}",
+        dir.display()
+    );
     v
 }
 
@@ -226,16 +259,39 @@ fn every_view_renders_for_every_shipped_scene() {
         let scene = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
         let fb = cpu::render(
             &scene,
-            &RenderOptions { width: 48, height: 36, samples: 1, threads: None, progress: false },
+            &RenderOptions {
+                width: 48,
+                height: 36,
+                samples: 1,
+                threads: None,
+                progress: false,
+            },
         )
         .unwrap();
-        assert!(fb.pixels.iter().all(|p| p.is_finite()), "{}: non-finite radiance", path.display());
-        let tone = ToneMapping { exposure: 0.0, operator: ToneMap::Aces };
-        for view in [View::Shaded, View::Normals, View::Depth, View::Steps, View::Gradient] {
+        assert!(
+            fb.pixels.iter().all(|p| p.is_finite()),
+            "{}: non-finite radiance",
+            path.display()
+        );
+        let tone = ToneMapping {
+            exposure: 0.0,
+            operator: ToneMap::Aces,
+        };
+        for view in [
+            View::Shaded,
+            View::Normals,
+            View::Depth,
+            View::Steps,
+            View::Gradient,
+        ] {
             let img = picture(&fb, view, tone, scene.tracer.max_steps);
             assert_eq!(img.dimensions(), (48, 36));
             let first = img.get_pixel(0, 0);
-            assert!(img.pixels().any(|p| p != first), "{} {view:?}: a blank picture", path.display());
+            assert!(
+                img.pixels().any(|p| p != first),
+                "{} {view:?}: a blank picture",
+                path.display()
+            );
         }
     }
 }

@@ -138,13 +138,7 @@ fn split_boxes(tris: &[[Vec3; 3]]) -> (Vec<OAabb>, Vec<u32>) {
             v2: t[2].into(),
         })
         .collect();
-    obvhs::splits::split_aabbs_preset(
-        &mut boxes,
-        &mut owner,
-        &otris,
-        avg_area,
-        largest_half_area,
-    );
+    obvhs::splits::split_aabbs_preset(&mut boxes, &mut owner, &otris, avg_area, largest_half_area);
     for (b, &o) in boxes.iter_mut().zip(&owner) {
         let t = &tris[o as usize];
         let (lo, hi) = tri_box(t);
@@ -275,44 +269,61 @@ impl MeshBvh {
         mut tmax: f32,
     ) -> Option<MeshHit> {
         let mut best: Option<MeshHit> = None;
-        wide::traverse::<false>(&self.nodes, nr, tmin, &mut tmax, 0.0, |first, count, tmax| {
-            for j in first as usize..(first + count) as usize {
-                let [a, b, c] = self.tris[j];
-                if let Some(h) = wr.intersect_nondegenerate(a, b, c, tmin, *tmax) {
-                    let id = self.ids[j];
-                    // h.t <= *tmax = best.t: ties go to the smaller triangle index, which
-                    // makes the answer independent of the traversal order.
-                    let better = match &best {
-                        None => true,
-                        Some(b) => h.t < b.t || (h.t == b.t && id < b.triangle),
-                    };
-                    if better {
-                        best = Some(MeshHit {
-                            t: h.t,
-                            triangle: id,
-                            u: h.u,
-                            v: h.v,
-                        });
-                        *tmax = h.t;
+        wide::traverse::<false>(
+            &self.nodes,
+            nr,
+            tmin,
+            &mut tmax,
+            0.0,
+            |first, count, tmax| {
+                for j in first as usize..(first + count) as usize {
+                    let [a, b, c] = self.tris[j];
+                    if let Some(h) = wr.intersect_nondegenerate(a, b, c, tmin, *tmax) {
+                        let id = self.ids[j];
+                        // h.t <= *tmax = best.t: ties go to the smaller triangle index, which
+                        // makes the answer independent of the traversal order.
+                        let better = match &best {
+                            None => true,
+                            Some(b) => h.t < b.t || (h.t == b.t && id < b.triangle),
+                        };
+                        if better {
+                            best = Some(MeshHit {
+                                t: h.t,
+                                triangle: id,
+                                u: h.u,
+                                v: h.v,
+                            });
+                            *tmax = h.t;
+                        }
                     }
                 }
-            }
-            ControlFlow::Continue(())
-        });
+                ControlFlow::Continue(())
+            },
+        );
         best
     }
 
     fn any_in(&self, wr: &WatertightRay, nr: &NodeRay, tmin: f32, mut tmax: f32) -> bool {
         let mut found = false;
-        wide::traverse::<false>(&self.nodes, nr, tmin, &mut tmax, 0.0, |first, count, tmax| {
-            for [a, b, c] in &self.tris[first as usize..(first + count) as usize] {
-                if wr.intersect_nondegenerate(*a, *b, *c, tmin, *tmax).is_some() {
-                    found = true;
-                    return ControlFlow::Break(());
+        wide::traverse::<false>(
+            &self.nodes,
+            nr,
+            tmin,
+            &mut tmax,
+            0.0,
+            |first, count, tmax| {
+                for [a, b, c] in &self.tris[first as usize..(first + count) as usize] {
+                    if wr
+                        .intersect_nondegenerate(*a, *b, *c, tmin, *tmax)
+                        .is_some()
+                    {
+                        found = true;
+                        return ControlFlow::Break(());
+                    }
                 }
-            }
-            ControlFlow::Continue(())
-        });
+                ControlFlow::Continue(())
+            },
+        );
         found
     }
 
@@ -481,7 +492,13 @@ impl InstanceBvh {
         ray: &Ray,
         tmin: f32,
         mut tmax: f32,
-        mut f: impl FnMut(&PlacedInstance, &MeshBvh, &WatertightRay, &NodeRay, &mut f32) -> ControlFlow<()>,
+        mut f: impl FnMut(
+            &PlacedInstance,
+            &MeshBvh,
+            &WatertightRay,
+            &NodeRay,
+            &mut f32,
+        ) -> ControlFlow<()>,
     ) {
         debug_assert_eq!(
             meshes.len(),
@@ -705,7 +722,7 @@ impl AabbBvh {
     ) {
         let grow = margin > 0.0;
         for (&i, b) in self.unbounded.iter().zip(&self.unbounded_boxes) {
-            if !(tmin <= *tmax) {
+            if tmin.is_nan() || tmax.is_nan() || tmin > *tmax {
                 return;
             }
             let interval = if b.min.is_nan() || b.max.is_nan() {

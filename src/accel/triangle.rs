@@ -145,9 +145,9 @@ impl WatertightRay {
             return None;
         }
         // "calculate determinant": 0 when the ray lies in the triangle's plane (or the
-        // projected triangle has no area); `!(x > 0)` also rejects NaN.
+        // projected triangle has no area); NaN is rejected too.
         let det = u + v + w;
-        if !(det.abs() > 0.0) {
+        if det == 0.0 || det.is_nan() {
             return None;
         }
         // "calculate scaled z-coordinates of vertices and use them to calculate the hit
@@ -282,7 +282,10 @@ mod tests {
         let r = ray(Vec3::new(0.25, 0.5, 3.0), Vec3::new(0.0, 0.0, -1.0));
         let h = hit(&r, [a, b, c]).unwrap();
         assert_eq!(h.t, 3.0);
-        assert!((h.u - 0.25).abs() < 1e-7 && (h.v - 0.5).abs() < 1e-7, "{h:?}");
+        assert!(
+            (h.u - 0.25).abs() < 1e-7 && (h.v - 0.5).abs() < 1e-7,
+            "{h:?}"
+        );
         // Both-sided: from below as well.
         let r = ray(Vec3::new(0.25, 0.5, -2.0), Vec3::new(0.0, 0.0, 2.0));
         let h = hit(&r, [a, b, c]).unwrap();
@@ -320,7 +323,12 @@ mod tests {
         let t2 = [p[0], p[2], p[3]];
         // Exactly through the shared vertices p0, p2 (the corners where the diagonal ends)
         // and through points of the diagonal: both triangles report the hit.
-        for target in [p[0], p[2], Vec3::new(0.5, 0.5, 0.0), Vec3::new(0.25, 0.25, 0.0)] {
+        for target in [
+            p[0],
+            p[2],
+            Vec3::new(0.5, 0.5, 0.0),
+            Vec3::new(0.25, 0.25, 0.0),
+        ] {
             for d in [Vec3::new(0.0, 0.0, -1.0), Vec3::new(0.0, 0.0, 1.0)] {
                 let r = ray(target - 2.0 * d, d);
                 let (h1, h2) = (hit(&r, t1).unwrap(), hit(&r, t2).unwrap());
@@ -348,7 +356,10 @@ mod tests {
                 centre + Vec3::new(a.cos(), a.sin(), 0.1 * (3.0 * a).sin())
             })
             .collect();
-        let r = ray(centre + Vec3::new(0.3, -0.2, 2.0), Vec3::new(-0.3, 0.2, -2.0));
+        let r = ray(
+            centre + Vec3::new(0.3, -0.2, 2.0),
+            Vec3::new(-0.3, 0.2, -2.0),
+        );
         let hits = (0..6)
             .filter(|&i| hit(&r, [centre, ring[i], ring[(i + 1) % 6]]).is_some())
             .count();
@@ -378,7 +389,10 @@ mod tests {
             let n2 = (e0 - e1).cross(c2 - e1);
             // Consistent orientation (edge used in opposite directions): the ray crosses the
             // two-triangle surface iff it sees both faces from the same side.
-            let (s1, s2) = (n1.dot(d) / (n1.length() * d.length()), n2.dot(d) / (n2.length() * d.length()));
+            let (s1, s2) = (
+                n1.dot(d) / (n1.length() * d.length()),
+                n2.dot(d) / (n2.length() * d.length()),
+            );
             if s1 * s2 <= 0.0 || s1.abs() < 0.05 || s2.abs() < 0.05 {
                 continue;
             }
@@ -434,7 +448,11 @@ mod tests {
         // NaN vertices: no hit, no panic.
         let r = ray(Vec3::new(0.2, 0.2, 1.0), Vec3::new(0.0, 0.0, -1.0));
         assert!(hit(&r, [Vec3::ZERO, Vec3::X, Vec3::new(f32::NAN, 1.0, 0.0)]).is_none());
-        assert!(!is_finite(Vec3::ZERO, Vec3::X, Vec3::new(f32::NAN, 1.0, 0.0)));
+        assert!(!is_finite(
+            Vec3::ZERO,
+            Vec3::X,
+            Vec3::new(f32::NAN, 1.0, 0.0)
+        ));
     }
 
     #[test]
@@ -458,7 +476,9 @@ mod tests {
         let back = ray(Vec3::new(0.0, 0.0, 5.0), Vec3::Z);
         assert!(back.intersect(tri[0], tri[1], tri[2], 0.0, 10.0).is_none());
         assert_eq!(
-            back.intersect(tri[0], tri[1], tri[2], -10.0, 10.0).unwrap().t,
+            back.intersect(tri[0], tri[1], tri[2], -10.0, 10.0)
+                .unwrap()
+                .t,
             -3.0
         );
         // A very short ray still hits a very close triangle.
@@ -467,9 +487,15 @@ mod tests {
         assert!((h.t - 3e-5).abs() < 1e-6);
         // Origin exactly on a vertex: t is exactly 0.
         let on = ray(tri[0], Vec3::new(0.1, 0.2, 1.0));
-        assert_eq!(on.intersect(tri[0], tri[1], tri[2], 0.0, 1.0).unwrap().t, 0.0);
+        assert_eq!(
+            on.intersect(tri[0], tri[1], tri[2], 0.0, 1.0).unwrap().t,
+            0.0
+        );
         // NaN bounds reject.
-        assert!(r.intersect(tri[0], tri[1], tri[2], f32::NAN, 10.0).is_none());
+        assert!(
+            r.intersect(tri[0], tri[1], tri[2], f32::NAN, 10.0)
+                .is_none()
+        );
     }
 
     #[test]
@@ -485,7 +511,10 @@ mod tests {
         let (h1, h2) = (hit(&r, t1).unwrap(), hit(&r, t2).unwrap());
         assert_eq!(h1.t, h2.t);
         assert_eq!(edge_f64(1e-30, 1e-30, 0.0, 0.0).signum(), 1.0);
-        assert!(edge_f64(1e-30, 1e-30, 0.0, 0.0) > 0.0, "tiny products keep their sign");
+        assert!(
+            edge_f64(1e-30, 1e-30, 0.0, 0.0) > 0.0,
+            "tiny products keep their sign"
+        );
         assert!(edge_f64(0.0, 0.0, 1e-30, 1e-30) < 0.0);
     }
 }

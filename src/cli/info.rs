@@ -38,8 +38,16 @@ pub fn run(args: InfoArgs) -> Result<()> {
         m.textures.len()
     );
     let nodes: usize = scene.objects.iter().map(|o| o.node.node_count()).sum();
-    let instrs: usize = scene.objects.iter().map(|o| o.lowered.distance.instrs.len()).sum();
-    let unbounded = scene.objects.iter().filter(|o| !o.bounds().is_finite()).count();
+    let instrs: usize = scene
+        .objects
+        .iter()
+        .map(|o| o.lowered.distance.instrs.len())
+        .sum();
+    let unbounded = scene
+        .objects
+        .iter()
+        .filter(|o| !o.bounds().is_finite())
+        .count();
     println!(
         "SDF objects  {} ({} nodes, {} tape instructions, {} unbounded)",
         scene.objects.len(),

@@ -19,7 +19,8 @@ cyclic order x → y → z → x (right × up points at the viewer, so no pictur
 --center a,b gives the (rightward, upward) coordinates of the image centre.
 
 Colours: orange outside (d > 0), blue inside, darker away from the surface, with bands and
-thin dark contours every --spacing and a white line where d = 0.
+thin dark contours every --spacing and a white line where d = 0. Only SDF objects are drawn:
+mesh objects have no distance field.
 
 Example: hytrace slice assets/scenes/slices/union.ron --plane z=0 --size 2.5 -o union.png")]
 pub struct SliceArgs {

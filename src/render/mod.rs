@@ -76,7 +76,10 @@ impl Framebuffer {
         let i = (y * self.width + x) as usize;
         let n = samples.len().max(1) as f32;
         self.pixels[i] = samples.iter().map(|s| s.radiance).sum::<Vec3>() / n;
-        self.depth[i] = samples.iter().map(|s| s.depth).fold(f32::INFINITY, f32::min);
+        self.depth[i] = samples
+            .iter()
+            .map(|s| s.depth)
+            .fold(f32::INFINITY, f32::min);
         self.normal[i] = samples.iter().map(|s| s.normal).sum::<Vec3>() / n;
         self.albedo[i] = samples.iter().map(|s| s.albedo).sum::<Vec3>() / n;
         self.steps[i] = samples.iter().map(|s| s.steps as f32).sum::<f32>() / n;

@@ -69,7 +69,10 @@ mod tests {
     #[test]
     fn tone_maps_are_monotone_and_bounded() {
         for op in [ToneMap::Clamp, ToneMap::Reinhard, ToneMap::Aces] {
-            let t = ToneMapping { exposure: 0.0, operator: op };
+            let t = ToneMapping {
+                exposure: 0.0,
+                operator: op,
+            };
             let mut last = -1.0;
             for i in 0..200 {
                 let v = t.apply(Vec3::splat(i as f32 * 0.05)).x;
@@ -78,9 +81,21 @@ mod tests {
                 last = v;
             }
         }
-        let one_stop = ToneMapping { exposure: 1.0, operator: ToneMap::Clamp };
+        let one_stop = ToneMapping {
+            exposure: 1.0,
+            operator: ToneMap::Clamp,
+        };
         assert_eq!(one_stop.apply(Vec3::splat(0.25)), Vec3::splat(0.5));
-        assert!((ToneMapping { exposure: 0.0, operator: ToneMap::Reinhard }.apply(Vec3::ONE).x - 0.5).abs() < 1e-6);
+        assert!(
+            (ToneMapping {
+                exposure: 0.0,
+                operator: ToneMap::Reinhard
+            }
+            .apply(Vec3::ONE)
+            .x - 0.5)
+                .abs()
+                < 1e-6
+        );
     }
 
     #[test]

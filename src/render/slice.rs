@@ -1,7 +1,8 @@
 //! 2D slices of a scene's distance field: signed distance on an axis-aligned plane with iso-contours.
 //!
 //! The scene's field is the minimum over its objects of each object's distance tape (the same
-//! tape the sphere tracer evaluates). [`sample`] evaluates it at every pixel centre of a view of
+//! tape the sphere tracer evaluates); triangle meshes (`Scene::meshes`) have no distance tape
+//! and are not drawn. [`sample`] evaluates it at every pixel centre of a view of
 //! an axis-aligned plane (plus a one-pixel border), and [`Field::image`] colours it in the style
 //! of Inigo Quilez's 2D SDF pictures: orange outside, blue inside, brightness falling off with
 //! |d|, periodic bands, thin dark iso-contours at multiples of the spacing and a white zero set.
@@ -300,8 +301,12 @@ impl Field {
     /// not vanish on the ridges of a distance field). None where it is not finite.
     pub fn screen_gradient(&self, x: i64, y: i64) -> Option<f32> {
         let c = self.at(x, y);
-        let dx = (self.at(x + 1, y) - c).abs().max((c - self.at(x - 1, y)).abs());
-        let dy = (self.at(x, y + 1) - c).abs().max((c - self.at(x, y - 1)).abs());
+        let dx = (self.at(x + 1, y) - c)
+            .abs()
+            .max((c - self.at(x - 1, y)).abs());
+        let dy = (self.at(x, y + 1) - c)
+            .abs()
+            .max((c - self.at(x, y - 1)).abs());
         let g = dx.hypot(dy);
         g.is_finite().then_some(g)
     }
@@ -421,7 +426,9 @@ mod tests {
         assert_eq!("z=0".parse::<Plane>(), Ok(Plane::new(Axis::Z, 0.0)));
         assert_eq!(" X = -1.5 ".parse::<Plane>(), Ok(Plane::new(Axis::X, -1.5)));
         assert_eq!("y=2e-1".parse::<Plane>(), Ok(Plane::new(Axis::Y, 0.2)));
-        for bad in ["w=1", "z=", "z=abc", "z=NaN", "z=inf", "z", "=1", "", "z=1=2"] {
+        for bad in [
+            "w=1", "z=", "z=abc", "z=NaN", "z=inf", "z", "=1", "", "z=1=2",
+        ] {
             assert!(bad.parse::<Plane>().is_err(), "{bad:?} accepted");
         }
     }
@@ -456,7 +463,11 @@ mod tests {
         assert!(SliceOptions::new(64, 64, 0.0).validate().is_err());
         assert!(SliceOptions::new(64, 64, f32::NAN).validate().is_err());
         assert!(SliceOptions::new(64, 64, 3e38).validate().is_err());
-        assert!(SliceOptions::new(MAX_IMAGE_SIDE + 1, 1, 1.0).validate().is_err());
+        assert!(
+            SliceOptions::new(MAX_IMAGE_SIDE + 1, 1, 1.0)
+                .validate()
+                .is_err()
+        );
     }
 
     #[test]
@@ -466,6 +477,10 @@ mod tests {
         assert!(out[0] > out[2] && inside[2] > inside[0]);
         assert_eq!(colour(0.0, Some(0.01), 0.25, 2.5), [1.0; 3]);
         assert_eq!(colour(f32::NAN, None, 0.25, 2.5), [0.5; 3]);
-        assert!(colour(f32::INFINITY, None, 0.25, 2.5).iter().all(|c| c.is_finite()));
+        assert!(
+            colour(f32::INFINITY, None, 0.25, 2.5)
+                .iter()
+                .all(|c| c.is_finite())
+        );
     }
 }

@@ -48,7 +48,9 @@ pub fn many_objects(n: usize) -> String {
             (i * 37 % 360) as f64
         );
     }
-    s.push_str("    ],\n    tracer: (epsilon: 1e-4, epsilon_per_unit: 5e-4, max_distance: 200),\n)\n");
+    s.push_str(
+        "    ],\n    tracer: (epsilon: 1e-4, epsilon_per_unit: 5e-4, max_distance: 200),\n)\n",
+    );
     s
 }
 

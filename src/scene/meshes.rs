@@ -2,7 +2,7 @@
 
 use super::mesh::{self, MeshError, MeshMaterial, Texture, TriangleMesh};
 use crate::geom::Aabb;
-use glam::{Affine3A, Vec2, Vec3};
+use glam::{Affine3A, Mat3A, Vec2, Vec3};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -13,6 +13,8 @@ pub struct SceneInstance {
     pub mesh: usize,
     /// Object → world.
     pub transform: Affine3A,
+    /// The inverse transpose of the transform's linear part, which maps normals.
+    pub normal_matrix: Mat3A,
     /// Scene material index added to the mesh's per-triangle material indices.
     pub material_base: u32,
     /// A scene material replacing the file's materials, if the object names one.
@@ -105,9 +107,11 @@ impl SceneMeshes {
         }
         let file = &self.loaded[&key];
         for (mesh, local, node) in &file.instances {
+            let world = transform * *local;
             self.instances.push(SceneInstance {
                 mesh: *mesh,
-                transform: transform * *local,
+                transform: world,
+                normal_matrix: world.matrix3.inverse().transpose(),
                 material_base: file.material_base,
                 material_override,
                 name: if node.is_empty() {
@@ -162,14 +166,16 @@ impl SceneMeshes {
                 geometric
             }
         };
-        let normal_matrix = inst.transform.matrix3.inverse().transpose();
-        let normal = (normal_matrix * local_normal).try_normalize().unwrap_or(Vec3::Y);
+        let normal = (inst.normal_matrix * local_normal)
+            .try_normalize()
+            .unwrap_or(Vec3::Y);
         let local_material = m.triangle_material.get(triangle).copied().unwrap_or(0);
         let material = inst
             .material_override
             .unwrap_or(inst.material_base + local_material);
         let tint = if inst.material_override.is_none() && !m.uvs.is_empty() {
-            let mat = &self.materials[(inst.material_base - self.material_offset + local_material) as usize];
+            let mat = &self.materials
+                [(inst.material_base - self.material_offset + local_material) as usize];
             mat.base_color_texture.map_or(Vec3::ONE, |t| {
                 let uv: Vec2 = w * m.uvs[a] + u * m.uvs[b] + v * m.uvs[c];
                 self.textures[t].sample(uv).truncate()

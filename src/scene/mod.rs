@@ -8,9 +8,9 @@ pub mod camera;
 pub mod file;
 pub mod generate;
 pub mod locate;
+pub mod mesh;
 pub mod meshes;
 pub mod model;
-pub mod mesh;
 pub mod values;
 
 use crate::geom::Aabb;
@@ -18,9 +18,9 @@ use crate::sdf::lower::Step;
 use crate::sdf::{self, LoweredSdf, SdfNode};
 use crate::shade::material::MaterialParams;
 use camera::{Camera, Projection};
-pub use meshes::{SceneMeshes, resolve_mesh_path};
 use file::{CameraDesc, LightDesc, NormalMethod, SceneFile, ShadowDesc, ToneMap};
 use glam::Vec3;
+pub use meshes::{SceneMeshes, resolve_mesh_path};
 use std::path::{Path, PathBuf};
 
 /// The largest accepted image side, in pixels.
@@ -307,14 +307,20 @@ impl Scene {
         if sh.max_bounces > MAX_BOUNCES {
             return Err(at(
                 top(&["shading", "max_bounces"]),
-                format!("max_bounces = {} is out of range 0..={MAX_BOUNCES}", sh.max_bounces),
+                format!(
+                    "max_bounces = {} is out of range 0..={MAX_BOUNCES}",
+                    sh.max_bounces
+                ),
             ));
         }
         if let Some(ao) = &sh.ambient_occlusion {
             if ao.steps == 0 || ao.steps > 64 {
                 return Err(at(
                     top(&["shading", "ambient_occlusion", "steps"]),
-                    format!("ambient_occlusion.steps = {} is out of range 1..=64", ao.steps),
+                    format!(
+                        "ambient_occlusion.steps = {} is out of range 1..=64",
+                        ao.steps
+                    ),
                 ));
             }
         }
@@ -440,18 +446,28 @@ impl Scene {
                     });
                     let override_material = o.material.as_ref().map(|_| material);
                     meshes
-                        .add_file(&resolve_mesh_path(path, file), transform, override_material, &name)
+                        .add_file(
+                            &resolve_mesh_path(path, file),
+                            transform,
+                            override_material,
+                            &name,
+                        )
                         .map_err(|e| at(place, format!("{name}: {e}")))?;
                     continue;
                 }
                 (Some(_), Some(_)) => {
                     let place = locate::follow(source, span.0, &[locate::Nav::Field("mesh")]);
-                    return Err(at(place, format!("{name}: give either `shape` or `mesh`, not both")));
+                    return Err(at(
+                        place,
+                        format!("{name}: give either `shape` or `mesh`, not both"),
+                    ));
                 }
                 (None, None) => {
                     return Err(at(
                         span.0,
-                        format!("{name}: an object needs a `shape` (an SDF tree) or a `mesh` (a file)"),
+                        format!(
+                            "{name}: an object needs a `shape` (an SDF tree) or a `mesh` (a file)"
+                        ),
                     ));
                 }
             };

@@ -159,9 +159,9 @@ fn file_camera(cameras: &[NamedCamera], choice: &str) -> Result<Camera, String> 
         CameraProjection::Perspective { yfov_radians, .. } => Projection::Perspective {
             tan_half_fov: (0.5 * yfov_radians).tan(),
         },
-        CameraProjection::Orthographic { ymag, .. } => Projection::Orthographic {
-            height: 2.0 * ymag,
-        },
+        CameraProjection::Orthographic { ymag, .. } => {
+            Projection::Orthographic { height: 2.0 * ymag }
+        }
     };
     Camera::look_at(
         found.position,

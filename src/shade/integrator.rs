@@ -97,7 +97,12 @@ pub fn trace_camera_ray(tracer: &SceneTracer, materials: &[MaterialVec], ray: Ra
             let cos_i = d.dot(n).clamp(0.0, 1.0);
             let f = schlick(cos_i, ior, 1.0);
             if let Some(out) = refract(d, -n, ior) {
-                spawn(&mut stack, Ray::new(p + n * offset, out), item.weight * (1.0 - f), None);
+                spawn(
+                    &mut stack,
+                    Ray::new(p + n * offset, out),
+                    item.weight * (1.0 - f),
+                    None,
+                );
             }
             spawn(
                 &mut stack,

@@ -122,7 +122,9 @@ impl<'a> SceneTracer<'a> {
         let mesh_hit = if self.meshes.is_empty() {
             None
         } else {
-            self.meshes.tlas.closest_hit(&self.meshes.blas, ray, tmin, limit)
+            self.meshes
+                .tlas
+                .closest_hit(&self.meshes.blas, ray, tmin, limit)
         };
         if let Some(h) = &mesh_hit {
             limit = h.t;
@@ -179,7 +181,13 @@ impl<'a> SceneTracer<'a> {
     pub fn visibility(&self, ray: &Ray, tmin: f32, tmax: f32, shadow: Shadow) -> f32 {
         let (k, improved) = match shadow {
             Shadow::None => return 1.0,
-            Shadow::Hard => return if self.occluded(ray, tmin, tmax) { 0.0 } else { 1.0 },
+            Shadow::Hard => {
+                return if self.occluded(ray, tmin, tmax) {
+                    0.0
+                } else {
+                    1.0
+                };
+            }
             // Meshes have no distance field to estimate a penumbra from: they block or not.
             _ if self.mesh_blocks(ray, tmin, tmax) => return 0.0,
             Shadow::Soft(k) => (k, false),
@@ -192,17 +200,18 @@ impl<'a> SceneTracer<'a> {
         // k·h/t < 1 only where h < t/k ≤ limit/k: objects farther than that from the ray
         // cannot darken it, nearer ones can even when the ray misses their bounds.
         let margin = limit / k;
-        self.accel.visit_within(ray, tmin, &mut limit, margin, |i, t0, t1, _| {
-            let tape = &self.scene.objects[i].lowered.distance;
-            // the penumbra counts distance from the shadow ray's origin, not from the bounds
-            let v = sphere::penumbra(tape, ray, t0, t1, s, k, improved, &mut regs);
-            res = res.min(v);
-            if res <= 0.0 {
-                ControlFlow::Break(())
-            } else {
-                ControlFlow::Continue(())
-            }
-        });
+        self.accel
+            .visit_within(ray, tmin, &mut limit, margin, |i, t0, t1, _| {
+                let tape = &self.scene.objects[i].lowered.distance;
+                // the penumbra counts distance from the shadow ray's origin, not from the bounds
+                let v = sphere::penumbra(tape, ray, t0, t1, s, k, improved, &mut regs);
+                res = res.min(v);
+                if res <= 0.0 {
+                    ControlFlow::Break(())
+                } else {
+                    ControlFlow::Continue(())
+                }
+            });
         // Quilez smooths the estimate with smoothstep to hide its piecewise-linear falloff.
         res * res * (3.0 - 2.0 * res)
     }
@@ -215,8 +224,16 @@ impl<'a> SceneTracer<'a> {
         let mut d = f32::INFINITY;
         for o in &self.scene.objects {
             let b = o.bounds();
-            let lower = if b.is_finite() { b.signed_distance(p) } else { f32::NEG_INFINITY };
-            d = d.min(if lower > reach { lower } else { o.lowered.distance.eval_in(p, &mut regs) });
+            let lower = if b.is_finite() {
+                b.signed_distance(p)
+            } else {
+                f32::NEG_INFINITY
+            };
+            d = d.min(if lower > reach {
+                lower
+            } else {
+                o.lowered.distance.eval_in(p, &mut regs)
+            });
         }
         d
     }
@@ -287,7 +304,14 @@ impl<'a> SceneTracer<'a> {
         let tape = &self.scene.objects[object].lowered.distance;
         let mut regs = Registers::new();
         let t = sphere::exit(tape, ray, 0.0, tmax.min(s.max_distance), s, &mut regs)?;
-        let n = normal::estimate(tape, ray.at(t), normal::step_for(s, t), s.normals, &mut regs).0;
+        let n = normal::estimate(
+            tape,
+            ray.at(t),
+            normal::step_for(s, t),
+            s.normals,
+            &mut regs,
+        )
+        .0;
         Some((t, n))
     }
 

@@ -7,7 +7,7 @@
 use super::texture::{self, Texture, Wrap};
 use super::{
     CameraProjection, LightKind, MeshAsset, MeshError, MeshInstance, MeshMaterial, NamedCamera,
-    NamedLight, TriangleMesh, pbr_material, repair_normals, vertex_normals,
+    NamedLight, TriangleMesh, pbr_material, repair_normals, unit, vertex_normals,
 };
 use ::gltf::json;
 use glam::{Affine3A, Mat4, Quat, Vec2, Vec3};
@@ -47,6 +47,7 @@ pub(super) fn load(file: &Path, bytes: &[u8]) -> Result<MeshAsset, MeshError> {
     };
     let mut root = parse_root(json_bytes).map_err(|m| err("", m))?;
     precheck(&root).map_err(|(place, m)| err(&place, m))?;
+    let relaxed = relax_bounds(&mut root);
     // Quantized attributes are read like any other accessor here.
     root.extensions_required
         .retain(|e| e != "KHR_mesh_quantization");
@@ -84,11 +85,13 @@ pub(super) fn load(file: &Path, bytes: &[u8]) -> Result<MeshAsset, MeshError> {
     let root = document.as_json();
     let base = file.parent().unwrap_or(Path::new("."));
     let buffers = load_buffers(root, base, bin).map_err(|(place, m)| err(&place, m))?;
+    let mut asset = MeshAsset::empty();
+    asset.warnings = relaxed;
     let mut cx = Cx {
         root,
         base,
         buffers,
-        asset: MeshAsset::empty(),
+        asset,
         mesh_slot: HashMap::new(),
         texture_slot: HashMap::new(),
     };
@@ -206,6 +209,42 @@ fn precheck(root: &json::Root) -> Result<(), Fail> {
         }
     }
     Ok(())
+}
+
+/// glTF requires POSITION accessors to give `min` and `max`, and `gltf-json` refuses files
+/// without them; many exporters omit them and the loader does not use them, so missing or
+/// malformed ones are replaced (with a warning) before validation.
+fn relax_bounds(root: &mut json::Root) -> Vec<String> {
+    let mut warnings = Vec::new();
+    let mut positions: Vec<usize> = root
+        .meshes
+        .iter()
+        .flat_map(|m| &m.primitives)
+        .filter_map(|p| p.attributes.get(&Checked::Valid(Semantic::Positions)))
+        .map(|i| i.value())
+        .collect();
+    positions.sort_unstable();
+    positions.dedup();
+    let valid = |v: &Option<json::Value>| {
+        v.as_ref()
+            .is_some_and(|v| json::deserialize::from_value::<[f32; 3]>(v.clone()).is_ok())
+    };
+    for i in positions {
+        let Some(acc) = root.accessors.get_mut(i) else {
+            continue;
+        };
+        if valid(&acc.min) && valid(&acc.max) {
+            continue;
+        }
+        let zero = || Some(json::Value::Array(vec![json::Value::from(0.0); 3]));
+        acc.min = zero();
+        acc.max = zero();
+        warnings.push(format!(
+            "accessors[{i}]: a POSITION accessor without valid min and max (glTF requires \
+             them); ignored, they are not used"
+        ));
+    }
+    warnings
 }
 
 /// Reads every buffer: the GLB BIN chunk, a base64 `data:` URI or a file next to the glTF.
@@ -473,9 +512,7 @@ impl Cx<'_> {
             });
         }
         let position: Vec3 = world.translation.into();
-        let minus_z = Vec3::from(world.matrix3 * glam::Vec3A::NEG_Z)
-            .try_normalize()
-            .unwrap_or(Vec3::NEG_Z);
+        let minus_z = unit(Vec3::from(world.matrix3 * glam::Vec3A::NEG_Z)).unwrap_or(Vec3::NEG_Z);
         if let Some(c) = node.camera {
             let place = format!("nodes[{index}].camera");
             let Some(cam) = root.cameras.get(c.value()) else {
@@ -503,8 +540,7 @@ impl Cx<'_> {
                 }
             };
             let y = Vec3::from(world.matrix3 * glam::Vec3A::Y);
-            let up = (y - minus_z * y.dot(minus_z))
-                .try_normalize()
+            let up = unit(y - minus_z * y.dot(minus_z))
                 .unwrap_or_else(|| minus_z.any_orthonormal_vector());
             self.asset.cameras.push(NamedCamera {
                 name: cam.name.clone().unwrap_or_else(|| node_name.clone()),

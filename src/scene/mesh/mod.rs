@@ -409,6 +409,16 @@ pub fn pbr_material(
     }
 }
 
+/// `v` scaled to unit length, accurately even for tiny or huge vectors (scaled by the largest
+/// component first); `None` for zero or non-finite vectors.
+fn unit(v: Vec3) -> Option<Vec3> {
+    let m = v.abs().max_element();
+    if !(m > 0.0 && m.is_finite()) {
+        return None;
+    }
+    (v / m).try_normalize()
+}
+
 /// Area-weighted vertex normals: each vertex gets the normalised sum of the (unnormalised)
 /// cross products of its triangles; vertices without any non-degenerate triangle get +Z.
 fn vertex_normals(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
@@ -419,7 +429,7 @@ fn vertex_normals(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
         }
     });
     acc.into_iter()
-        .map(|n| n.try_normalize().unwrap_or(Vec3::Z))
+        .map(|n| unit(n).unwrap_or(Vec3::Z))
         .collect()
 }
 
@@ -451,7 +461,7 @@ fn accumulate_face_normals(
 fn repair_normals(normals: &mut [Vec3], positions: &[Vec3], triangles: &[[u32; 3]]) -> usize {
     let mut bad = 0;
     for n in normals.iter_mut() {
-        match n.try_normalize() {
+        match unit(*n) {
             Some(u) => *n = u,
             None => {
                 *n = Vec3::NAN;

@@ -8,7 +8,7 @@
 
 use super::polygon::triangulate;
 use super::texture::{self, Wrap};
-use super::{MeshAsset, MeshError, MeshInstance, MeshMaterial, TriangleMesh};
+use super::{MeshAsset, MeshError, MeshInstance, MeshMaterial, TriangleMesh, unit};
 use crate::shade::material::MaterialParams;
 use glam::{Affine3A, Vec2, Vec3};
 use std::cell::RefCell;
@@ -535,13 +535,11 @@ fn append_model(out: &mut TriangleMesh, m: &tobj::Mesh, material: u32) -> Result
         }
         let id = u32::try_from(out.positions.len()).map_err(|_| "more than 2³² vertices")?;
         out.positions.push(positions[p]);
-        let computed = acc[p].try_normalize().unwrap_or(Vec3::Z);
+        let computed = unit(acc[p]).unwrap_or(Vec3::Z);
         let normal = if has_n {
             let n = n as usize;
             match m.normals.get(3 * n..3 * n + 3) {
-                Some(v) => Vec3::new(v[0], v[1], v[2])
-                    .try_normalize()
-                    .unwrap_or(computed),
+                Some(v) => unit(Vec3::new(v[0], v[1], v[2])).unwrap_or(computed),
                 None => return Err(format!("normal index {n} out of range")),
             }
         } else {
@@ -590,16 +588,28 @@ impl Libraries {
     /// `tobj`'s material loader: parses the library (or libraries, when a `mtllib` line
     /// names several files) and returns the names in the order they were appended here.
     fn load(&mut self, base: &Path, mtl: &Path) -> tobj::MTLLoadResult {
-        let whole = base.join(mtl);
-        let mut files = vec![whole.clone()];
         let text = mtl.to_string_lossy();
         if text.trim().is_empty() {
             self.warnings
                 .push("`mtllib` without a file name ignored".to_string());
             return Err(tobj::LoadError::OpenFileFailed);
         }
+        let whole = resolve(base, &text);
+        let mut files = vec![whole.clone()];
         if !whole.is_file() && text.split_whitespace().count() > 1 {
-            files = text.split_whitespace().map(|f| base.join(f)).collect();
+            files = text.split_whitespace().map(|f| resolve(base, f)).collect();
+        }
+        for f in &mut files {
+            // A library named with another extension (`x.mat`) when `x.mtl` exists.
+            let alt = f.with_extension("mtl");
+            if !f.is_file() && alt.is_file() {
+                self.warnings.push(format!(
+                    "material library {} not found; using {}",
+                    f.display(),
+                    alt.display()
+                ));
+                *f = alt;
+            }
         }
         let mut names: Vec<tobj::Material> = Vec::new();
         for f in files {
@@ -665,8 +675,10 @@ fn parse_mtl(bytes: &[u8], file: &Path, warnings: &mut Vec<String>) -> Vec<MtlMa
             continue;
         }
         let Some(m) = out.last_mut() else { continue };
+        // Numeric arguments, up to an end-of-line `#` comment.
+        let args = || rest.split_whitespace().take_while(|w| !w.starts_with('#'));
         let numbers = || -> Option<Vec<f32>> {
-            rest.split_whitespace()
+            args()
                 .map(|w| w.parse::<f32>().ok().filter(|x| x.is_finite()))
                 .collect()
         };
@@ -680,8 +692,10 @@ fn parse_mtl(bytes: &[u8], file: &Path, warnings: &mut Vec<String>) -> Vec<MtlMa
             .map(|c| c.max(Vec3::ZERO))
         };
         let scalar = || -> Option<f32> {
-            rest.split_whitespace()
-                .rfind(|w| !w.starts_with('-') || w.parse::<f32>().is_ok())
+            // The last argument: `d -halo 0.5` has an option first.
+            args()
+                .filter(|w| !w.starts_with('-') || w.parse::<f32>().is_ok())
+                .last()
                 .and_then(|w| w.parse::<f32>().ok())
                 .filter(|x| x.is_finite())
         };
@@ -703,7 +717,11 @@ fn parse_mtl(bytes: &[u8], file: &Path, warnings: &mut Vec<String>) -> Vec<MtlMa
             },
             "ni" => match scalar() {
                 Some(x) if x > 0.0 => m.params.ior = x,
-                _ => bad("Ni", warnings),
+                Some(x) => warnings.push(format!(
+                    "{place}: `Ni {x}` is not an index of refraction; {} kept",
+                    m.params.ior
+                )),
+                None => bad("Ni", warnings),
             },
             "d" => match scalar() {
                 Some(x) => {
@@ -783,14 +801,28 @@ fn texture_argument(rest: &str) -> Option<(String, Wrap)> {
     (!name.is_empty()).then(|| (name.to_string(), wrap))
 }
 
-/// A texture path from an MTL file: relative to the MTL's folder; backslashes are tried as
-/// separators when the name as written does not exist.
+/// A file named in an OBJ or MTL file, relative to `dir`: as written, else with backslashes
+/// read as separators, else matched case-insensitively in its folder (files written on
+/// Windows). The name as written when none exists.
 fn resolve(dir: &Path, name: &str) -> PathBuf {
     let direct = dir.join(name);
-    if !direct.exists() && name.contains('\\') {
-        let alt = dir.join(name.replace('\\', "/"));
-        if alt.exists() {
-            return alt;
+    if direct.is_file() {
+        return direct;
+    }
+    let slashed = dir.join(name.replace('\\', "/"));
+    if slashed.is_file() {
+        return slashed;
+    }
+    if let (Some(parent), Some(file)) = (slashed.parent(), slashed.file_name()) {
+        let want = file.to_string_lossy().to_lowercase();
+        if let Ok(rd) = std::fs::read_dir(parent) {
+            for entry in rd.flatten() {
+                if entry.file_name().to_string_lossy().to_lowercase() == want
+                    && entry.path().is_file()
+                {
+                    return entry.path();
+                }
+            }
         }
     }
     direct
