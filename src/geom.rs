@@ -116,17 +116,31 @@ impl Aabb {
         q.max(Vec3::ZERO).length() + q.max_element().min(0.0)
     }
 
-    /// The parametric interval [t0, t1] in which the ray is inside the box, clipped to
-    /// [tmin, tmax]; `None` when it misses. Slab method (Kay & Kajiya 1986) with the IEEE
-    /// infinities of 1/d handling axis-parallel rays.
+    /// The parametric interval [t0, t1] in which the ray is inside the closed box, clipped to
+    /// [tmin, tmax]; `None` when it misses. Slab method (Kay & Kajiya 1986). On an axis where
+    /// 1/d is not finite (the ray is parallel to the slab) the axis is a containment test
+    /// min ≤ o ≤ max — computing (min − o)·∞ there would give NaN when the origin lies on a
+    /// slab plane, and NaN must not widen the interval. Infinite boxes work; empty boxes and
+    /// NaN bounds miss.
     pub fn ray_interval(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<(f32, f32)> {
-        let inv = ray.direction.recip();
-        let t_a = (self.min - ray.origin) * inv;
-        let t_b = (self.max - ray.origin) * inv;
-        // NaN arises from 0·∞ when the origin lies on a slab plane of a parallel ray;
-        // glam's min/max follow f32::min/max, which drop NaN in favour of the other operand.
-        let t_near = t_a.min(t_b).max_element().max(tmin);
-        let t_far = t_a.max(t_b).min_element().min(tmax);
+        let (mut t_near, mut t_far) = (tmin, tmax);
+        for axis in 0..3 {
+            let (o, lo, hi) = (ray.origin[axis], self.min[axis], self.max[axis]);
+            let inv = 1.0 / ray.direction[axis];
+            if inv.is_finite() {
+                let t_a = (lo - o) * inv;
+                let t_b = (hi - o) * inv;
+                let (n, f) = if inv < 0.0 { (t_b, t_a) } else { (t_a, t_b) };
+                // written so that a NaN (from NaN input only) fails the test
+                if !(n <= t_far && f >= t_near) {
+                    return None;
+                }
+                t_near = t_near.max(n);
+                t_far = t_far.min(f);
+            } else if !(lo <= o && o <= hi) {
+                return None;
+            }
+        }
         (t_near <= t_far).then_some((t_near, t_far))
     }
 }
@@ -182,6 +196,15 @@ mod tests {
         let b = Aabb::symmetric(Vec3::new(1.0, 2.0, 3.0));
         let r = b.transformed(&Affine3A::from_rotation_y(std::f32::consts::FRAC_PI_2));
         assert!((r.max - Vec3::new(3.0, 2.0, 1.0)).length() < 1e-5);
+    }
+
+    #[test]
+    fn rays_on_slab_planes_and_empty_boxes_miss_correctly() {
+        // parallel to y, origin on the box's z plane but far away in x: a miss
+        let flat = Aabb::new(Vec3::new(-1.0, -1.0, 0.0), Vec3::new(1.0, 1.0, 0.0));
+        let r = Ray::new(Vec3::new(100.0, -5.0, 0.0), Vec3::Y);
+        assert_eq!(flat.ray_interval(&r, 0.0, 15.0), None);
+        assert_eq!(Aabb::EMPTY.ray_interval(&r, 0.0, 15.0), None);
     }
 
     #[test]

@@ -595,35 +595,9 @@ impl InstanceBvh {
     }
 }
 
-/// The parametric interval `[t0, t1]` in which the ray is inside the closed box `b`, clipped
-/// to `[tmin, tmax]`; `None` when it misses. This is [`Aabb::ray_interval`]'s slab method
-/// (Kay & Kajiya 1986) with the same arithmetic, except on an axis where `1/d` is not finite
-/// (d = ±0 or subnormal): there the ray is parallel to the slab and the axis is a containment
-/// test `min <= o <= max`. `ray_interval` instead evaluates `0·∞` = NaN when the origin lies
-/// exactly on a slab plane, and glam 0.34's `min`/`max`/`max_element` propagate that NaN (they
-/// are `if a < b { a } else { b }`, not `f32::min`), so the result can become the whole
-/// `[tmin, tmax]` for a box the ray does not meet (e.g. a ray along +x starting on a box
-/// corner, with `tmin` past the box). Infinite bounds are fine; NaN bounds give `None`.
+/// [`Aabb::ray_interval`] as a free function (the BVH walks and their tests use it by name).
 pub fn ray_box_interval(b: &Aabb, ray: &Ray, tmin: f32, tmax: f32) -> Option<(f32, f32)> {
-    let (mut t_near, mut t_far) = (tmin, tmax);
-    for axis in 0..3 {
-        let (o, lo, hi) = (ray.origin[axis], b.min[axis], b.max[axis]);
-        let inv = 1.0 / ray.direction[axis];
-        if inv.is_finite() {
-            let t_a = (lo - o) * inv;
-            let t_b = (hi - o) * inv;
-            let (n, f) = if inv < 0.0 { (t_b, t_a) } else { (t_a, t_b) };
-            // Written so that a NaN (only from NaN input) makes the test fail.
-            if !(n <= t_far && f >= t_near) {
-                return None;
-            }
-            t_near = t_near.max(n);
-            t_far = t_far.min(f);
-        } else if !(lo <= o && o <= hi) {
-            return None;
-        }
-    }
-    (t_near <= t_far).then_some((t_near, t_far))
+    b.ray_interval(ray, tmin, tmax)
 }
 
 /// A BVH over arbitrary boxes, e.g. the world bounds of the SDF objects, walked nearest-first.
@@ -632,8 +606,7 @@ pub fn ray_box_interval(b: &Aabb, ray: &Ray, tmin: f32, tmax: f32) -> Option<(f3
 /// they are kept in a separate list ([`AabbBvh::unbounded`]) and offered to every walk before
 /// the tree (an infinite box through [`ray_box_interval`], a NaN box as `[tmin, tmax]`: its
 /// extent is unknown). Empty boxes (min > max on an axis) contain nothing and are never
-/// visited — note that [`Aabb::ray_interval`] on its own treats the inverted [`Aabb::EMPTY`]
-/// like an infinite box.
+/// visited.
 #[derive(Debug, Clone)]
 pub struct AabbBvh {
     nodes: Vec<WideNode>,
@@ -694,8 +667,7 @@ impl AabbBvh {
     /// Calls `visit(index, t_enter, t_exit, tmax)` for every box the ray crosses within
     /// `[tmin, *tmax]`, where `(t_enter, t_exit)` is exactly [`ray_box_interval`] of that box
     /// (so the set of boxes visited when `visit` never shrinks `tmax` is exactly the set a
-    /// linear scan with `ray_box_interval` finds; that is `Aabb::ray_interval`'s set except in
-    /// the NaN cases described at [`ray_box_interval`]). Unbounded boxes come first, then the tree's
+    /// linear scan with [`Aabb::ray_interval`] finds). Unbounded boxes come first, then the tree's
     /// boxes roughly front to back (children sorted by entry distance). `visit` may lower
     /// `*tmax` — boxes entered beyond it are then skipped (closest-hit) — or return
     /// `ControlFlow::Break` to stop the walk (any-hit). Same interface as

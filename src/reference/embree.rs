@@ -326,7 +326,7 @@ fn analytic_form(node: &SdfNode) -> Result<(Affine3A, Primitive), String> {
     loop {
         node = match node {
             SdfNode::Transform { shape, .. } => {
-                m = m * transform_of(node).0;
+                m *= transform_of(node).0;
                 shape
             }
             SdfNode::Material { shape, .. } => shape,
@@ -407,6 +407,8 @@ pub struct EmbreeScene {
     // and the user data), the device last.
     top: SceneHandle,
     _mesh_scenes: Vec<SceneHandle>,
+    // Boxed so that each address Embree holds stays put while the Vec grows.
+    #[allow(clippy::vec_box)]
     _shapes: Vec<Box<UserShape>>,
     device: Device,
     /// Top-level geometry ID → what it is.
@@ -604,7 +606,7 @@ impl EmbreeScene {
 
 impl RayQuery for EmbreeScene {
     fn closest_hit(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<QueryHit> {
-        if !(tmin.max(0.0) <= tmax) {
+        if tmax.is_nan() || tmin.max(0.0) > tmax {
             return None;
         }
         let mut rh = RTCRayHit {
@@ -639,7 +641,7 @@ impl RayQuery for EmbreeScene {
     }
 
     fn occluded(&self, ray: &Ray, tmin: f32, tmax: f32) -> bool {
-        if !(tmin.max(0.0) <= tmax) {
+        if tmax.is_nan() || tmin.max(0.0) > tmax {
             return false;
         }
         let mut r = Self::rtc_ray(ray, tmin, tmax);

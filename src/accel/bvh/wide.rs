@@ -196,8 +196,17 @@ pub(crate) fn build(boxes: &[OAabb], params: &BvhBuildParams) -> WideBvh {
 /// ordinary cloud (20,000 copies: a few ms). Only the topology depends on these boxes: the
 /// node boxes are recomputed from the real ones.
 fn spread_duplicates(boxes: &[OAabb]) -> Option<Vec<OAabb>> {
-    let key = |b: &OAabb| [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z].map(f32::to_bits);
-    let mut groups: HashMap<[u32; 6], (u32, u32), BuildHasherDefault<FxHasher>> =
+    // A 64-bit fingerprint of the six coordinates' bits stands for the box. Two different
+    // boxes sharing one (odds ~n²/2⁶⁵) would merely be spread too, which only moves the
+    // builder's view of them by a hair.
+    let key = |b: &OAabb| {
+        let mut h = 0u64;
+        for c in [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z] {
+            h = (h.rotate_left(21) ^ u64::from(c.to_bits())).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+        }
+        h ^ (h >> 29)
+    };
+    let mut groups: HashMap<u64, (u32, u32), BuildHasherDefault<PassThrough>> =
         HashMap::with_capacity_and_hasher(boxes.len(), Default::default());
     let (mut lo, mut hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
     let mut any = false;
@@ -245,19 +254,19 @@ fn spread_duplicates(boxes: &[OAabb]) -> Option<Vec<OAabb>> {
     )
 }
 
-/// The multiply-rotate hash of rustc's `FxHasher` (not DoS-resistant, which is irrelevant
-/// here, and several times faster than the default SipHash on these 24-byte keys).
+/// A hasher for keys that are already well-mixed 64-bit fingerprints.
 #[derive(Default)]
-struct FxHasher(u64);
+struct PassThrough(u64);
 
-impl Hasher for FxHasher {
+impl Hasher for PassThrough {
     fn write(&mut self, bytes: &[u8]) {
-        for chunk in bytes.chunks(8) {
-            let mut word = [0u8; 8];
-            word[..chunk.len()].copy_from_slice(chunk);
-            self.0 = (self.0.rotate_left(5) ^ u64::from_le_bytes(word))
-                .wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+        // Only `write_u64` is used by `u64` keys; this is the generic fallback.
+        for &b in bytes {
+            self.0 = (self.0.rotate_left(8) ^ u64::from(b)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
         }
+    }
+    fn write_u64(&mut self, i: u64) {
+        self.0 = i;
     }
     fn finish(&self) -> u64 {
         self.0
