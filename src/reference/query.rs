@@ -4,6 +4,10 @@
 //! anything lies in (tmin, tmax) (a shadow ray). `t` is in units of the ray's direction, which
 //! [`Ray`] keeps unit length, so it is a world-space distance. Comparing backends through this
 //! trait is what makes one of them a referee for the others.
+//!
+//! Known difference between backends: a ray that starts inside an SDF solid gets a hit at
+//! `t = tmin` from the sphere tracer (the field is already below its threshold there), but the
+//! exit crossing from Embree's closed-form user geometry. Comparisons cast rays from outside.
 
 use crate::geom::Ray;
 use crate::trace::{SceneTracer, Surface};
