@@ -33,6 +33,20 @@ impl Rng {
         (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
     }
 
+    /// Uniform in [lo, hi) as f32.
+    pub fn range_f32(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * self.next_f32()
+    }
+
+    /// A vector with each component uniform in [lo, hi).
+    pub fn vec3_in(&mut self, lo: f32, hi: f32) -> Vec3 {
+        Vec3::new(
+            self.range_f32(lo, hi),
+            self.range_f32(lo, hi),
+            self.range_f32(lo, hi),
+        )
+    }
+
     /// Uniform in [lo, hi).
     pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
         lo + (hi - lo) * self.uniform()

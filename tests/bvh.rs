@@ -20,41 +20,7 @@ use rayon::prelude::*;
 
 const QUALITIES: [BuildQuality; 3] = [BuildQuality::Fast, BuildQuality::Medium, BuildQuality::High];
 
-/// SplitMix64 (Steele, Lea & Flood 2014): small, deterministic, good enough for test data.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    /// Uniform in [0, 1).
-    fn f(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 24) as f32
-    }
-    fn range(&mut self, lo: f32, hi: f32) -> f32 {
-        lo + (hi - lo) * self.f()
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n as u64) as usize
-    }
-    fn v3(&mut self, lo: f32, hi: f32) -> Vec3 {
-        Vec3::new(self.range(lo, hi), self.range(lo, hi), self.range(lo, hi))
-    }
-    /// Uniform on the unit sphere (rejection from the cube).
-    fn dir(&mut self) -> Vec3 {
-        loop {
-            let v = self.v3(-1.0, 1.0);
-            let l = v.length_squared();
-            if l > 1e-4 && l <= 1.0 {
-                return v / l.sqrt();
-            }
-        }
-    }
-}
+use hytrace::rng::Rng;
 
 /// Closest hit over every triangle with the same watertight test and the same tie-break
 /// (smallest t, then smallest index) as the BVH.
@@ -113,7 +79,7 @@ fn soup(rng: &mut Rng, n: usize) -> (Vec<Vec3>, Vec<[u32; 3]>) {
     let mut tris = Vec::new();
     for i in 0..n {
         let size = [0.02, 0.1, 0.5][i % 3];
-        let c = rng.v3(-1.0, 1.0);
+        let c = rng.vec3_in(-1.0, 1.0);
         let base = pos.len() as u32;
         if i % 17 == 0 {
             // Axis-aligned right triangle in a coordinate plane through c.
@@ -125,14 +91,18 @@ fn soup(rng: &mut Rng, n: usize) -> (Vec<Vec3>, Vec<[u32; 3]>) {
             e2[v] = size;
             pos.extend([c, c + e1, c + e2]);
         } else {
-            pos.extend([c, c + rng.v3(-size, size), c + rng.v3(-size, size)]);
+            pos.extend([
+                c,
+                c + rng.vec3_in(-size, size),
+                c + rng.vec3_in(-size, size),
+            ]);
         }
         tris.push([base, base + 1, base + 2]);
     }
     // Strips: a row of quads sharing edges.
     for _ in 0..20 {
-        let o = rng.v3(-1.0, 1.0);
-        let (e1, e2) = (rng.v3(-0.1, 0.1), rng.v3(-0.1, 0.1));
+        let o = rng.vec3_in(-1.0, 1.0);
+        let (e1, e2) = (rng.vec3_in(-0.1, 0.1), rng.vec3_in(-0.1, 0.1));
         let base = pos.len() as u32;
         for k in 0..10 {
             pos.push(o + k as f32 * e1);
@@ -159,36 +129,46 @@ fn soup_rays(
     for i in 0..n {
         let (o, d, tmin, tmax) = match i % 6 {
             0 => {
-                let o = rng.dir() * 3.0;
-                (o, rng.v3(-1.0, 1.0) - o, 0.0, f32::INFINITY)
+                let o = rng.direction() * 3.0;
+                (o, rng.vec3_in(-1.0, 1.0) - o, 0.0, f32::INFINITY)
             }
-            1 => (rng.v3(-1.0, 1.0), rng.dir(), 0.0, f32::INFINITY),
+            1 => (rng.vec3_in(-1.0, 1.0), rng.direction(), 0.0, f32::INFINITY),
             2 => {
                 // Origin on a triangle (rounded, so on it up to an ulp).
-                let t = tris[rng.below(tris.len())].map(|k| pos[k as usize]);
-                let (mut u, mut v) = (rng.f(), rng.f());
+                let t = tris[(rng.below(tris.len() as u64) as usize)].map(|k| pos[k as usize]);
+                let (mut u, mut v) = (rng.next_f32(), rng.next_f32());
                 if u + v > 1.0 {
                     (u, v) = (1.0 - u, 1.0 - v);
                 }
                 let o = (1.0 - u - v) * t[0] + u * t[1] + v * t[2];
-                (o, rng.dir() * rng.range(0.5, 2.0), 0.0, f32::INFINITY)
+                (
+                    o,
+                    rng.direction() * rng.range_f32(0.5, 2.0),
+                    0.0,
+                    f32::INFINITY,
+                )
             }
             3 => {
                 // Axis-parallel, from a vertex (on the planes of its triangle's boxes).
-                let o = pos[rng.below(pos.len())];
+                let o = pos[(rng.below(pos.len() as u64) as usize)];
                 let mut d = Vec3::ZERO;
-                d[rng.below(3)] = if rng.f() < 0.5 { 1.0 } else { -1.0 };
+                d[(rng.below(3 as u64) as usize)] = if rng.next_f32() < 0.5 { 1.0 } else { -1.0 };
                 (o, d, 0.0, f32::INFINITY)
             }
             4 => {
                 // Bounded segment with tmin > 0.
-                let o = rng.v3(-1.5, 1.5);
-                (o, rng.dir(), rng.range(0.0, 0.3), rng.range(0.3, 1.5))
+                let o = rng.vec3_in(-1.5, 1.5);
+                (
+                    o,
+                    rng.direction(),
+                    rng.range_f32(0.0, 0.3),
+                    rng.range_f32(0.3, 1.5),
+                )
             }
             _ => {
                 // Ray at a vertex from far away (through a shared vertex in the strips).
-                let p = pos[rng.below(pos.len())];
-                let o = rng.dir() * 4.0;
+                let p = pos[(rng.below(pos.len() as u64) as usize)];
+                let o = rng.direction() * 4.0;
                 (o, (p - o).normalize(), 0.0, f32::INFINITY)
             }
         };
@@ -200,7 +180,7 @@ fn soup_rays(
 #[test]
 fn random_soups_match_brute_force_for_every_quality() {
     for seed in [1u64, 2] {
-        let mut rng = Rng(seed);
+        let mut rng = Rng::new(seed);
         let (pos, tris) = soup(&mut rng, 4000);
         let rays = soup_rays(&mut rng, &pos, &tris, 12_000);
         let expected: Vec<(Option<MeshHit>, bool)> = rays
@@ -381,14 +361,14 @@ fn aimed_rays(pos: &[Vec3], tris: &[[u32; 3]], n_edge: usize, n_vertex: usize) -
         .iter()
         .fold(Aabb::EMPTY, |b, p| b.union(&Aabb::new(*p, *p)));
     let reach = 2.0 * bounds.diagonal();
-    let mut rng = Rng(0xB0_77E5);
+    let mut rng = Rng::new(0xB0_77E5);
     let mut out = Vec::with_capacity(n_edge + n_vertex);
     // A direction w (from the target towards the origin) that sees all of `local` from one
     // side with |cos| >= 0.1.
     let pick = |rng: &mut Rng, local: &[u32]| -> Option<Vec3> {
         let normals: Vec<Vec3> = local.iter().map(|&t| normal(t)).collect();
         for _ in 0..64 {
-            let w = rng.dir();
+            let w = rng.direction();
             let s: Vec<f32> = normals.iter().map(|n| n.dot(w)).collect();
             if s.iter().all(|&c| c >= 0.1) || s.iter().all(|&c| c <= -0.1) {
                 return Some(w);
@@ -397,11 +377,11 @@ fn aimed_rays(pos: &[Vec3], tris: &[[u32; 3]], n_edge: usize, n_vertex: usize) -
         None
     };
     while out.len() < n_edge {
-        let (a, b, ts) = good_edges[rng.below(good_edges.len())];
+        let (a, b, ts) = good_edges[(rng.below(good_edges.len() as u64) as usize)];
         let Some(w) = pick(&mut rng, &ts) else {
             continue;
         };
-        let s = rng.range(0.01, 0.99);
+        let s = rng.range_f32(0.01, 0.99);
         let (pa, pb) = (pos[a as usize], pos[b as usize]);
         let target = pa + s * (pb - pa);
         let origin = target + reach * w;
@@ -415,7 +395,7 @@ fn aimed_rays(pos: &[Vec3], tris: &[[u32; 3]], n_edge: usize, n_vertex: usize) -
         });
     }
     while out.len() < n_edge + n_vertex {
-        let (v, fan) = &good_vertices[rng.below(good_vertices.len())];
+        let (v, fan) = &good_vertices[(rng.below(good_vertices.len() as u64) as usize)];
         let Some(w) = pick(&mut rng, fan) else {
             continue;
         };
@@ -621,14 +601,14 @@ fn instances_match_flattened_geometry() {
     }
     let flat = MeshBvh::build(&wpos, &wtris, BuildQuality::Medium);
 
-    let mut rng = Rng(99);
+    let mut rng = Rng::new(99);
     let (mut hits, mut same_tri, mut edge_cases) = (0, 0, 0);
     for i in 0..10_000 {
         let (o, d) = if i % 2 == 0 {
-            let o = rng.dir() * 6.0;
-            (o, (rng.v3(-2.0, 2.0) - o).normalize())
+            let o = rng.direction() * 6.0;
+            (o, (rng.vec3_in(-2.0, 2.0) - o).normalize())
         } else {
-            (rng.v3(-1.0, 1.0), rng.dir())
+            (rng.vec3_in(-1.0, 1.0), rng.direction())
         };
         let r = Ray::new(o, d);
         let (o, d) = (r.origin, r.direction);
@@ -729,15 +709,15 @@ fn tmin_and_short_rays() {
     // Origin on the tilted triangle 2 (on it only up to rounding): with tmin = 0 the answer is
     // either that triangle at |t| ≈ 0 or (if its rounded t is negative) nothing further up —
     // exactly what brute force says; with tmin = 1e-3 it is skipped.
-    let mut rng = Rng(5);
+    let mut rng = Rng::new(5);
     let (mut self_hits, mut skipped) = (0, 0);
     for _ in 0..1000 {
-        let (mut u, mut v) = (rng.f(), rng.f());
+        let (mut u, mut v) = (rng.next_f32(), rng.next_f32());
         if u + v > 1.0 {
             (u, v) = (1.0 - u, 1.0 - v);
         }
         let o = (1.0 - u - v) * pos[6] + u * pos[7] + v * pos[8];
-        let dir = rng.dir();
+        let dir = rng.direction();
         let n = (pos[7] - pos[6]).cross(pos[8] - pos[6]).normalize();
         if n.dot(dir).abs() < 0.01 {
             continue; // grazing: the start surface's rounded t could exceed any small tmin
@@ -775,7 +755,7 @@ fn tmin_and_short_rays() {
     assert!(bvh.closest_hit(&short, 0.0, 2e-5).is_none());
     assert!(!bvh.any_hit(&short, 0.0, 2e-5));
     // The same in a deeper tree (the surface is then behind several levels of boxes).
-    let mut rng = Rng(8);
+    let mut rng = Rng::new(8);
     let (mut p2, mut t2) = soup(&mut rng, 3000);
     let base = p2.len() as u32;
     p2.extend([
@@ -842,17 +822,17 @@ fn brute_boxes(
 
 #[test]
 fn aabb_bvh_visits_exactly_the_crossed_boxes() {
-    let mut rng = Rng(1234);
+    let mut rng = Rng::new(1234);
     let mut boxes: Vec<Aabb> = (0..10_000)
         .map(|i| {
-            let c = rng.v3(-10.0, 10.0);
+            let c = rng.vec3_in(-10.0, 10.0);
             if i % 50 == 0 {
                 // Flat boxes (zero extent on an axis), like the bounds of a planar patch.
-                let mut h = rng.v3(0.0, 0.3);
+                let mut h = rng.vec3_in(0.0, 0.3);
                 h[i % 3] = 0.0;
                 Aabb::new(c - h, c + h)
             } else {
-                let h = rng.v3(0.01, 0.3);
+                let h = rng.vec3_in(0.01, 0.3);
                 Aabb::new(c - h, c + h)
             }
         })
@@ -867,16 +847,16 @@ fn aabb_bvh_visits_exactly_the_crossed_boxes() {
     let mut closest_visits = 0usize;
     for i in 0..3000 {
         let (o, d) = match i % 4 {
-            0 => (rng.dir() * 20.0, rng.v3(-10.0, 10.0)),
-            1 => (rng.v3(-10.0, 10.0), rng.dir()),
+            0 => (rng.direction() * 20.0, rng.vec3_in(-10.0, 10.0)),
+            1 => (rng.vec3_in(-10.0, 10.0), rng.direction()),
             2 => {
                 // Axis-parallel from a box corner (exactly on two of its planes).
-                let b = boxes[rng.below(boxes.len())];
+                let b = boxes[(rng.below(boxes.len() as u64) as usize)];
                 let mut d = Vec3::ZERO;
-                d[rng.below(3)] = if rng.f() < 0.5 { 1.0 } else { -1.0 };
+                d[(rng.below(3 as u64) as usize)] = if rng.next_f32() < 0.5 { 1.0 } else { -1.0 };
                 (b.min, d)
             }
-            _ => (Vec3::new(0.5, 1.0, 0.5), rng.dir()),
+            _ => (Vec3::new(0.5, 1.0, 0.5), rng.direction()),
         };
         let r = ray(o, d - if i % 4 == 0 { o } else { Vec3::ZERO });
         let (tmin, tmax) = if i % 3 == 0 {

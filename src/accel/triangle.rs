@@ -251,26 +251,7 @@ mod tests {
         r.intersect(t[0], t[1], t[2], 0.0, f32::INFINITY)
     }
 
-    /// A tiny deterministic generator (SplitMix64).
-    struct Rng(u64);
-    impl Rng {
-        fn next(&mut self) -> u64 {
-            self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-            z ^ (z >> 31)
-        }
-        fn f(&mut self) -> f32 {
-            (self.next() >> 40) as f32 / (1u64 << 24) as f32
-        }
-        fn range(&mut self, lo: f32, hi: f32) -> f32 {
-            lo + (hi - lo) * self.f()
-        }
-        fn v3(&mut self, lo: f32, hi: f32) -> Vec3 {
-            Vec3::new(self.range(lo, hi), self.range(lo, hi), self.range(lo, hi))
-        }
-    }
+    use crate::rng::Rng;
 
     #[test]
     fn simple_hit_distance_and_barycentrics() {
@@ -292,10 +273,14 @@ mod tests {
         assert_eq!(h.t, 1.0, "t is in units of the (non-unit) direction");
         // The reported point is (1−u−v)a + ub + vc for oblique rays too; the error grows as
         // the ray grazes the plane, so the tolerance is divided by |cos θ|.
-        let mut rng = Rng(7);
+        let mut rng = Rng::new(7);
         for _ in 0..1000 {
-            let tri = [rng.v3(-1.0, 1.0), rng.v3(-1.0, 1.0), rng.v3(-1.0, 1.0)];
-            let o = rng.v3(-3.0, 3.0);
+            let tri = [
+                rng.vec3_in(-1.0, 1.0),
+                rng.vec3_in(-1.0, 1.0),
+                rng.vec3_in(-1.0, 1.0),
+            ];
+            let o = rng.vec3_in(-3.0, 3.0);
             let target = (tri[0] + tri[1] + tri[2]) / 3.0;
             let d = target - o;
             let r = ray(o, d);
@@ -337,10 +322,10 @@ mod tests {
         }
         // Oblique rays aimed at points of the diagonal (the aim is rounded, so the ray
         // passes within an ulp on either side): at least one triangle, at the same t.
-        let mut rng = Rng(3);
+        let mut rng = Rng::new(3);
         for _ in 0..10_000 {
-            let target = Vec3::splat(0.01 + 0.98 * rng.f()).with_z(0.0);
-            let o = rng.v3(-2.0, 2.0).with_z(1.0 + rng.f());
+            let target = Vec3::splat(0.01 + 0.98 * rng.next_f32()).with_z(0.0);
+            let o = rng.vec3_in(-2.0, 2.0).with_z(1.0 + rng.next_f32());
             let r = ray(o, target - o);
             let (h1, h2) = (hit(&r, t1), hit(&r, t2));
             assert!(h1.is_some() || h2.is_some(), "leak at {target} from {o}");
@@ -372,18 +357,18 @@ mod tests {
         // (rounded to f32, so they pass within an ulp on either side): one or both hit, never
         // neither, as long as the two triangles are on opposite sides of the ray's plane
         // through the edge (otherwise the ray may legitimately graze a ridge).
-        let mut rng = Rng(11);
+        let mut rng = Rng::new(11);
         let (mut both, mut one) = (0, 0);
         for _ in 0..20_000 {
-            let e0 = rng.v3(-1.0, 1.0);
-            let e1 = rng.v3(-1.0, 1.0);
-            let c1 = rng.v3(-1.0, 1.0);
-            let c2 = rng.v3(-1.0, 1.0);
+            let e0 = rng.vec3_in(-1.0, 1.0);
+            let e1 = rng.vec3_in(-1.0, 1.0);
+            let c1 = rng.vec3_in(-1.0, 1.0);
+            let c2 = rng.vec3_in(-1.0, 1.0);
             // Away from the end points, where the two triangles alone do not surround the
             // target.
-            let s = 0.01 + 0.98 * rng.f();
+            let s = 0.01 + 0.98 * rng.next_f32();
             let target = e0 + s * (e1 - e0);
-            let o = rng.v3(-4.0, 4.0);
+            let o = rng.vec3_in(-4.0, 4.0);
             let d = target - o;
             let n1 = (e1 - e0).cross(c1 - e0);
             let n2 = (e0 - e1).cross(c2 - e1);
