@@ -135,7 +135,7 @@ fn soup_rays(
             1 => (rng.vec3_in(-1.0, 1.0), rng.direction(), 0.0, f32::INFINITY),
             2 => {
                 // Origin on a triangle (rounded, so on it up to an ulp).
-                let t = tris[(rng.below(tris.len() as u64) as usize)].map(|k| pos[k as usize]);
+                let t = tris[rng.below(tris.len() as u64) as usize].map(|k| pos[k as usize]);
                 let (mut u, mut v) = (rng.next_f32(), rng.next_f32());
                 if u + v > 1.0 {
                     (u, v) = (1.0 - u, 1.0 - v);
@@ -150,9 +150,9 @@ fn soup_rays(
             }
             3 => {
                 // Axis-parallel, from a vertex (on the planes of its triangle's boxes).
-                let o = pos[(rng.below(pos.len() as u64) as usize)];
+                let o = pos[rng.below(pos.len() as u64) as usize];
                 let mut d = Vec3::ZERO;
-                d[(rng.below(3 as u64) as usize)] = if rng.next_f32() < 0.5 { 1.0 } else { -1.0 };
+                d[rng.below(3) as usize] = if rng.next_f32() < 0.5 { 1.0 } else { -1.0 };
                 (o, d, 0.0, f32::INFINITY)
             }
             4 => {
@@ -167,7 +167,7 @@ fn soup_rays(
             }
             _ => {
                 // Ray at a vertex from far away (through a shared vertex in the strips).
-                let p = pos[(rng.below(pos.len() as u64) as usize)];
+                let p = pos[rng.below(pos.len() as u64) as usize];
                 let o = rng.direction() * 4.0;
                 (o, (p - o).normalize(), 0.0, f32::INFINITY)
             }
@@ -377,7 +377,7 @@ fn aimed_rays(pos: &[Vec3], tris: &[[u32; 3]], n_edge: usize, n_vertex: usize) -
         None
     };
     while out.len() < n_edge {
-        let (a, b, ts) = good_edges[(rng.below(good_edges.len() as u64) as usize)];
+        let (a, b, ts) = good_edges[rng.below(good_edges.len() as u64) as usize];
         let Some(w) = pick(&mut rng, &ts) else {
             continue;
         };
@@ -395,7 +395,7 @@ fn aimed_rays(pos: &[Vec3], tris: &[[u32; 3]], n_edge: usize, n_vertex: usize) -
         });
     }
     while out.len() < n_edge + n_vertex {
-        let (v, fan) = &good_vertices[(rng.below(good_vertices.len() as u64) as usize)];
+        let (v, fan) = &good_vertices[rng.below(good_vertices.len() as u64) as usize];
         let Some(w) = pick(&mut rng, fan) else {
             continue;
         };
@@ -851,9 +851,9 @@ fn aabb_bvh_visits_exactly_the_crossed_boxes() {
             1 => (rng.vec3_in(-10.0, 10.0), rng.direction()),
             2 => {
                 // Axis-parallel from a box corner (exactly on two of its planes).
-                let b = boxes[(rng.below(boxes.len() as u64) as usize)];
+                let b = boxes[rng.below(boxes.len() as u64) as usize];
                 let mut d = Vec3::ZERO;
-                d[(rng.below(3 as u64) as usize)] = if rng.next_f32() < 0.5 { 1.0 } else { -1.0 };
+                d[rng.below(3) as usize] = if rng.next_f32() < 0.5 { 1.0 } else { -1.0 };
                 (b.min, d)
             }
             _ => (Vec3::new(0.5, 1.0, 0.5), rng.direction()),
