@@ -44,7 +44,7 @@ use crate::geom::{Aabb, Ray};
 use wide::{NodeRay, WideNode};
 
 /// How much time the builder spends on the tree, mapped to obvhs's presets.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, serde::Deserialize, clap::ValueEnum)]
 pub enum BuildQuality {
     /// `BvhBuildParams::fast_build()`: PLOC search radius 6, little reinsertion.
     Fast,

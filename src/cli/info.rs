@@ -1,13 +1,16 @@
 //! `hytrace info`: what a scene holds and what its acceleration structures cost.
 
 use anyhow::Result;
-use hytrace::trace::{AccelOptions, SceneTracer};
+use hytrace::trace::SceneTracer;
 use std::path::PathBuf;
 use std::time::Instant;
 
 /// Arguments of `hytrace info`.
 #[derive(clap::Parser)]
 pub struct InfoArgs {
+    /// Mesh BVH build quality (overrides the scene's `tracer.bvh`).
+    #[arg(long, value_enum)]
+    pub bvh: Option<hytrace::accel::bvh::BuildQuality>,
     /// Scene file (.ron) or mesh file (.gltf, .glb, .obj, .ply); omit for the showcase.
     pub scene: Option<PathBuf>,
 }
@@ -15,7 +18,10 @@ pub struct InfoArgs {
 /// Prints the summary.
 pub fn run(args: InfoArgs) -> Result<()> {
     let start = Instant::now();
-    let scene = crate::load_any(args.scene.as_deref(), None)?;
+    let mut scene = crate::load_any(args.scene.as_deref(), None)?;
+    if let Some(q) = args.bvh {
+        scene.tracer.bvh = q;
+    }
     let load = start.elapsed();
     let m = &scene.meshes;
     println!("scene        {}", scene.source_name);
@@ -66,11 +72,12 @@ pub fn run(args: InfoArgs) -> Result<()> {
         );
     }
     let build = Instant::now();
-    let tracer = SceneTracer::with_options(&scene, AccelOptions::default());
+    let tracer = SceneTracer::new(&scene);
     let total = build.elapsed();
     let mesh = tracer.mesh_accel();
     println!(
-        "mesh BVH     {} BLAS with {} nodes, TLAS {} nodes, built in {:.3} s",
+        "mesh BVH     {:?} quality: {} BLAS with {} nodes, TLAS {} nodes, built in {:.3} s",
+        scene.tracer.bvh,
         mesh.blas.len(),
         mesh.blas.iter().map(|b| b.node_count()).sum::<usize>(),
         mesh.tlas.node_count(),

@@ -47,6 +47,9 @@ pub struct RenderArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
+    /// Mesh BVH build quality (overrides the scene's `tracer.bvh`).
+    #[arg(long, value_enum)]
+    bvh: Option<hytrace::accel::bvh::BuildQuality>,
     /// Normal estimator (overrides the scene).
     #[arg(long, value_enum)]
     normals: Option<hytrace::scene::file::NormalMethod>,
@@ -58,6 +61,9 @@ pub struct RenderArgs {
 /// Renders and writes the image.
 pub fn run(args: RenderArgs) -> Result<()> {
     let mut scene = crate::load_any(args.scene.as_deref(), args.camera.as_deref())?;
+    if let Some(q) = args.bvh {
+        scene.tracer.bvh = q;
+    }
     if let Some(n) = args.normals {
         scene.tracer.normals = n;
     }

@@ -329,8 +329,10 @@ pub struct TracerDesc {
     pub max_steps: u32,
     /// Normal estimator.
     pub normals: NormalMethod,
-    /// Hard shadows from point and directional lights.
+    /// Shadows from point and directional lights (each light's `shadow` says which kind).
     pub shadows: bool,
+    /// Build quality of the mesh BVHs (obvhs PLOC presets).
+    pub bvh: crate::accel::bvh::BuildQuality,
 }
 
 impl Default for TracerDesc {
@@ -342,6 +344,7 @@ impl Default for TracerDesc {
             max_steps: 256,
             normals: NormalMethod::Central,
             shadows: true,
+            bvh: crate::accel::bvh::BuildQuality::Medium,
         }
     }
 }

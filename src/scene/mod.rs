@@ -97,8 +97,10 @@ pub struct TracerSettings {
     pub max_steps: u32,
     /// Normal estimator.
     pub normals: NormalMethod,
-    /// Hard shadows on or off.
+    /// Shadows on or off.
     pub shadows: bool,
+    /// Build quality of the mesh BVHs.
+    pub bvh: crate::accel::bvh::BuildQuality,
 }
 
 /// A light source.
@@ -537,6 +539,7 @@ impl Scene {
                 max_steps: t.max_steps,
                 normals: t.normals,
                 shadows: t.shadows,
+                bvh: t.bvh,
             },
             shading,
             meshes,

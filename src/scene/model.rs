@@ -122,6 +122,7 @@ impl Scene {
                 max_steps: 256,
                 normals: NormalMethod::Central,
                 shadows: true,
+                bvh: crate::accel::bvh::BuildQuality::Medium,
             },
             shading: ShadingSettings {
                 ambient_occlusion: None,

@@ -81,9 +81,16 @@ pub struct SceneTracer<'a> {
 }
 
 impl<'a> SceneTracer<'a> {
-    /// Prepares the acceleration structures with the default options.
+    /// Prepares the acceleration structures: an SDF BVH, and mesh BVHs of the scene's
+    /// `tracer.bvh` quality.
     pub fn new(scene: &'a Scene) -> Self {
-        Self::with_options(scene, AccelOptions::default())
+        Self::with_options(
+            scene,
+            AccelOptions {
+                sdf_bvh: true,
+                mesh_quality: scene.tracer.bvh,
+            },
+        )
     }
 
     /// Prepares the acceleration structures.
