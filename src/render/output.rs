@@ -1,6 +1,5 @@
 //! Writing images: linear radiance → exposure → tone mapping → sRGB PNG.
 
-use super::Framebuffer;
 use crate::scene::file::ToneMap;
 use anyhow::Context;
 use glam::Vec3;
@@ -55,11 +54,6 @@ pub fn to_srgb8(c: Vec3) -> [u8; 3] {
 pub fn save_png(img: &image::RgbImage, path: &Path) -> anyhow::Result<()> {
     img.save_with_format(path, image::ImageFormat::Png)
         .with_context(|| format!("{}: cannot write PNG", path.display()))
-}
-
-/// The shaded picture of a framebuffer.
-pub fn shaded(fb: &Framebuffer, tone: ToneMapping) -> image::RgbImage {
-    super::view::picture(fb, super::view::View::Shaded, tone, 0)
 }
 
 #[cfg(test)]

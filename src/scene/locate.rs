@@ -206,16 +206,6 @@ pub fn list_elements(source: &str, name: &str) -> Vec<(usize, usize)> {
     elements
 }
 
-/// Offset of the first token in `range` that spells `needle` (an identifier such as `Torus`,
-/// or a quoted string such as `"red"`), ignoring comments.
-pub fn find_in(source: &str, range: (usize, usize), needle: &str) -> Option<usize> {
-    tokens(source)
-        .into_iter()
-        .filter(|t| t.start >= range.0 && t.end <= range.1)
-        .find(|t| &source[t.start..t.end] == needle)
-        .map(|t| t.start)
-}
-
 /// One step into a nested value, mirroring [`crate::sdf::lower::Step`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Nav<'a> {
@@ -323,10 +313,8 @@ mod tests {
         assert!(src[e[0].0..e[0].1].starts_with("(shape: Sphere"));
         assert!(src[e[1].0..e[1].1].starts_with("(name: \"a,b\""));
         assert_eq!(place_of(src, e[1].0), Place { line: 5, column: 5 });
-        assert_eq!(
-            find_in(src, e[1], "Box").map(|o| place_of(src, o).line),
-            Some(5)
-        );
+        let shape = follow(src, e[1].0, &[Nav::Field("shape"), Nav::Node("Box")]);
+        assert_eq!(place_of(src, shape).line, 5);
     }
 
     #[test]

@@ -187,11 +187,6 @@ impl SdfNode {
             .sum::<usize>()
     }
 
-    /// Depth of the tree (a leaf has depth 1).
-    pub fn depth(&self) -> usize {
-        1 + self.children().iter().map(|c| c.depth()).max().unwrap_or(0)
-    }
-
     /// The direct children of this node.
     pub fn children(&self) -> Vec<&SdfNode> {
         use SdfNode::*;
@@ -248,23 +243,5 @@ impl SdfNode {
             Implicit { .. } => "Implicit",
             Material { .. } => "Material",
         }
-    }
-
-    /// Whether the node's field is an exact Euclidean distance (given exact children).
-    pub fn is_exact_primitive(&self) -> bool {
-        use SdfNode::*;
-        matches!(
-            self,
-            Sphere { .. }
-                | Cuboid { .. }
-                | RoundBox { .. }
-                | Plane { .. }
-                | Torus { .. }
-                | Cylinder { .. }
-                | Cone { .. }
-                | Capsule { .. }
-                | Octahedron { .. }
-                | HexPrism { .. }
-        )
     }
 }

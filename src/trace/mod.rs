@@ -28,6 +28,10 @@ pub enum Surface {
         u: f32,
         /// Barycentric weight of the third vertex.
         v: f32,
+        /// Scene material index there (found once, with the normal, at the hit).
+        material: u32,
+        /// Base-colour texture multiplier there.
+        tint: Vec3,
     },
 }
 
@@ -163,21 +167,25 @@ impl<'a> SceneTracer<'a> {
                 steps,
             });
         }
-        mesh_hit.map(|h| Hit {
-            t: h.t,
-            surface: Surface::Mesh {
-                instance: h.instance,
-                triangle: h.triangle,
-                u: h.u,
-                v: h.v,
-            },
-            normal: self
-                .scene
-                .meshes
-                .surface(h.instance as usize, h.triangle as usize, h.u, h.v)
-                .normal,
-            gradient: 1.0,
-            steps,
+        mesh_hit.map(|h| {
+            let surf =
+                self.scene
+                    .meshes
+                    .surface(h.instance as usize, h.triangle as usize, h.u, h.v);
+            Hit {
+                t: h.t,
+                surface: Surface::Mesh {
+                    instance: h.instance,
+                    triangle: h.triangle,
+                    u: h.u,
+                    v: h.v,
+                    material: surf.material,
+                    tint: surf.tint,
+                },
+                normal: surf.normal,
+                gradient: 1.0,
+                steps,
+            }
         })
     }
 
@@ -255,18 +263,9 @@ impl<'a> SceneTracer<'a> {
                     .eval_material(p, materials);
                 MaterialParams::from_vec(&m)
             }
-            Surface::Mesh {
-                instance,
-                triangle,
-                u,
-                v,
-            } => {
-                let surf = self
-                    .scene
-                    .meshes
-                    .surface(instance as usize, triangle as usize, u, v);
-                let mut m = self.scene.materials[surf.material as usize];
-                m.color *= surf.tint;
+            Surface::Mesh { material, tint, .. } => {
+                let mut m = self.scene.materials[material as usize];
+                m.color *= tint;
                 m
             }
         }
