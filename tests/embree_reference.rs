@@ -366,9 +366,9 @@ fn compare(scene: &Scene, candidate: &dyn RayQuery, referee: &dyn RayQuery, seed
 fn referee(name: &str, scene: &Scene, min_agree: f64, seed: u64) -> Report {
     let embree = EmbreeScene::build(scene).unwrap_or_else(|e| panic!("{name}: {e}"));
     assert!(
-        embree.skipped.is_empty(),
+        embree.skipped().is_empty(),
         "{name}: skipped {:?}",
-        embree.skipped
+        embree.skipped()
     );
     let tracer = SceneTracer::new(scene);
     let r = compare(scene, &tracer, &embree, seed);
@@ -516,12 +516,12 @@ fn unsupported_objects_are_listed() {
     assert!(
         embree.skipped[0].1.contains("Subtraction"),
         "{:?}",
-        embree.skipped
+        embree.skipped()
     );
     assert!(
         embree.skipped[1].1.contains("Octahedron"),
         "{:?}",
-        embree.skipped
+        embree.skipped()
     );
 }
 

@@ -417,8 +417,43 @@ pub struct EmbreeScene {
     face_normals: Vec<Vec<Vec3>>,
     /// Per instance: (mesh, normal matrix).
     instances: Vec<(usize, Mat3A)>,
+    /// How each SDF object (index into `Scene::objects`) is represented in the Embree scene.
+    pub checks: Vec<SdfCheck>,
+}
+
+/// How the referee represents one SDF object.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SdfCheck {
+    /// Closed-form ray intersection as Embree user geometry.
+    Analytic,
+    /// A triangle mesh extracted from the field by our mesher.
+    Meshed {
+        /// Grid cells along the longest side of the meshed box.
+        resolution: u32,
+        /// Edge length of one grid cell (world units).
+        cell: f32,
+        /// Largest distance (world units) of a mesh point from the true surface, as stated by
+        /// the mesher; a hit distance is compared within `tolerance / |n·d|`.
+        tolerance: f32,
+        /// Triangles of the extracted mesh.
+        triangles: usize,
+    },
+    /// Not in the Embree scene, and why.
+    Skipped(String),
+}
+
+impl EmbreeScene {
     /// SDF objects left out of the Embree scene: (index into `Scene::objects`, why).
-    pub skipped: Vec<(usize, String)>,
+    pub fn skipped(&self) -> Vec<(usize, &str)> {
+        self.checks
+            .iter()
+            .enumerate()
+            .filter_map(|(i, c)| match c {
+                SdfCheck::Skipped(why) => Some((i, why.as_str())),
+                _ => None,
+            })
+            .collect()
+    }
 }
 
 // SAFETY: after the commit, Embree allows concurrent rtcIntersect1/rtcOccluded1 calls on a
@@ -533,12 +568,12 @@ impl EmbreeScene {
 
         // SDF objects.
         let mut shapes = Vec::new();
-        let mut skipped = Vec::new();
+        let mut checks = Vec::with_capacity(scene.objects.len());
         for (i, object) in scene.objects.iter().enumerate() {
             let (m, primitive) = match analytic_form(&object.node) {
                 Ok(x) => x,
                 Err(why) => {
-                    skipped.push((i, why));
+                    checks.push(SdfCheck::Skipped(why));
                     continue;
                 }
             };
@@ -574,6 +609,7 @@ impl EmbreeScene {
             g.commit();
             record(top.attach(&g), ObjectId::Sdf(i));
             shapes.push(shape);
+            checks.push(SdfCheck::Analytic);
         }
         top.commit();
         device.check("building the scene")?;
@@ -585,7 +621,7 @@ impl EmbreeScene {
             ids,
             face_normals,
             instances,
-            skipped,
+            checks,
         })
     }
 
