@@ -511,15 +511,15 @@ fn unsupported_objects_are_listed() {
          (shape: Octahedron(size: 1), translate: (3, 0, 0))",
     );
     let embree = EmbreeScene::build(&scene).unwrap();
-    let idx: Vec<usize> = embree.skipped.iter().map(|s| s.0).collect();
-    assert_eq!(idx, [1, 2], "{:?}", embree.skipped);
+    let idx: Vec<usize> = embree.skipped().iter().map(|s| s.0).collect();
+    assert_eq!(idx, [1, 2], "{:?}", embree.skipped());
     assert!(
-        embree.skipped[0].1.contains("Subtraction"),
+        embree.skipped()[0].1.contains("Subtraction"),
         "{:?}",
         embree.skipped()
     );
     assert!(
-        embree.skipped[1].1.contains("Octahedron"),
+        embree.skipped()[1].1.contains("Octahedron"),
         "{:?}",
         embree.skipped()
     );
