@@ -8,6 +8,7 @@
 #![warn(missing_docs)]
 
 pub mod accel;
+pub mod bench;
 pub mod geom;
 pub mod reference;
 pub mod render;

@@ -27,6 +27,8 @@ enum Command {
     Info(cli::info::InfoArgs),
     /// Draw the signed distance of a scene on an axis-aligned plane, with iso-contours.
     Slice(cli::slice::SliceArgs),
+    /// Benchmark: meshes against Embree, SDF steppers, scaling (Markdown tables, --json).
+    Bench(cli::bench::BenchArgs),
     /// Write a generated test scene of N small SDF objects (for scaling tests and benchmarks).
     Generate {
         /// Number of objects.
@@ -44,6 +46,7 @@ fn main() {
         Some(Command::Render(args)) => cli::render::run(args),
         Some(Command::Slice(args)) => cli::slice::run(args),
         Some(Command::Info(args)) => cli::info::run(args),
+        Some(Command::Bench(args)) => cli::bench::run(args),
         Some(Command::Generate { objects, output }) => generate(objects, output.as_deref()),
         None => cli::render::run(cli::render::RenderArgs::parse_from(["render"])),
     };

@@ -595,6 +595,11 @@ impl InstanceBvh {
     }
 }
 
+/// The child-box test the traversal uses on this CPU (for benchmark reports).
+pub fn node_test_name() -> &'static str {
+    wide::node_test_name()
+}
+
 /// [`Aabb::ray_interval`] as a free function (the BVH walks and their tests use it by name).
 pub fn ray_box_interval(b: &Aabb, ray: &Ray, tmin: f32, tmax: f32) -> Option<(f32, f32)> {
     b.ray_interval(ray, tmin, tmax)

@@ -314,6 +314,18 @@ pub enum NormalMethod {
     Tetrahedral,
 }
 
+/// How the sphere tracer steps along a ray (see `crate::trace::sphere`).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Default)]
+pub enum Stepper {
+    /// Plain sphere tracing: step by the field value (Hart 1996).
+    #[default]
+    Hart,
+    /// Over-relaxed sphere tracing with its fallback (Keinert et al. 2014, "Enhanced Sphere
+    /// Tracing", §3.1): step by ω·f, 1 ≤ ω < 2, back off to the plain step when the two
+    /// unbounding spheres do not overlap.
+    Relaxed(f32),
+}
+
 /// Sphere-tracing parameters (Hart 1996).
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -333,6 +345,8 @@ pub struct TracerDesc {
     pub shadows: bool,
     /// Build quality of the mesh BVHs (obvhs PLOC presets).
     pub bvh: crate::accel::bvh::BuildQuality,
+    /// Step rule of the sphere tracer (opt-in faster steppers; Hart by default).
+    pub stepper: Stepper,
 }
 
 impl Default for TracerDesc {
@@ -345,6 +359,7 @@ impl Default for TracerDesc {
             normals: NormalMethod::Central,
             shadows: true,
             bvh: crate::accel::bvh::BuildQuality::Medium,
+            stepper: Stepper::Hart,
         }
     }
 }

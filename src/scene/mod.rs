@@ -18,6 +18,7 @@ use crate::sdf::lower::Step;
 use crate::sdf::{self, LoweredSdf, SdfNode};
 use crate::shade::material::MaterialParams;
 use camera::{Camera, Projection};
+pub use file::Stepper;
 use file::{CameraDesc, LightDesc, NormalMethod, SceneFile, ShadowDesc, ToneMap};
 use glam::Vec3;
 pub use meshes::{SceneMeshes, resolve_mesh_path};
@@ -101,6 +102,8 @@ pub struct TracerSettings {
     pub shadows: bool,
     /// Build quality of the mesh BVHs.
     pub bvh: crate::accel::bvh::BuildQuality,
+    /// Step rule of the sphere tracer.
+    pub stepper: Stepper,
 }
 
 /// A light source.
@@ -303,6 +306,16 @@ impl Scene {
                 top(&["tracer", "max_steps"]),
                 format!("max_steps = {} is out of range 1..=1000000", t.max_steps),
             ));
+        }
+        if let Stepper::Relaxed(omega) = t.stepper {
+            // ω ≥ 2 can step past a surface that the fallback test then cannot see (Keinert
+            // et al. 2014, §3.1: the test needs ω·f(p) < 2·f(p)).
+            if !(1.0..2.0).contains(&omega) {
+                return Err(at(
+                    top(&["tracer", "stepper"]),
+                    format!("Relaxed({omega}): the relaxation factor must be in 1 ≤ ω < 2"),
+                ));
+            }
         }
 
         let sh = &file.shading;
@@ -540,6 +553,7 @@ impl Scene {
                 normals: t.normals,
                 shadows: t.shadows,
                 bvh: t.bvh,
+                stepper: t.stepper,
             },
             shading,
             meshes,

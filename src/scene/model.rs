@@ -123,6 +123,7 @@ impl Scene {
                 normals: NormalMethod::Central,
                 shadows: true,
                 bvh: crate::accel::bvh::BuildQuality::Medium,
+                stepper: crate::scene::Stepper::Hart,
             },
             shading: ShadingSettings {
                 ambient_occlusion: None,

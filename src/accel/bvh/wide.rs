@@ -387,6 +387,11 @@ fn child_hits<const MARGIN: bool>(
     (t_out, mask)
 }
 
+/// The child-box test in use.
+pub(crate) fn node_test_name() -> &'static str {
+    "2×4-wide SSE (glam Vec4)"
+}
+
 #[derive(Clone, Copy, Default)]
 struct Entry {
     t: f32,

@@ -1,0 +1,396 @@
+//! Benchmarks (`hytrace bench`): our mesh traversal against Embree on identical rays, the SDF
+//! steppers against plain sphere tracing, and how frame times scale with scene size.
+//!
+//! Method, shared by every section: inputs (rays, scenes) are built once before any timing;
+//! each measurement runs once untimed (warm-up), then `runs` times, the backends alternating
+//! (ours, Embree, ours, Embree, …) so that a slow spell of a shared machine hits both; the
+//! figure reported is the median. Results are checked beside the speed (hit/miss agreement
+//! with Embree, hit sets of the steppers against Hart's), since a fast wrong answer is no
+//! answer. Nothing here asserts a speed.
+
+pub mod mesh;
+pub mod rays;
+pub mod sdf;
+
+use rayon::prelude::*;
+use serde::Serialize;
+use std::fmt::Write;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use rays::QueryRay;
+
+/// What to run and how long.
+#[derive(Debug, Clone)]
+pub struct BenchOptions {
+    /// Tiny sizes and one timed run: checks that everything runs (CI smoke test).
+    pub quick: bool,
+    /// Timed runs per measurement (after one warm-up).
+    pub runs: usize,
+    /// Thread counts to measure with (each a rayon pool of that size).
+    pub threads: Vec<usize>,
+    /// Folder of the shared assets (the mesh scenes).
+    pub assets: PathBuf,
+    /// Mesh scenes to run, by name (all when empty).
+    pub mesh_scenes: Vec<String>,
+    /// Primary-ray image size of the mesh section.
+    pub width: u32,
+    /// See `width`.
+    pub height: u32,
+    /// Number of incoherent rays per mesh scene.
+    pub incoherent: usize,
+    /// Build quality of our mesh BVHs.
+    pub bvh: crate::accel::bvh::BuildQuality,
+    /// Sections to run.
+    pub sections: Sections,
+}
+
+/// Which sections run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Sections {
+    /// Meshes against Embree.
+    pub mesh: bool,
+    /// SDF steppers.
+    pub sdf: bool,
+    /// Scaling with scene size.
+    pub scaling: bool,
+}
+
+/// The machine and build the figures come from.
+#[derive(Debug, Clone, Serialize)]
+pub struct Machine {
+    /// `model name` of /proc/cpuinfo.
+    pub cpu: String,
+    /// Logical cores available to this process.
+    pub cores: usize,
+    /// Whether the CPU has AVX2 (runtime detection).
+    pub avx2_available: bool,
+    /// The node test our traversal uses on this CPU.
+    pub node_test: String,
+    /// `git rev-parse HEAD` (with `-dirty` when the tree has changes), or "unknown".
+    pub commit: String,
+    /// Whether this binary was built with the `embree` feature.
+    pub embree: bool,
+    /// UTC time of the run (seconds since the Unix epoch).
+    pub unix_time: u64,
+    /// Load average (1 min) when the run started: others' work on a shared machine.
+    pub load_average: Option<f64>,
+}
+
+impl Machine {
+    /// Looks at this machine.
+    pub fn detect() -> Machine {
+        let cpu = std::fs::read_to_string("/proc/cpuinfo")
+            .ok()
+            .and_then(|s| {
+                s.lines()
+                    .find(|l| l.starts_with("model name"))
+                    .and_then(|l| l.split(':').nth(1))
+                    .map(|m| m.trim().to_string())
+            })
+            .unwrap_or_else(|| "unknown".into());
+        let git = |args: &[&str]| {
+            std::process::Command::new("git")
+                .args(args)
+                .output()
+                .ok()
+                .filter(|o| o.status.success())
+                .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+        };
+        let commit = match git(&["rev-parse", "HEAD"]) {
+            Some(c) => {
+                let dirty = git(&["status", "--porcelain", "--untracked-files=no"])
+                    .is_some_and(|s| !s.is_empty());
+                if dirty { format!("{c}-dirty") } else { c }
+            }
+            None => "unknown".into(),
+        };
+        Machine {
+            cpu,
+            cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            avx2_available: avx2_available(),
+            node_test: crate::accel::bvh::node_test_name().into(),
+            commit,
+            embree: cfg!(feature = "embree"),
+            unix_time: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_secs()),
+            load_average: std::fs::read_to_string("/proc/loadavg")
+                .ok()
+                .and_then(|s| s.split_whitespace().next().and_then(|x| x.parse().ok())),
+        }
+    }
+}
+
+fn avx2_available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Everything one run measured (what `--json` writes).
+#[derive(Debug, Clone, Serialize)]
+pub struct Report {
+    /// Where and what.
+    pub machine: Machine,
+    /// Whether this was a `--quick` smoke run (sizes too small to mean anything).
+    pub quick: bool,
+    /// Timed runs per figure.
+    pub runs: usize,
+    /// Mesh section.
+    pub mesh: Option<mesh::MeshReport>,
+    /// SDF section.
+    pub sdf: Option<sdf::SdfReport>,
+    /// Scaling section.
+    pub scaling: Option<Scaling>,
+}
+
+/// Frame times against scene size.
+#[derive(Debug, Clone, Serialize)]
+pub struct Scaling {
+    /// Many SDF objects, with and without the SDF BVH.
+    pub sdf: Vec<sdf::SdfScalingRow>,
+    /// Time with 10,000 objects over time with 10 (with the BVH), when both ran.
+    pub sdf_ratio: Option<f64>,
+    /// Meshes of growing size, ours and Embree.
+    pub mesh: Vec<mesh::MeshScalingRow>,
+}
+
+/// Runs the sections asked for. `sdf_scenes` are (name, file) pairs for the SDF section.
+pub fn run(
+    opts: &BenchOptions,
+    sdf_scenes: &[(String, crate::scene::Scene)],
+) -> anyhow::Result<Report> {
+    let machine = Machine::detect();
+    let mesh = if opts.sections.mesh {
+        Some(mesh::run(opts)?)
+    } else {
+        None
+    };
+    let sdf = if opts.sections.sdf {
+        Some(sdf::run(opts, sdf_scenes)?)
+    } else {
+        None
+    };
+    let scaling = if opts.sections.scaling {
+        let sdf = sdf::scaling(opts)?;
+        let at = |n: usize| {
+            sdf.iter()
+                .find(|r| r.objects == n && r.bvh)
+                .map(|r| r.ms_per_frame)
+        };
+        let sdf_ratio = at(10_000).zip(at(10)).map(|(a, b)| a / b);
+        Some(Scaling {
+            sdf,
+            sdf_ratio,
+            mesh: mesh::scaling(opts)?,
+        })
+    } else {
+        None
+    };
+    Ok(Report {
+        machine,
+        quick: opts.quick,
+        runs: opts.runs,
+        mesh,
+        sdf,
+        scaling,
+    })
+}
+
+/// A pool of `threads` workers, or none for one thread (a plain loop on the caller's thread).
+pub struct Workers {
+    pool: Option<rayon::ThreadPool>,
+    /// Number of threads.
+    pub threads: usize,
+}
+
+impl Workers {
+    /// Workers for `threads` threads (≥ 1).
+    pub fn new(threads: usize) -> anyhow::Result<Workers> {
+        let threads = threads.max(1);
+        let pool = if threads > 1 {
+            Some(
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .map_err(|e| anyhow::anyhow!("cannot start {threads} threads: {e}"))?,
+            )
+        } else {
+            None
+        };
+        Ok(Workers { pool, threads })
+    }
+
+    /// Applies `f` to every item, writing `out[i] = f(&items[i])`; returns the wall time in
+    /// seconds. Items are handed out in chunks of 64 so that neighbouring (coherent) rays stay
+    /// on one thread.
+    pub fn map<T: Sync, R: Send, F: Fn(&T) -> R + Sync>(
+        &self,
+        items: &[T],
+        out: &mut [R],
+        f: F,
+    ) -> f64 {
+        assert_eq!(items.len(), out.len());
+        let start = Instant::now();
+        match &self.pool {
+            None => {
+                for (o, i) in out.iter_mut().zip(items) {
+                    *o = f(i);
+                }
+            }
+            Some(pool) => pool.install(|| {
+                out.par_chunks_mut(64)
+                    .zip(items.par_chunks(64))
+                    .for_each(|(o, i)| {
+                        for (o, i) in o.iter_mut().zip(i) {
+                            *o = f(i);
+                        }
+                    })
+            }),
+        }
+        start.elapsed().as_secs_f64()
+    }
+}
+
+/// The median of a non-empty list.
+pub fn median(v: &[f64]) -> f64 {
+    let mut v = v.to_vec();
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        f64::NAN
+    } else if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// The geometric mean of positive numbers (NaN for none).
+pub fn geomean(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    (v.iter().map(|x| x.ln()).sum::<f64>() / v.len() as f64).exp()
+}
+
+/// Times `backends` (each writes its answers into its own buffer) alternately: one untimed
+/// warm-up each, then `runs` rounds of one run each. Returns the seconds of every timed run,
+/// per backend.
+pub(crate) fn alternate(
+    workers: &Workers,
+    rays: &[QueryRay],
+    runs: usize,
+    backends: &mut [(&(dyn Fn(&QueryRay) -> f32 + Sync), &mut Vec<f32>)],
+) -> Vec<Vec<f64>> {
+    for (f, out) in backends.iter_mut() {
+        out.resize(rays.len(), 0.0);
+        workers.map(rays, out, *f);
+    }
+    let mut times = vec![Vec::with_capacity(runs); backends.len()];
+    for _ in 0..runs.max(1) {
+        for (k, (f, out)) in backends.iter_mut().enumerate() {
+            times[k].push(workers.map(rays, out, *f));
+        }
+    }
+    times
+}
+
+fn fmt_opt(v: Option<f64>, digits: usize) -> String {
+    v.map_or_else(|| "—".into(), |x| format!("{x:.digits$}"))
+}
+
+impl Report {
+    /// The report as Markdown tables.
+    pub fn markdown(&self) -> String {
+        let mut s = String::new();
+        let m = &self.machine;
+        let _ = writeln!(
+            s,
+            "# hytrace bench{}\n",
+            if self.quick { " (quick)" } else { "" }
+        );
+        let _ = writeln!(
+            s,
+            "- machine: {} — {} logical cores, AVX2 {}, node test: {}",
+            m.cpu,
+            m.cores,
+            if m.avx2_available { "yes" } else { "no" },
+            m.node_test
+        );
+        let _ = writeln!(s, "- commit: {}", m.commit);
+        let _ = writeln!(
+            s,
+            "- Embree: {}; load average at start: {}; timed runs per figure: {} (median, after a warm-up)\n",
+            if m.embree {
+                "Embree 4 (`embree` feature)"
+            } else {
+                "not built in (build with `--features embree`)"
+            },
+            fmt_opt(m.load_average, 2),
+            self.runs
+        );
+        if let Some(mesh) = &self.mesh {
+            mesh.markdown(&mut s);
+        }
+        if let Some(sdf) = &self.sdf {
+            sdf.markdown(&mut s);
+        }
+        if let Some(sc) = &self.scaling {
+            let _ = writeln!(s, "## Scaling\n");
+            let _ = writeln!(
+                s,
+                "SDF objects (`scene::generate::many_objects`), primary rays with normals, all threads:\n"
+            );
+            let _ = writeln!(s, "| objects | SDF BVH | pixels | ms/frame |");
+            let _ = writeln!(s, "|---:|:---:|---:|---:|");
+            for r in &sc.sdf {
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {} | {:.2} |",
+                    r.objects,
+                    if r.bvh { "yes" } else { "no" },
+                    r.pixels,
+                    r.ms_per_frame
+                );
+            }
+            let _ = writeln!(
+                s,
+                "\n10,000 objects / 10 objects (with the BVH): {}\n",
+                fmt_opt(sc.sdf_ratio, 2)
+            );
+            let _ = writeln!(
+                s,
+                "Meshes (subdivided icospheres), primary rays, all threads:\n"
+            );
+            let _ = writeln!(
+                s,
+                "| triangles | pixels | ours ms/frame | Embree ms/frame | ours/Embree speed | ours build ms | Embree build ms | agreement |"
+            );
+            let _ = writeln!(s, "|---:|---:|---:|---:|---:|---:|---:|---:|");
+            for r in &sc.mesh {
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {:.2} | {} | {} | {:.1} | {} | {} |",
+                    r.triangles,
+                    r.pixels,
+                    r.ours_ms,
+                    fmt_opt(r.embree_ms, 2),
+                    fmt_opt(r.embree_ms.map(|e| e / r.ours_ms), 2),
+                    r.ours_build_ms,
+                    fmt_opt(r.embree_build_ms, 1),
+                    r.agreement
+                        .map_or_else(|| "—".into(), |a| format!("{:.4}%", 100.0 * a)),
+                );
+            }
+            s.push('\n');
+        }
+        s
+    }
+}

@@ -1,0 +1,164 @@
+//! `hytrace bench`: our tracer against Embree, the SDF steppers, and scaling, as Markdown
+//! tables on stdout and optionally JSON.
+
+use anyhow::{Context, Result};
+use hytrace::bench::{BenchOptions, Sections};
+use std::path::PathBuf;
+
+/// Arguments of `hytrace bench`.
+#[derive(clap::Parser)]
+pub struct BenchArgs {
+    /// A smoke run: tiny images and ray counts, one timed run, the bunny only. It checks
+    /// that the bench runs; its figures mean nothing.
+    #[arg(long)]
+    pub quick: bool,
+    /// Timed runs per figure (after a warm-up); the median is reported.
+    #[arg(long)]
+    pub runs: Option<usize>,
+    /// Thread counts to measure with, comma-separated (default: 1 and all cores).
+    #[arg(long, value_delimiter = ',')]
+    pub threads: Vec<usize>,
+    /// Folder of the shared assets (default: $HYTRACE_ASSETS, else ../shared/assets).
+    #[arg(long)]
+    pub assets: Option<PathBuf>,
+    /// Folder of the SDF scene files (the showcase and the feature scenes).
+    #[arg(long, default_value = "assets/scenes")]
+    pub scenes: PathBuf,
+    /// Mesh scenes to run, comma-separated (ReciprocatingSaw, 2CylinderEngine,
+    /// MetalRoughSpheresNoTextures, bunny); default all (the bunny with --quick).
+    #[arg(long, value_delimiter = ',')]
+    pub mesh_scenes: Vec<String>,
+    /// Primary-ray image of the mesh section, WIDTHxHEIGHT.
+    #[arg(long)]
+    pub size: Option<String>,
+    /// Incoherent rays per mesh scene.
+    #[arg(long)]
+    pub incoherent: Option<usize>,
+    /// Build quality of our mesh BVHs.
+    #[arg(long, value_enum, default_value = "medium")]
+    pub bvh: hytrace::accel::bvh::BuildQuality,
+    /// Sections to run, comma-separated: mesh, sdf, scaling (default all).
+    #[arg(long, value_delimiter = ',')]
+    pub only: Vec<String>,
+    /// Also write the report as JSON to this file.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32)> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .with_context(|| format!("--size {s}: expected WIDTHxHEIGHT"))?;
+    let w: u32 = w
+        .parse()
+        .with_context(|| format!("--size {s}: bad width"))?;
+    let h: u32 = h
+        .parse()
+        .with_context(|| format!("--size {s}: bad height"))?;
+    if w == 0 || h == 0 || w > 16384 || h > 16384 {
+        anyhow::bail!("--size {s}: width and height must be in 1..=16384");
+    }
+    Ok((w, h))
+}
+
+/// Runs the bench.
+pub fn run(args: BenchArgs) -> Result<()> {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let mut threads = if args.threads.is_empty() {
+        vec![1, cores]
+    } else {
+        args.threads.clone()
+    };
+    if threads.iter().any(|&t| t == 0 || t > 1024) {
+        anyhow::bail!("--threads: each count must be in 1..=1024");
+    }
+    threads.dedup();
+    let (width, height) = match &args.size {
+        Some(s) => parse_size(s)?,
+        None if args.quick => (64, 36),
+        None => (1920, 1080),
+    };
+    let mut sections = Sections {
+        mesh: true,
+        sdf: true,
+        scaling: true,
+    };
+    if !args.only.is_empty() {
+        sections = Sections {
+            mesh: false,
+            sdf: false,
+            scaling: false,
+        };
+        for s in &args.only {
+            match s.as_str() {
+                "mesh" => sections.mesh = true,
+                "sdf" => sections.sdf = true,
+                "scaling" => sections.scaling = true,
+                other => anyhow::bail!("--only {other}: expected mesh, sdf or scaling"),
+            }
+        }
+    }
+    let assets = args.assets.clone().unwrap_or_else(|| {
+        std::env::var_os("HYTRACE_ASSETS")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| PathBuf::from("../shared/assets"))
+    });
+    let mesh_scenes = if args.mesh_scenes.is_empty() && args.quick {
+        vec!["bunny".to_string()]
+    } else {
+        args.mesh_scenes.clone()
+    };
+    let opts = BenchOptions {
+        quick: args.quick,
+        runs: args.runs.unwrap_or(if args.quick { 1 } else { 5 }).max(1),
+        threads,
+        assets,
+        mesh_scenes,
+        width,
+        height,
+        incoherent: args
+            .incoherent
+            .unwrap_or(if args.quick { 2048 } else { 1 << 20 }),
+        bvh: args.bvh,
+        sections,
+    };
+    let sdf_scenes = if sections.sdf {
+        load_scenes(&args.scenes, args.quick)?
+    } else {
+        Vec::new()
+    };
+    let report = hytrace::bench::run(&opts, &sdf_scenes)?;
+    print!("{}", report.markdown());
+    if let Some(path) = &args.json {
+        let text = serde_json::to_string_pretty(&report)?;
+        std::fs::write(path, text)
+            .with_context(|| format!("{}: cannot write the JSON report", path.display()))?;
+    }
+    Ok(())
+}
+
+/// The showcase first, then the other scene files of the folder in name order (only the
+/// showcase with `quick`).
+fn load_scenes(dir: &std::path::Path, quick: bool) -> Result<Vec<(String, hytrace::scene::Scene)>> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("{}: cannot read the scene folder (--scenes)", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "ron"))
+        .collect();
+    files.sort_by_key(|p| (p.file_stem().is_none_or(|s| s != "showcase"), p.clone()));
+    if quick {
+        files.truncate(1);
+    }
+    if files.is_empty() {
+        anyhow::bail!("{}: no .ron scene files", dir.display());
+    }
+    files
+        .iter()
+        .map(|p| {
+            let name = p
+                .file_stem()
+                .map_or_else(|| p.display().to_string(), |s| s.to_string_lossy().into());
+            Ok((name, hytrace::scene::Scene::load(p)?))
+        })
+        .collect()
+}
