@@ -104,7 +104,7 @@ impl WatertightRay {
     /// The test without the zero-area check, for callers that removed degenerate triangles
     /// beforehand (the BVHs do so when they are built). For a triangle that is not
     /// [degenerate](is_degenerate) the result is identical to [`intersect`].
-    #[inline]
+    #[inline(always)]
     pub fn intersect_nondegenerate(
         &self,
         a: Vec3,

@@ -280,6 +280,9 @@ pub fn geomean(v: &[f64]) -> f64 {
     (v.iter().map(|x| x.ln()).sum::<f64>() / v.len() as f64).exp()
 }
 
+/// A backend's answer to one ray (t of the closest hit, ∞ for a miss; or 1/0 for occlusion).
+pub(crate) type QueryFn<'a> = dyn Fn(&QueryRay) -> f32 + Sync + 'a;
+
 /// Times `backends` (each writes its answers into its own buffer) alternately: one untimed
 /// warm-up each, then `runs` rounds of one run each. Returns the seconds of every timed run,
 /// per backend.
@@ -287,7 +290,7 @@ pub(crate) fn alternate(
     workers: &Workers,
     rays: &[QueryRay],
     runs: usize,
-    backends: &mut [(&(dyn Fn(&QueryRay) -> f32 + Sync), &mut Vec<f32>)],
+    backends: &mut [(&QueryFn, &mut Vec<f32>)],
 ) -> Vec<Vec<f64>> {
     for (f, out) in backends.iter_mut() {
         out.resize(rays.len(), 0.0);

@@ -79,7 +79,7 @@ pub fn secondary(
     let radius = 0.5 * bounds.diagonal();
     let light = bounds.center() + 2.0 * radius * Vec3::new(0.3, 1.0, 0.4).normalize();
     let offset = 1e-4 * radius;
-    let mut rng = Rng::new(0x5eed_a0);
+    let mut rng = Rng::new(0x005e_eda0);
     let (mut ao, mut shadow) = (Vec::new(), Vec::new());
     for q in primary {
         let Some(h) = accel.tlas.closest_hit(&accel.blas, &q.ray, 0.0, q.tmax) else {
@@ -121,7 +121,7 @@ pub fn secondary(
 /// directions (closest hit, unbounded).
 pub fn incoherent(scene: &Scene, count: usize) -> Vec<QueryRay> {
     let b = scene.meshes.bounds();
-    let mut rng = Rng::new(0x1c0_4e7);
+    let mut rng = Rng::new(0x01c0_04e7);
     (0..count)
         .map(|_| QueryRay {
             ray: Ray::new(rng.in_box(b.min, b.max), rng.direction()),

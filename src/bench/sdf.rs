@@ -19,7 +19,7 @@ pub fn steppers() -> Vec<Stepper> {
         Stepper::Hart,
         Stepper::Relaxed(1.2),
         Stepper::Relaxed(1.6),
-        Stepper::Relaxed(1.9),
+        Stepper::Adaptive,
     ]
 }
 
@@ -121,6 +121,7 @@ fn stepper_name(s: Stepper) -> String {
     match s {
         Stepper::Hart => "Hart".into(),
         Stepper::Relaxed(w) => format!("Relaxed({w})"),
+        Stepper::Adaptive => "Adaptive".into(),
     }
 }
 

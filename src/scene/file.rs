@@ -324,6 +324,11 @@ pub enum Stepper {
     /// Tracing", §3.1): step by ω·f, 1 ≤ ω < 2, back off to the plain step when the two
     /// unbounding spheres do not overlap.
     Relaxed(f32),
+    /// Over-relaxation whose factor follows the field's slope along the ray, ω = 2/(1 + g)
+    /// for a field falling by g per unit of t (the largest step the overlap test can accept
+    /// on a plane; after Bálint & Valasek, "Accelerating Sphere Tracing", Eurographics 2018
+    /// short papers), with Keinert's fallback.
+    Adaptive,
 }
 
 /// Sphere-tracing parameters (Hart 1996).

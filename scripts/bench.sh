@@ -1,0 +1,17 @@
+#!/usr/bin/env bash
+# Runs hytrace's benchmarks from a fresh clone: installs what they need (scripts/setup.sh: Embree 4
+# and the Debian packages), then `hytrace bench` with Embree built in. Extra arguments go to
+# `hytrace bench` (e.g. --quick, --runs 3, --only mesh). Writes bench.json beside the tables
+# unless --json is given.
+set -euo pipefail
+REPO_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd -P)"
+cd "$REPO_ROOT"
+bash scripts/setup.sh
+# shellcheck disable=SC1091
+source .deps/embree4/env
+export HYTRACE_ASSETS="${HYTRACE_ASSETS:-$REPO_ROOT/../shared/assets}"
+args=("$@")
+if [[ " ${args[*]-} " != *" --json "* ]]; then
+    args+=(--json bench.json)
+fi
+exec cargo run --release --features embree -- bench "${args[@]}"

@@ -1,0 +1,125 @@
+//! `hytrace bench --quick` runs and writes well-formed tables and JSON with agreement figures.
+//! Only the shape of the report is checked, never a time (speed is measured, not tested).
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn assets() -> PathBuf {
+    std::env::var_os("HYTRACE_ASSETS")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/assets"))
+}
+
+fn hytrace() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_hytrace"));
+    c.current_dir(env!("CARGO_MANIFEST_DIR"));
+    c
+}
+
+#[test]
+fn quick_bench_writes_tables_and_json() {
+    let json =
+        std::env::temp_dir().join(format!("hytrace-bench-smoke-{}.json", std::process::id()));
+    let out = hytrace()
+        .args(["bench", "--quick", "--threads", "1,2", "--assets"])
+        .arg(assets())
+        .arg("--json")
+        .arg(&json)
+        .output()
+        .expect("runs hytrace");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "bench failed:\n{stdout}\n{stderr}");
+    for heading in [
+        "## Meshes",
+        "## SDF steppers",
+        "## Scaling",
+        "hit/miss agreement",
+    ] {
+        assert!(stdout.contains(heading), "no {heading:?} in:\n{stdout}");
+    }
+    // Every mesh table row has the nine columns.
+    let rows: Vec<&str> = stdout
+        .lines()
+        .filter(|l| l.starts_with("| bunny | "))
+        .filter(|l| l.matches('|').count() == 10)
+        .collect();
+    assert_eq!(rows.len(), 8, "4 ray sets × 2 thread counts:\n{stdout}");
+
+    let text = std::fs::read_to_string(&json).expect("the JSON report was written");
+    let _ = std::fs::remove_file(&json);
+    let v: serde_json::Value = serde_json::from_str(&text).expect("well-formed JSON");
+    assert_eq!(v["quick"], true);
+    assert!(v["machine"]["cpu"].is_string() && v["machine"]["commit"].is_string());
+    assert!(v["machine"]["cores"].as_u64().unwrap() >= 1);
+    let embree = v["machine"]["embree"].as_bool().unwrap();
+    let mesh_rows = v["mesh"]["rows"].as_array().expect("mesh rows");
+    assert_eq!(mesh_rows.len(), 8);
+    let kinds: Vec<&str> = mesh_rows
+        .iter()
+        .map(|r| r["kind"].as_str().unwrap())
+        .collect();
+    for k in ["primary", "ao", "shadow", "incoherent"] {
+        assert!(kinds.contains(&k), "{kinds:?}");
+    }
+    for r in mesh_rows {
+        assert!(r["rays"].as_u64().unwrap() > 0, "{r}");
+        assert!(r["ours_mrays"].as_f64().unwrap() > 0.0, "{r}");
+        if embree {
+            // Agreement is a fraction; the two tracers see the same rays.
+            let a = r["agreement"].as_f64().expect("agreement with Embree");
+            assert!((0.0..=1.0).contains(&a), "{r}");
+            assert!(r["ratio"].as_f64().unwrap() > 0.0, "{r}");
+        } else {
+            assert!(r["agreement"].is_null(), "{r}");
+        }
+    }
+    let sdf_rows = v["sdf"]["rows"].as_array().expect("SDF rows");
+    assert!(sdf_rows.iter().any(|r| r["stepper"] == "Hart"));
+    assert!(
+        sdf_rows
+            .iter()
+            .any(|r| r["stepper"].as_str().unwrap().starts_with("Relaxed"))
+    );
+    for r in sdf_rows {
+        let same = r["same_hits"].as_f64().unwrap();
+        assert!((0.0..=1.0).contains(&same), "{r}");
+        assert!(r["evals_per_pixel"].as_f64().unwrap() > 0.0, "{r}");
+    }
+    let scaling = &v["scaling"];
+    assert_eq!(
+        scaling["sdf"].as_array().unwrap().len(),
+        4,
+        "2 sizes × BVH on/off"
+    );
+    assert!(!scaling["mesh"].as_array().unwrap().is_empty());
+}
+
+#[test]
+fn bad_bench_arguments_are_errors() {
+    for args in [
+        vec!["bench", "--quick", "--size", "0x10"],
+        vec!["bench", "--quick", "--only", "everything"],
+        vec![
+            "bench",
+            "--quick",
+            "--mesh-scenes",
+            "teapot",
+            "--only",
+            "mesh",
+        ],
+        vec![
+            "bench",
+            "--quick",
+            "--only",
+            "sdf",
+            "--scenes",
+            "/nonexistent/scenes",
+        ],
+    ] {
+        let out = hytrace().args(&args).output().expect("runs hytrace");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} should fail");
+        assert!(stderr.contains("error:"), "{args:?}: {stderr}");
+    }
+}
