@@ -305,7 +305,7 @@ impl MeshBvh {
 
     fn any_in(&self, wr: &WatertightRay, nr: &NodeRay, tmin: f32, mut tmax: f32) -> bool {
         let mut found = false;
-        wide::traverse::<false>(
+        wide::traverse_any::<false>(
             &self.nodes,
             nr,
             tmin,
@@ -389,6 +389,8 @@ struct PlacedInstance {
     index: u32,
     mesh: u32,
     world_to_object: Affine3A,
+    /// The transform is exactly the identity: the world ray is the object ray.
+    identity: bool,
 }
 
 /// A top-level BVH over instances of [`MeshBvh`]es (a two-level BVH: instances of one mesh
@@ -466,6 +468,7 @@ impl InstanceBvh {
                 index: i as u32,
                 mesh: inst.mesh as u32,
                 world_to_object: inv,
+                identity: inv == Affine3A::IDENTITY,
             });
         }
         let tree = wide::build(&boxes, &quality.params());
@@ -486,7 +489,7 @@ impl InstanceBvh {
     }
 
     /// Walks the instances the world ray may meet; `f(instance, object-space ray, tmax)`.
-    fn walk(
+    fn walk<const ORDERED: bool>(
         &self,
         meshes: &[MeshBvh],
         ray: &Ray,
@@ -507,11 +510,21 @@ impl InstanceBvh {
         );
         let nr = NodeRay::new(ray.origin, ray.direction);
         let margin = self.origin_margin * ray.origin.abs().max_element();
+        // The world ray's shear, computed the first time an untransformed instance needs it.
+        let mut world: Option<WatertightRay> = None;
         let visit = |first: u32, count: u32, tmax: &mut f32| {
             for p in &self.placed[first as usize..(first + count) as usize] {
                 let Some(mesh) = meshes.get(p.mesh as usize) else {
                     continue;
                 };
+                if p.identity {
+                    // Mapping by the identity would only turn −0 components into +0, which
+                    // neither test tells apart from −0 in what it reports.
+                    let wr =
+                        *world.get_or_insert_with(|| WatertightRay::new(ray.origin, ray.direction));
+                    f(p, mesh, &wr, &nr, tmax)?;
+                    continue;
+                }
                 let o = p.world_to_object.transform_point3(ray.origin);
                 let d = p.world_to_object.transform_vector3(ray.direction);
                 // The shear depends on the direction: recomputed per instance.
@@ -521,10 +534,17 @@ impl InstanceBvh {
             }
             ControlFlow::Continue(())
         };
-        if margin > 0.0 {
-            wide::traverse::<true>(&self.nodes, &nr, tmin, &mut tmax, margin, visit);
-        } else {
-            wide::traverse::<false>(&self.nodes, &nr, tmin, &mut tmax, 0.0, visit);
+        match (margin > 0.0, ORDERED) {
+            (true, true) => {
+                wide::traverse::<true>(&self.nodes, &nr, tmin, &mut tmax, margin, visit)
+            }
+            (false, true) => wide::traverse::<false>(&self.nodes, &nr, tmin, &mut tmax, 0.0, visit),
+            (true, false) => {
+                wide::traverse_any::<true>(&self.nodes, &nr, tmin, &mut tmax, margin, visit)
+            }
+            (false, false) => {
+                wide::traverse_any::<false>(&self.nodes, &nr, tmin, &mut tmax, 0.0, visit)
+            }
         }
     }
 
@@ -539,7 +559,7 @@ impl InstanceBvh {
         tmax: f32,
     ) -> Option<InstanceHit> {
         let mut best: Option<InstanceHit> = None;
-        self.walk(meshes, ray, tmin, tmax, |p, mesh, wr, nr, tmax| {
+        self.walk::<true>(meshes, ray, tmin, tmax, |p, mesh, wr, nr, tmax| {
             if let Some(h) = mesh.closest_in(wr, nr, tmin, *tmax) {
                 let better = match &best {
                     None => true,
@@ -569,7 +589,7 @@ impl InstanceBvh {
     /// Whether any instance is hit with `tmin <= t <= tmax`; stops at the first.
     pub fn any_hit(&self, meshes: &[MeshBvh], ray: &Ray, tmin: f32, tmax: f32) -> bool {
         let mut found = false;
-        self.walk(meshes, ray, tmin, tmax, |_, mesh, wr, nr, tmax| {
+        self.walk::<false>(meshes, ray, tmin, tmax, |_, mesh, wr, nr, tmax| {
             if mesh.any_in(wr, nr, tmin, *tmax) {
                 found = true;
                 return ControlFlow::Break(());

@@ -14,7 +14,6 @@ use std::collections::HashMap;
 use std::fmt::Write;
 use std::hint::black_box;
 use std::path::Path;
-use std::time::Instant;
 
 /// The benchmark models, as (name, path under the assets folder).
 pub const MESH_SCENES: [(&str, &str); 4] = [
@@ -174,7 +173,7 @@ type Referee = ();
 
 #[cfg(feature = "embree")]
 fn build_referee(scene: &Scene) -> anyhow::Result<Option<(Referee, f64)>> {
-    let start = Instant::now();
+    let start = std::time::Instant::now();
     let e = crate::reference::embree::EmbreeScene::build(scene)
         .map_err(|e| anyhow::anyhow!("Embree: {e}"))?;
     Ok(Some((e, start.elapsed().as_secs_f64() * 1e3)))

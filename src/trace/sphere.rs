@@ -294,7 +294,25 @@ mod tests {
                         ..scene.tracer
                     };
                     let r = trace(tape, &ray, 0.0, 40.0, &s, &mut regs);
-                    assert_eq!(r.t.is_some(), hart.t.is_some(), "{st:?} ray {i}");
+                    if r.t.is_some() != hart.t.is_some() {
+                        // Only two things may tell them apart: the step budget (Hart runs out
+                        // of steps on grazing rays sooner), or a ray that comes within ε of
+                        // the surface without crossing it (one stepper samples that stretch,
+                        // the other steps over it).
+                        let (miss, t_hit) = match (r.t, hart.t) {
+                            (None, Some(t)) => (r, t),
+                            (Some(t), _) => (hart, t),
+                            _ => unreachable!(),
+                        };
+                        let crosses = (0..2000).any(|k| {
+                            tape.eval_in(ray.at(t_hit + k as f32 * 5e-4), &mut regs) < 0.0
+                        });
+                        assert!(
+                            miss.steps == s.max_steps || !crosses,
+                            "{st:?} ray {i}: {r:?} vs Hart {hart:?}"
+                        );
+                        continue;
+                    }
                     if let (Some(a), Some(b)) = (r.t, hart.t) {
                         // Both stop inside the ε band of the same crossing: the field is
                         // below ε at both points.

@@ -570,13 +570,40 @@ pub(crate) fn traverse<const MARGIN: bool>(
     margin: f32,
     leaf: impl FnMut(u32, u32, &mut f32) -> ControlFlow<()>,
 ) {
+    dispatch::<MARGIN, true>(nodes, r, tmin, tmax, margin, leaf)
+}
+
+/// [`traverse`] for any-hit queries: the hit children are not sorted by distance (the first
+/// hit anywhere ends the walk, so the order only costs time). Visits the same set of leaves
+/// when the callback never breaks or shrinks `tmax`.
+#[inline(always)]
+pub(crate) fn traverse_any<const MARGIN: bool>(
+    nodes: &[WideNode],
+    r: &NodeRay,
+    tmin: f32,
+    tmax: &mut f32,
+    margin: f32,
+    leaf: impl FnMut(u32, u32, &mut f32) -> ControlFlow<()>,
+) {
+    dispatch::<MARGIN, false>(nodes, r, tmin, tmax, margin, leaf)
+}
+
+#[inline(always)]
+fn dispatch<const MARGIN: bool, const ORDERED: bool>(
+    nodes: &[WideNode],
+    r: &NodeRay,
+    tmin: f32,
+    tmax: &mut f32,
+    margin: f32,
+    leaf: impl FnMut(u32, u32, &mut f32) -> ControlFlow<()>,
+) {
     #[cfg(target_arch = "x86_64")]
     if has_avx2() {
         // SAFETY: the CPU supports AVX2 (just checked).
-        unsafe { traverse_avx2::<MARGIN>(nodes, r, tmin, tmax, margin, leaf) };
+        unsafe { traverse_avx2::<MARGIN, ORDERED>(nodes, r, tmin, tmax, margin, leaf) };
         return;
     }
-    traverse_impl::<MARGIN, false>(nodes, r, tmin, tmax, margin, leaf)
+    traverse_impl::<MARGIN, false, ORDERED>(nodes, r, tmin, tmax, margin, leaf)
 }
 
 /// [`traverse_impl`] compiled with AVX2.
@@ -585,7 +612,7 @@ pub(crate) fn traverse<const MARGIN: bool>(
 /// The CPU must support AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn traverse_avx2<const MARGIN: bool>(
+unsafe fn traverse_avx2<const MARGIN: bool, const ORDERED: bool>(
     nodes: &[WideNode],
     r: &NodeRay,
     tmin: f32,
@@ -593,12 +620,13 @@ unsafe fn traverse_avx2<const MARGIN: bool>(
     margin: f32,
     leaf: impl FnMut(u32, u32, &mut f32) -> ControlFlow<()>,
 ) {
-    traverse_impl::<MARGIN, true>(nodes, r, tmin, tmax, margin, leaf)
+    traverse_impl::<MARGIN, true, ORDERED>(nodes, r, tmin, tmax, margin, leaf)
 }
 
-/// The walk; `AVX2` selects [`child_hits_avx2`] (only reached through [`traverse_avx2`]).
+/// The walk; `AVX2` selects [`child_hits_avx2`] (only reached through [`traverse_avx2`]);
+/// `ORDERED` sorts the hit children nearest first.
 #[inline(always)]
-fn traverse_impl<const MARGIN: bool, const AVX2: bool>(
+fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool>(
     nodes: &[WideNode],
     r: &NodeRay,
     tmin: f32,
@@ -651,7 +679,7 @@ fn traverse_impl<const MARGIN: bool, const AVX2: bool>(
                 prefetch_node(nodes, e.meta);
             }
             let mut j = n;
-            while j > 0 && hits[j - 1].t > e.t {
+            while ORDERED && j > 0 && hits[j - 1].t > e.t {
                 hits[j] = hits[j - 1];
                 j -= 1;
             }
@@ -826,7 +854,7 @@ mod tests {
                 if avx {
                     traverse::<false>(&bvh.nodes, &r, 0.0, &mut tmax, 0.0, leaf);
                 } else {
-                    traverse_impl::<false, false>(&bvh.nodes, &r, 0.0, &mut tmax, 0.0, leaf);
+                    traverse_impl::<false, false, true>(&bvh.nodes, &r, 0.0, &mut tmax, 0.0, leaf);
                 }
                 seen
             };
