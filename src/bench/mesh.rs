@@ -98,6 +98,8 @@ pub struct MeshReport {
     pub width: u32,
     /// See `width`.
     pub height: u32,
+    /// Incoherent rays per scene.
+    pub incoherent: usize,
     /// Our build quality.
     pub bvh: String,
     /// Builds.
@@ -292,7 +294,8 @@ pub fn run(opts: &BenchOptions) -> anyhow::Result<MeshReport> {
             embree_build_ms: referee.as_ref().map(|r| r.1),
         });
         let normals = FaceNormals::new(&scene.meshes);
-        let primary = rays::primary(&scene, opts.width, opts.height);
+        let camera = rays::framing_camera(&scene, opts.width as f32 / opts.height as f32);
+        let primary = rays::primary_from(&camera, opts.width, opts.height);
         let (ao, shadow) = rays::secondary(&scene, &accel, &primary);
         let sets = [
             RaySet {
@@ -365,6 +368,7 @@ pub fn run(opts: &BenchOptions) -> anyhow::Result<MeshReport> {
     Ok(MeshReport {
         width: opts.width,
         height: opts.height,
+        incoherent: opts.incoherent,
         bvh: format!("{:?}", opts.bvh),
         scenes,
         rows,
@@ -411,8 +415,8 @@ impl MeshReport {
         let _ = writeln!(s, "## Meshes: ours against Embree 4\n");
         let _ = writeln!(
             s,
-            "Primary rays {}×{}; AO and shadow rays from every primary hit; our BVH: obvhs {} preset; Embree: build quality HIGH, `rtcIntersect1`/`rtcOccluded1`.\n",
-            self.width, self.height, self.bvh
+            "Primary rays {}×{} from a camera framing the model's bounds; AO rays (cosine-distributed, closest hit within the model's radius) and shadow rays (to a point light above) from every primary hit; {} incoherent rays (uniform origins in the bounds, uniform directions); our BVH: obvhs {} preset; Embree: build quality HIGH, `rtcIntersect1`/`rtcOccluded1`.\n",
+            self.width, self.height, self.incoherent, self.bvh
         );
         let _ = writeln!(
             s,

@@ -4,6 +4,7 @@ use crate::accel::MeshAccel;
 use crate::geom::Ray;
 use crate::rng::Rng;
 use crate::scene::Scene;
+use crate::scene::camera::{Camera, Projection};
 use glam::Vec3;
 
 /// One query: a ray over `[0, tmax]`.
@@ -35,9 +36,48 @@ pub struct RaySet {
     pub rays: Vec<QueryRay>,
 }
 
+/// A pinhole camera (vertical field of view 40°) looking at the centre of the meshes' bounds
+/// from the direction (0.55, 0.45, 1), as close as it can while all eight corners of the
+/// bounds stay inside an image of the given aspect ratio: the model fills the frame (the
+/// files' default framing uses the bounding sphere, which leaves long models small).
+pub fn framing_camera(scene: &Scene, aspect: f32) -> Camera {
+    let b = scene.meshes.bounds();
+    let centre = b.center();
+    let tan_half = 20f32.to_radians().tan();
+    let forward = -Vec3::new(0.55, 0.45, 1.0).normalize();
+    let right = forward.cross(Vec3::Y).normalize();
+    let up = right.cross(forward);
+    // Corner c at depth D + z (z along forward) fits when |x| ≤ (D + z)·tan·aspect and
+    // |y| ≤ (D + z)·tan.
+    let distance = b
+        .corners()
+        .iter()
+        .map(|&c| {
+            let r = c - centre;
+            let (x, y, z) = (r.dot(right), r.dot(up), r.dot(forward));
+            (x.abs() / (tan_half * aspect)).max(y.abs() / tan_half) - z
+        })
+        .fold(0.0f32, f32::max)
+        .max(1e-6);
+    Camera::look_at(
+        centre - distance * forward,
+        centre,
+        Vec3::Y,
+        Projection::Perspective {
+            tan_half_fov: tan_half,
+        },
+    )
+    .expect("the framing direction is never vertical")
+}
+
 /// Primary rays of the scene's pinhole camera through the centres of a `width`×`height` image,
 /// row by row.
 pub fn primary(scene: &Scene, width: u32, height: u32) -> Vec<QueryRay> {
+    primary_from(&scene.camera, width, height)
+}
+
+/// Primary rays of `camera` through the centres of a `width`×`height` image, row by row.
+pub fn primary_from(camera: &Camera, width: u32, height: u32) -> Vec<QueryRay> {
     let aspect = width as f32 / height as f32;
     let mut rays = Vec::with_capacity((width * height) as usize);
     for y in 0..height {
@@ -45,7 +85,7 @@ pub fn primary(scene: &Scene, width: u32, height: u32) -> Vec<QueryRay> {
             let u = (x as f32 + 0.5) / width as f32;
             let v = (y as f32 + 0.5) / height as f32;
             rays.push(QueryRay {
-                ray: scene.camera.ray(u, v, aspect),
+                ray: camera.ray(u, v, aspect),
                 tmax: f32::INFINITY,
             });
         }
