@@ -38,6 +38,7 @@
 
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
+use std::mem::MaybeUninit;
 use std::ops::ControlFlow;
 
 use glam::{BVec4A, Vec3, Vec3A, Vec4};
@@ -515,9 +516,10 @@ struct Entry {
 
 /// LIFO of pending children: a fixed array, spilling to a `Vec` only for trees deeper than
 /// about five levels whose children are nearly all hit (each level leaves at most seven
-/// entries); a bigger array costs its zeroing on every ray.
+/// entries). The array is left uninitialised: zeroing its 256 bytes on every walk (one per
+/// instance a ray visits) cost more than the rest of a short walk.
 struct Stack {
-    arr: [Entry; 32],
+    arr: [MaybeUninit<Entry>; 32],
     len: usize,
     spill: Vec<Entry>,
 }
@@ -526,7 +528,7 @@ impl Stack {
     #[inline(always)]
     fn new() -> Self {
         Stack {
-            arr: [Entry::default(); 32],
+            arr: [const { MaybeUninit::uninit() }; 32],
             len: 0,
             spill: Vec::new(),
         }
@@ -534,7 +536,7 @@ impl Stack {
     #[inline(always)]
     fn push(&mut self, e: Entry) {
         if self.len < self.arr.len() {
-            self.arr[self.len] = e;
+            self.arr[self.len] = MaybeUninit::new(e);
             self.len += 1;
         } else {
             self.spill.push(e);
@@ -550,7 +552,8 @@ impl Stack {
             return None;
         }
         self.len -= 1;
-        Some(self.arr[self.len])
+        // SAFETY: every slot below `len` was written by `push`.
+        Some(unsafe { self.arr[self.len].assume_init() })
     }
 }
 
