@@ -668,6 +668,19 @@ fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool>(
         if mask == 0 {
             continue;
         }
+        if mask & (mask - 1) == 0 {
+            // One child hit (the common case near the leaves): no sorting, no stack.
+            let i = mask.trailing_zeros() as usize;
+            let e = Entry {
+                t: t[i],
+                meta: node.meta[i],
+            };
+            if e.meta & LEAF_BIT == 0 {
+                prefetch_node(nodes, e.meta);
+            }
+            next = Some(e);
+            continue;
+        }
         // Gather and insertion-sort the hit children by entry distance (at most eight).
         let mut hits = [Entry::default(); 8];
         let mut n = 0;
