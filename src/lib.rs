@@ -9,6 +9,8 @@
 
 pub mod accel;
 pub mod geom;
+#[cfg(feature = "gpu")]
+pub mod gpu;
 pub mod reference;
 pub mod render;
 pub mod rng;
