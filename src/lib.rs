@@ -10,6 +10,8 @@
 pub mod accel;
 pub mod bench;
 pub mod geom;
+#[cfg(feature = "gpu")]
+pub mod gpu;
 pub mod reference;
 pub mod render;
 pub mod rng;

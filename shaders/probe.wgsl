@@ -1,0 +1,39 @@
+// The probe kernel: the scene queries shading builds on (scene_material, scene_exit,
+// scene_visibility, scene_distance), evaluated per ray so tests can compare them with the CPU.
+// `chunk.mode` carries the penumbra sharpness k as f32 bits.
+
+@group(1) @binding(0) var<storage, read> probe_rays: array<QueryRay>;
+@group(1) @binding(1) var<storage, read_write> probe_results: array<ProbeResult>;
+@group(1) @binding(2) var<uniform> chunk: ChunkParams;
+
+fn material_lanes(m: Material) -> array<vec4<f32>, 3> {
+    var l: array<vec4<f32>, 3>;
+    l[0] = vec4<f32>(m.color, m.diffuse);
+    l[1] = vec4<f32>(m.specular, m.shininess);
+    l[2] = vec4<f32>(m.reflectivity, m.transparency, m.ior, 0.0);
+    return l;
+}
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn probe_main(@builtin(global_invocation_id) id: vec3<u32>) {
+    if id.x >= chunk.count {
+        return;
+    }
+    let i = chunk.first + id.x;
+    let ray = probe_rays[i];
+    let k = bitcast<f32>(chunk.mode);
+    var r: ProbeResult;
+    let hit = scene_closest_hit(ray.origin, ray.direction, ray.tmin, ray.tmax);
+    r.kind = hit.kind;
+    r.exit = vec4<f32>(-1.0, 0.0, 0.0, 0.0);
+    if hit.kind != HIT_MISS {
+        let p = ray.origin + ray.direction * hit.t;
+        r.material = material_lanes(scene_material(hit, p));
+        let inside = p + ray.direction * (4.0 * epsilon_at(hit.t));
+        r.exit = scene_exit(hit, inside, ray.direction, ray.tmax);
+    }
+    r.soft = scene_visibility(ray.origin, ray.direction, ray.tmin, ray.tmax, SHADOW_SOFT, k);
+    r.soft_improved = scene_visibility(ray.origin, ray.direction, ray.tmin, ray.tmax, SHADOW_SOFT_IMPROVED, k);
+    r.distance = scene_distance(ray.origin, 1.0);
+    probe_results[i] = r;
+}

@@ -1,0 +1,29 @@
+// The batch ray-query kernel: closest hit and/or occlusion for each ray of one chunk
+// (src/gpu/query.rs dispatches a batch in chunks so that no dispatch runs long).
+
+@group(1) @binding(0) var<storage, read> query_rays: array<QueryRay>;
+@group(1) @binding(1) var<storage, read_write> query_results: array<QueryResult>;
+@group(1) @binding(2) var<uniform> chunk: ChunkParams;
+
+@compute @workgroup_size(WORKGROUP_SIZE)
+fn query_main(@builtin(global_invocation_id) id: vec3<u32>) {
+    if id.x >= chunk.count {
+        return;
+    }
+    let i = chunk.first + id.x;
+    let ray = query_rays[i];
+    var result: QueryResult;
+    result.kind = HIT_MISS;
+    if (chunk.mode & QUERY_CLOSEST) != 0u {
+        let hit = scene_closest_hit(ray.origin, ray.direction, ray.tmin, ray.tmax);
+        result.t = hit.t;
+        result.kind = hit.kind;
+        result.object = hit.object;
+        result.normal = hit.normal;
+        result.steps = hit.steps;
+    }
+    if (chunk.mode & QUERY_OCCLUDED) != 0u {
+        result.occluded = select(0u, 1u, scene_occluded(ray.origin, ray.direction, ray.tmin, ray.tmax));
+    }
+    query_results[i] = result;
+}

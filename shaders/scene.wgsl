@@ -1,0 +1,372 @@
+// The hybrid scene queries: SceneTracer (src/trace/mod.rs) over SDF objects and mesh
+// instances, mirrored function by function. This file is the contract with the shading code.
+//
+// CONTRACT (names and signatures as agreed; one clarification):
+//   SceneHit.gradient is the raw gradient vector ∇f the normal estimator measured for an SDF
+//   hit (its length is the CPU's `Hit::gradient`), and the unit normal for a mesh hit (length
+//   1, as the CPU's 1.0). Materials: `Material` is generated from `MaterialParams`
+//   (color, diffuse, specular, shininess, reflectivity, transparency, ior).
+//   Shadow kinds are the generated SHADOW_NONE / SHADOW_HARD / SHADOW_SOFT /
+//   SHADOW_SOFT_IMPROVED, hit kinds HIT_MISS / HIT_SDF / HIT_MESH.
+
+struct SceneHit {
+    t: f32,
+    kind: u32,
+    object: u32,
+    triangle: u32,
+    bary: vec2<f32>,
+    normal: vec3<f32>,
+    gradient: vec3<f32>,
+    steps: u32,
+}
+
+// ---- walking the SDF objects (SdfAccel::visit_within): unbounded objects first, then the
+// BVH over the bounded ones, every box grown by `margin` when margin > 0. WGSL has no
+// closures, so the four visitors of SceneTracer are one switch (`WALK_*`) and the walk state
+// is passed by value; its stack is a module-scope array (see `blas_stack`).
+
+var<private> object_stack: array<u32, STACK_SIZE>;
+
+const WALK_CLOSEST: u32 = 0u;
+const WALK_OCCLUDED: u32 = 1u;
+const WALK_PENUMBRA: u32 = 2u;
+const WALK_DISTANCE: u32 = 3u;
+
+struct WalkState {
+    // closest: a hit was found; occluded: the ray is blocked
+    found: bool,
+    // closest: the hit distance and object, and the steps spent
+    t: f32,
+    object: u32,
+    steps: u32,
+    // penumbra: the smallest visibility; distance: the smallest field value
+    value: f32,
+    // the current upper end of the interval (closest hits shorten it)
+    limit: f32,
+    stop: bool,
+}
+
+fn object_interval(index: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32, margin: f32) -> Interval {
+    let obj = objects[index];
+    if obj.nan_bounds != 0u {
+        return Interval(true, tmin, tmax);
+    }
+    if margin > 0.0 {
+        return ray_interval(obj.lo - vec3<f32>(margin), obj.hi + vec3<f32>(margin), o, d, tmin, tmax);
+    }
+    return ray_interval(obj.lo, obj.hi, o, d, tmin, tmax);
+}
+
+// One object whose (grown) bounds the ray crosses over [t0, t1]: the body of the closure
+// SceneTracer passes to the walk, for each query.
+fn walk_visit(query: u32, index: u32, t0: f32, t1: f32, o: vec3<f32>, d: vec3<f32>, k: f32, improved: bool, state: WalkState) -> WalkState {
+    var s = state;
+    let tape = objects[index].distance;
+    switch query {
+        case WALK_CLOSEST: {
+            // the march stays within [t0, t1] ⊆ [tmin, limit]: any hit is the nearest so far
+            let r = sdf_trace(tape, o, d, t0, t1);
+            s.steps = s.steps + r.steps;
+            if r.hit {
+                s.found = true;
+                s.t = r.t;
+                s.object = index;
+                s.limit = r.t;
+            }
+        }
+        case WALK_OCCLUDED: {
+            if sdf_trace(tape, o, d, t0, t1).hit {
+                s.found = true;
+                s.stop = true;
+            }
+        }
+        case WALK_PENUMBRA: {
+            s.value = min(s.value, sdf_penumbra(tape, o, d, t0, t1, k, improved));
+            if s.value <= 0.0 {
+                s.stop = true;
+            }
+        }
+        default: {
+            s.value = min(s.value, tape_eval(tape, o));
+        }
+    }
+    return s;
+}
+
+// Walks the objects for one query; `value` starts at `initial_value`.
+fn sdf_walk(query: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32, margin: f32, k: f32, improved: bool, initial_value: f32) -> WalkState {
+    var s = WalkState(false, 0.0, 0u, 0u, initial_value, tmax, false);
+    for (var u = 0u; u < globals.unbounded_count; u = u + 1u) {
+        if tmin != tmin || s.limit != s.limit || tmin > s.limit {
+            // AabbBvh::visit_within gives up on an empty or NaN interval
+            s.stop = true;
+        }
+        if s.stop {
+            break;
+        }
+        let index = refs[globals.unbounded_start + u];
+        let iv = object_interval(index, o, d, tmin, s.limit, margin);
+        if iv.hit {
+            s = walk_visit(query, index, iv.t0, iv.t1, o, d, k, improved, s);
+        }
+    }
+    var sp = 0u;
+    if !s.stop && globals.object_root != NONE {
+        object_stack[0] = globals.object_root;
+        sp = 1u;
+    }
+    while sp > 0u && !s.stop {
+        sp = sp - 1u;
+        let node = nodes[object_stack[sp]];
+        var lo = node.lo;
+        var hi = node.hi;
+        if margin > 0.0 {
+            lo = lo - vec3<f32>(margin);
+            hi = hi + vec3<f32>(margin);
+        }
+        if !ray_interval(lo, hi, o, d, tmin, s.limit).hit {
+            continue;
+        }
+        if node.count == 0u {
+            object_stack[sp] = node.first + 1u;
+            object_stack[sp + 1u] = node.first;
+            sp = sp + 2u;
+            continue;
+        }
+        for (var j = node.first; j < node.first + node.count; j = j + 1u) {
+            if s.stop {
+                break;
+            }
+            let index = refs[j];
+            let iv = object_interval(index, o, d, tmin, s.limit, margin);
+            if iv.hit {
+                s = walk_visit(query, index, iv.t0, iv.t1, o, d, k, improved, s);
+            }
+        }
+    }
+    return s;
+}
+
+// ---- mesh surfaces (SceneMeshes::surface) and textures (Texture::sample).
+
+struct MeshSurface {
+    normal: vec3<f32>,
+    material: u32,
+    tint: vec3<f32>,
+}
+
+fn rem_euclid(i: i32, n: i32) -> i32 {
+    let r = i % n;
+    if r < 0 {
+        return r + n;
+    }
+    return r;
+}
+
+// texture::wrap: texel index i mapped into 0..n by the wrap mode.
+fn wrap_index(i: i32, n: i32, mode: u32) -> i32 {
+    if mode == WRAP_CLAMP_TO_EDGE {
+        return clamp(i, 0, n - 1);
+    }
+    if mode == WRAP_MIRRORED_REPEAT {
+        let m = rem_euclid(i, 2 * n);
+        if m >= n {
+            return 2 * n - 1 - m;
+        }
+        return m;
+    }
+    return rem_euclid(i, n);
+}
+
+// A float texel coordinate as an integer: NaN to 0, clamped so that +1 cannot overflow
+// (the CPU's saturating `as i64` conversion, within ±2³⁰).
+fn texel_floor(f: f32) -> i32 {
+    if f != f {
+        return 0;
+    }
+    return i32(clamp(f, -1073741824.0, 1073741824.0));
+}
+
+fn lerp4(a: vec4<f32>, b: vec4<f32>, t: f32) -> vec4<f32> {
+    return a + (b - a) * t;
+}
+
+// Texture::sample: bilinear, texel centres at ((i + ½)/w, (j + ½)/h), (0, 0) the top-left.
+fn texture_sample(index: u32, uv: vec2<f32>) -> vec4<f32> {
+    let tex = textures[index];
+    if tex.width == 0u || tex.height == 0u {
+        return vec4<f32>(1.0);
+    }
+    let w = i32(tex.width);
+    let h = i32(tex.height);
+    let x = uv.x * f32(tex.width) - 0.5;
+    let y = uv.y * f32(tex.height) - 0.5;
+    let fx = floor(x);
+    let fy = floor(y);
+    var tx = x - fx;
+    var ty = y - fy;
+    let x0 = texel_floor(fx);
+    let y0 = texel_floor(fy);
+    let wrap_u = tex.wrap & 15u;
+    let wrap_v = (tex.wrap >> 4u) & 15u;
+    let xa = u32(wrap_index(x0, w, wrap_u));
+    let xb = u32(wrap_index(x0 + 1, w, wrap_u));
+    let ya = u32(wrap_index(y0, h, wrap_v));
+    let yb = u32(wrap_index(y0 + 1, h, wrap_v));
+    // finite exactly when t − t == 0 (NaN and ±∞ give NaN)
+    if !(tx - tx == 0.0 && ty - ty == 0.0) {
+        tx = 0.0;
+        ty = 0.0;
+    }
+    let row_a = tex.texel_start + ya * tex.width;
+    let row_b = tex.texel_start + yb * tex.width;
+    let top = lerp4(texels[row_a + xa], texels[row_a + xb], tx);
+    let bottom = lerp4(texels[row_b + xa], texels[row_b + xb], tx);
+    return lerp4(top, bottom, ty);
+}
+
+fn mesh_surface(instance: u32, triangle: u32, u: f32, v: f32) -> MeshSurface {
+    let inst = instances[instance];
+    let mesh = meshes[inst.mesh];
+    let tri = triangle_indices[mesh.triangle_start + triangle];
+    let va = vertices[mesh.vertex_start + tri.a];
+    let vb = vertices[mesh.vertex_start + tri.b];
+    let vc = vertices[mesh.vertex_start + tri.c];
+    let w = 1.0 - u - v;
+    let geometric = cross(vb.position - va.position, vc.position - va.position);
+    var n = w * va.normal + u * vb.normal + v * vc.normal;
+    if !(dot(n, n) > 1e-20) {
+        n = geometric;
+    }
+    // the normal matrix is stored as columns: x_axis·n.x + y_axis·n.y + z_axis·n.z
+    let nm = inst.normal_matrix;
+    let world = nm[0].xyz * n.x + nm[1].xyz * n.y + nm[2].xyz * n.z;
+    var surface: MeshSurface;
+    surface.normal = normalize_or_y(world);
+    surface.tint = vec3<f32>(1.0);
+    if inst.material_override != NONE {
+        surface.material = inst.material_override;
+    } else {
+        surface.material = inst.material_base + tri.material;
+        if mesh.has_uvs != 0u {
+            let texture = materials[surface.material].texture;
+            if texture != NONE {
+                let uv = w * vec2<f32>(va.u, va.v) + u * vec2<f32>(vb.u, vb.v) + v * vec2<f32>(vc.u, vc.v);
+                surface.tint = texture_sample(texture, uv).xyz;
+            }
+        }
+    }
+    return surface;
+}
+
+// ---- the queries.
+
+fn scene_miss() -> SceneHit {
+    return SceneHit(0.0, HIT_MISS, 0u, 0u, vec2<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), 0u);
+}
+
+// SceneTracer::closest_hit: meshes first (their hit shortens every SDF march), then every
+// SDF object whose bounds the ray crosses before the current limit.
+fn scene_closest_hit(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32) -> SceneHit {
+    var limit = min(tmax, globals.max_distance);
+    let mesh = tlas_closest(o, d, tmin, limit);
+    if mesh.hit {
+        limit = mesh.t;
+    }
+    let w = sdf_walk(WALK_CLOSEST, o, d, tmin, limit, 0.0, 0.0, false, 0.0);
+    let steps = w.steps;
+    if w.found {
+        let tape = objects[w.object].distance;
+        let g = sdf_gradient(tape, o + d * w.t, normal_step(w.t));
+        return SceneHit(w.t, HIT_SDF, w.object, 0u, vec2<f32>(0.0), normalize_or_y(g), g, steps);
+    }
+    if mesh.hit {
+        let s = mesh_surface(mesh.instance, mesh.triangle, mesh.u, mesh.v);
+        return SceneHit(mesh.t, HIT_MESH, mesh.instance, mesh.triangle, vec2<f32>(mesh.u, mesh.v), s.normal, s.normal, steps);
+    }
+    var miss = scene_miss();
+    miss.steps = steps;
+    return miss;
+}
+
+// SceneTracer::mesh_blocks.
+fn mesh_blocks(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32) -> bool {
+    return tlas_any(o, d, tmin, min(tmax, globals.max_distance));
+}
+
+// SceneTracer::occluded: meshes, then any SDF hit stops the walk.
+fn scene_occluded(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32) -> bool {
+    if mesh_blocks(o, d, tmin, tmax) {
+        return true;
+    }
+    let limit = min(tmax, globals.max_distance);
+    return sdf_walk(WALK_OCCLUDED, o, d, tmin, limit, 0.0, 0.0, false, 0.0).found;
+}
+
+// SceneTracer::visibility: 1 or 0 for hard shadows; for soft ones the smallest penumbra over
+// the objects near the ray (bounds grown by limit/k), smoothed with smoothstep.
+fn scene_visibility(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32, shadow_kind: u32, k: f32) -> f32 {
+    if shadow_kind == SHADOW_NONE {
+        return 1.0;
+    }
+    if shadow_kind == SHADOW_HARD {
+        if scene_occluded(o, d, tmin, tmax) {
+            return 0.0;
+        }
+        return 1.0;
+    }
+    if mesh_blocks(o, d, tmin, tmax) {
+        return 0.0;
+    }
+    let improved = shadow_kind == SHADOW_SOFT_IMPROVED;
+    let limit = min(tmax, globals.max_distance);
+    // k·h/t < 1 only where h < t/k ≤ limit/k: objects farther than that from the ray cannot
+    // darken it
+    let margin = limit / k;
+    let res = sdf_walk(WALK_PENUMBRA, o, d, tmin, limit, margin, k, improved, 1.0).value;
+    return res * res * (3.0 - 2.0 * res);
+}
+
+// SceneTracer::distance: the minimum field over objects whose bounds grown by `reach`
+// contain p, clamped to reach.
+fn scene_distance(p: vec3<f32>, reach: f32) -> f32 {
+    // a zero-length probe ray along +y, as the CPU's
+    return sdf_walk(WALK_DISTANCE, p, vec3<f32>(0.0, 1.0, 0.0), 0.0, 0.0, reach, 0.0, false, reach).value;
+}
+
+// SceneTracer::exit: where a ray that starts inside the solid of `hit` leaves it, with the
+// outward normal there, as (t, normal); t < 0 when it does not.
+fn scene_exit(hit: SceneHit, o: vec3<f32>, d: vec3<f32>, tmax: f32) -> vec4<f32> {
+    let limit = min(tmax, globals.max_distance);
+    if hit.kind == HIT_MESH {
+        let h = tlas_closest(o, d, 0.0, limit);
+        if !h.hit {
+            return vec4<f32>(-1.0, 0.0, 0.0, 0.0);
+        }
+        var n = mesh_surface(h.instance, h.triangle, h.u, h.v).normal;
+        if dot(n, d) < 0.0 {
+            n = -n;
+        }
+        return vec4<f32>(h.t, n);
+    }
+    let tape = objects[hit.object].distance;
+    let t = sdf_exit(tape, o, d, 0.0, limit);
+    if t < 0.0 {
+        return vec4<f32>(-1.0, 0.0, 0.0, 0.0);
+    }
+    let n = normalize_or_y(sdf_gradient(tape, o + d * t, normal_step(t)));
+    return vec4<f32>(t, n);
+}
+
+// SceneTracer::material_at: the SDF's blended material from its shading tape, or the mesh
+// triangle's material with its base-colour texture applied.
+fn scene_material(hit: SceneHit, p: vec3<f32>) -> Material {
+    if hit.kind == HIT_MESH {
+        let s = mesh_surface(hit.object, hit.triangle, hit.bary.x, hit.bary.y);
+        var m = material_from_lanes(materials[s.material].lanes);
+        m.color = m.color * s.tint;
+        return m;
+    }
+    let obj = objects[hit.object];
+    return material_from_lanes(tape_material(obj.shading, obj.material_result, p));
+}

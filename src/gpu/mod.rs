@@ -1,0 +1,45 @@
+//! The GPU tracer: wgpu compute kernels over WGSL shaders that evaluate the CPU's tapes and
+//! mirror its tracing queries (see `shaders/README.md`).
+//!
+//! [`context`] opens a headless device, [`scene`] uploads a scene (tapes, BVHs, meshes,
+//! materials, textures), [`shaders`] assembles the WGSL (a generated prelude of shared
+//! constants and structs, then `shaders/*.wgsl`), [`query`] answers ray batches with it.
+
+pub mod context;
+pub mod layout;
+pub mod query;
+pub mod records;
+pub mod scene;
+pub mod shaders;
+
+pub use context::GpuContext;
+pub use query::{GpuQuery, GpuSdfEvaluator};
+pub use scene::{GpuScene, SceneData};
+
+/// What can go wrong on the GPU side.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    /// No adapter: no Vulkan driver, or no device it can drive.
+    #[error(
+        "no GPU adapter found ({0}); on a machine without a GPU install Mesa's lavapipe \
+         (Debian package `mesa-vulkan-drivers`)"
+    )]
+    NoAdapter(String),
+    /// The adapter refused to create a device.
+    #[error("the GPU adapter could not open a device: {0}")]
+    Device(String),
+    /// The scene or the adapter is outside what the GPU tracer handles.
+    #[error("unsupported on this GPU: {0}")]
+    Unsupported(String),
+    /// A shader did not compile (a bug: they are validated with naga in the tests).
+    #[error("shader `{name}` failed: {message}")]
+    Shader {
+        /// Shader module.
+        name: String,
+        /// Driver or wgpu message.
+        message: String,
+    },
+    /// Reading a result buffer back failed.
+    #[error("reading GPU results back failed: {0}")]
+    ReadBack(String),
+}

@@ -1,0 +1,343 @@
+//! Ray queries and tape evaluation on the GPU, in chunked dispatches: the GPU's side of the
+//! backend-independent [`RayQuery`] interface and of the SDF conformance suite's
+//! [`Evaluator`].
+
+use super::GpuError;
+use super::context::GpuContext;
+use super::records::{ChunkParams, ProbeResult, QueryRay, QueryResult};
+use super::scene::{GpuScene, SceneData, scene_layout};
+use super::shaders::{
+    EVAL_WGSL, HIT_MESH, HIT_SDF, PROBE_WGSL, QUERY_CLOSEST, QUERY_OCCLUDED, QUERY_WGSL,
+    WORKGROUP_SIZE, with_kernel,
+};
+use crate::geom::Ray;
+use crate::reference::query::{ObjectId, QueryHit, RayQuery};
+use crate::scene::Scene;
+use crate::sdf::conformance::Evaluator;
+use crate::sdf::tape::Tape;
+use glam::Vec3;
+
+/// Items per dispatch unless told otherwise: small enough that one dispatch of the slowest
+/// kernel (SDF rays on lavapipe) stays far below a driver watchdog's seconds.
+pub const DEFAULT_CHUNK: u32 = 8192;
+
+/// A compute kernel over the scene library: group 0 the scene, group 1 an input array, an
+/// output array and the chunk parameters.
+pub struct Kernel {
+    pipeline: wgpu::ComputePipeline,
+    io_layout: wgpu::BindGroupLayout,
+}
+
+impl Kernel {
+    /// Compiles `kernel` (appended to the scene library) with entry point `entry`.
+    pub fn new(ctx: &GpuContext, name: &str, kernel: &str, entry: &str) -> Result<Self, GpuError> {
+        let scene_layout = scene_layout(ctx);
+        let buffer = |binding, ty| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let io_layout = ctx
+            .device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some(name),
+                entries: &[
+                    buffer(0, wgpu::BufferBindingType::Storage { read_only: true }),
+                    buffer(1, wgpu::BufferBindingType::Storage { read_only: false }),
+                    buffer(2, wgpu::BufferBindingType::Uniform),
+                ],
+            });
+        let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let module = ctx
+            .device
+            .create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(name),
+                source: wgpu::ShaderSource::Wgsl(with_kernel(kernel).into()),
+            });
+        let layout = ctx
+            .device
+            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(name),
+                bind_group_layouts: &[Some(&scene_layout), Some(&io_layout)],
+                immediate_size: 0,
+            });
+        let pipeline = ctx
+            .device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(name),
+                layout: Some(&layout),
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(GpuError::Shader {
+                name: name.to_string(),
+                message: e.to_string(),
+            });
+        }
+        Ok(Kernel {
+            pipeline,
+            io_layout,
+        })
+    }
+
+    /// Runs the kernel over items `0..count` in dispatches of at most `chunk` items, each
+    /// submitted on its own, and waits for the last.
+    #[allow(clippy::too_many_arguments)]
+    pub fn run(
+        &self,
+        ctx: &GpuContext,
+        scene: &GpuScene,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        count: u32,
+        chunk: u32,
+        mode: u32,
+    ) -> Result<(), GpuError> {
+        let chunk = chunk.clamp(1, 65535 * WORKGROUP_SIZE);
+        let mut first = 0;
+        while first < count {
+            let n = chunk.min(count - first);
+            let params = ChunkParams {
+                first,
+                count: n,
+                mode,
+                pad: 0,
+            };
+            let uniform = ctx.uniform_buffer("hytrace chunk", bytemuck::bytes_of(&params));
+            let io = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("hytrace chunk"),
+                layout: &self.io_layout,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: input.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: output.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: uniform.as_entire_binding(),
+                    },
+                ],
+            });
+            let mut encoder = ctx
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+                pass.set_pipeline(&self.pipeline);
+                pass.set_bind_group(0, &scene.bind_group, &[]);
+                pass.set_bind_group(1, &io, &[]);
+                pass.dispatch_workgroups(n.div_ceil(WORKGROUP_SIZE), 1, 1);
+            }
+            ctx.queue.submit([encoder.finish()]);
+            // one chunk at a time: the device never holds more than one dispatch's work
+            ctx.wait()?;
+            first += n;
+        }
+        Ok(())
+    }
+}
+
+/// Ray queries against one scene on the GPU: the GPU's [`RayQuery`].
+pub struct GpuQuery<'a> {
+    ctx: &'a GpuContext,
+    scene: GpuScene,
+    kernel: Kernel,
+    chunk: u32,
+}
+
+impl<'a> GpuQuery<'a> {
+    /// Uploads `scene` and compiles the query kernel.
+    pub fn new(ctx: &'a GpuContext, scene: &Scene) -> Result<Self, GpuError> {
+        let data = SceneData::from_scene(scene)?;
+        Ok(GpuQuery {
+            ctx,
+            scene: GpuScene::new(ctx, &data)?,
+            kernel: Kernel::new(ctx, "query.wgsl", QUERY_WGSL, "query_main")?,
+            chunk: DEFAULT_CHUNK,
+        })
+    }
+
+    /// Sets how many rays one dispatch handles (the answers do not depend on it).
+    pub fn with_chunk(mut self, chunk: u32) -> Self {
+        self.chunk = chunk.max(1);
+        self
+    }
+
+    /// The uploaded scene.
+    pub fn scene(&self) -> &GpuScene {
+        &self.scene
+    }
+
+    /// Runs the query kernel over rays with per-ray intervals; `mode` is a set of
+    /// `QUERY_*` bits.
+    pub fn run(&self, rays: &[QueryRay], mode: u32) -> Result<Vec<QueryResult>, GpuError> {
+        self.run_kernel(&self.kernel, rays, mode)
+    }
+
+    /// Runs the probe kernel (`shaders/probe.wgsl`: material, exit, soft visibilities with
+    /// sharpness `k`, distance) over rays; compiles it on each call.
+    pub fn probe(&self, rays: &[QueryRay], k: f32) -> Result<Vec<ProbeResult>, GpuError> {
+        let kernel = Kernel::new(self.ctx, "probe.wgsl", PROBE_WGSL, "probe_main")?;
+        self.run_kernel(&kernel, rays, k.to_bits())
+    }
+
+    fn run_kernel<T: bytemuck::Pod>(
+        &self,
+        kernel: &Kernel,
+        rays: &[QueryRay],
+        mode: u32,
+    ) -> Result<Vec<T>, GpuError> {
+        if rays.is_empty() {
+            return Ok(Vec::new());
+        }
+        let count = u32::try_from(rays.len())
+            .map_err(|_| GpuError::Unsupported(format!("{} rays in one batch", rays.len())))?;
+        let input = self
+            .ctx
+            .storage_buffer("hytrace rays", bytemuck::cast_slice(rays), false);
+        let size = (rays.len() * std::mem::size_of::<T>()) as u64;
+        let output = self
+            .ctx
+            .storage_buffer("hytrace results", &vec![0u8; size as usize], true);
+        kernel.run(
+            self.ctx,
+            &self.scene,
+            &input,
+            &output,
+            count,
+            self.chunk,
+            mode,
+        )?;
+        let bytes = self.ctx.read_buffer(&output, size)?;
+        Ok(bytemuck::pod_collect_to_vec(&bytes))
+    }
+
+    fn batch(rays: &[Ray], tmin: f32, tmax: f32) -> Vec<QueryRay> {
+        rays.iter()
+            .map(|r| QueryRay {
+                origin: r.origin.to_array(),
+                tmin,
+                direction: r.direction.to_array(),
+                tmax,
+            })
+            .collect()
+    }
+
+    /// Closest hits of a batch of rays over one interval.
+    pub fn closest_hits(
+        &self,
+        rays: &[Ray],
+        tmin: f32,
+        tmax: f32,
+    ) -> Result<Vec<Option<QueryHit>>, GpuError> {
+        Ok(self
+            .run(&Self::batch(rays, tmin, tmax), QUERY_CLOSEST)?
+            .iter()
+            .map(to_query_hit)
+            .collect())
+    }
+
+    /// Occlusion of a batch of rays over one interval.
+    pub fn occluded_batch(
+        &self,
+        rays: &[Ray],
+        tmin: f32,
+        tmax: f32,
+    ) -> Result<Vec<bool>, GpuError> {
+        Ok(self
+            .run(&Self::batch(rays, tmin, tmax), QUERY_OCCLUDED)?
+            .iter()
+            .map(|r| r.occluded != 0)
+            .collect())
+    }
+}
+
+/// A query result as the backend-independent hit.
+pub fn to_query_hit(r: &QueryResult) -> Option<QueryHit> {
+    let object = match r.kind {
+        HIT_SDF => ObjectId::Sdf(r.object as usize),
+        HIT_MESH => ObjectId::MeshInstance(r.object as usize),
+        _ => return None,
+    };
+    Some(QueryHit {
+        t: r.t,
+        normal: Vec3::from(r.normal),
+        object,
+    })
+}
+
+impl RayQuery for GpuQuery<'_> {
+    /// One ray per dispatch: correct but slow; batch with [`GpuQuery::closest_hits`].
+    /// A device failure panics here (the trait has no error channel).
+    fn closest_hit(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<QueryHit> {
+        self.closest_hits(std::slice::from_ref(ray), tmin, tmax)
+            .unwrap_or_else(|e| panic!("GPU query failed: {e}"))[0]
+    }
+
+    fn occluded(&self, ray: &Ray, tmin: f32, tmax: f32) -> bool {
+        self.occluded_batch(std::slice::from_ref(ray), tmin, tmax)
+            .unwrap_or_else(|e| panic!("GPU query failed: {e}"))[0]
+    }
+}
+
+/// Tape evaluation on the GPU: the conformance suite's [`Evaluator`] for the WGSL
+/// interpreter.
+pub struct GpuSdfEvaluator<'a> {
+    ctx: &'a GpuContext,
+    kernel: Kernel,
+    chunk: u32,
+}
+
+impl<'a> GpuSdfEvaluator<'a> {
+    /// Compiles the evaluation kernel.
+    pub fn new(ctx: &'a GpuContext) -> Result<Self, GpuError> {
+        Ok(GpuSdfEvaluator {
+            ctx,
+            kernel: Kernel::new(ctx, "eval.wgsl", EVAL_WGSL, "eval_main")?,
+            chunk: DEFAULT_CHUNK,
+        })
+    }
+
+    /// Evaluates `tape` at every point.
+    pub fn try_eval(&self, tape: &Tape, points: &[Vec3]) -> Result<Vec<f32>, GpuError> {
+        if points.is_empty() {
+            return Ok(Vec::new());
+        }
+        let count = u32::try_from(points.len())
+            .map_err(|_| GpuError::Unsupported(format!("{} points in one batch", points.len())))?;
+        let data = SceneData::from_tapes(&[tape]);
+        let scene = GpuScene::new(self.ctx, &data)?;
+        let p: Vec<[f32; 4]> = points.iter().map(|p| p.extend(0.0).to_array()).collect();
+        let input = self
+            .ctx
+            .storage_buffer("hytrace points", bytemuck::cast_slice(&p), false);
+        let size = (points.len() * 4) as u64;
+        let output = self
+            .ctx
+            .storage_buffer("hytrace values", &vec![0u8; size as usize], true);
+        self.kernel
+            .run(self.ctx, &scene, &input, &output, count, self.chunk, 0)?;
+        let bytes = self.ctx.read_buffer(&output, size)?;
+        Ok(bytemuck::pod_collect_to_vec(&bytes))
+    }
+}
+
+impl Evaluator for GpuSdfEvaluator<'_> {
+    /// A device failure panics here (the trait has no error channel).
+    fn eval(&self, tape: &Tape, points: &[Vec3]) -> Vec<f32> {
+        self.try_eval(tape, points)
+            .unwrap_or_else(|e| panic!("GPU tape evaluation failed: {e}"))
+    }
+}

@@ -1,0 +1,269 @@
+//! The records of the GPU buffers: one Rust declaration each, from which the WGSL structs are
+//! generated (see [`crate::gpu::layout`]).
+
+use crate::gpu_struct;
+
+/// "No such node / tape register / override": a sentinel index.
+pub const NONE: u32 = u32::MAX;
+
+/// Depth of the fixed-size traversal stacks in `mesh.wgsl` and `scene.wgsl`; BVHs deeper
+/// than this are refused at upload time (see [`crate::gpu::scene`]).
+pub const STACK_SIZE: u32 = 64;
+
+gpu_struct! {
+    /// Where one tape lives in the shared instruction and constant buffers.
+    pub struct TapeRef(16) {
+        /// First instruction.
+        pub start: u32,
+        /// Instruction count.
+        pub len: u32,
+        /// First constant of the tape (its `Affine` ops index from here).
+        pub constants: u32,
+        /// Register holding the distance at the end.
+        pub result: u32,
+    }
+}
+
+gpu_struct! {
+    /// One SDF object: world bounds and its two tapes.
+    pub struct SdfObjectRecord(64) {
+        /// Bounds minimum (infinite coordinates stored as ∓`f32::MAX`).
+        pub lo: [f32; 3],
+        /// 1 when the bounds are NaN (unknown: the whole ray is visited), else 0.
+        pub nan_bounds: u32,
+        /// Bounds maximum.
+        pub hi: [f32; 3],
+        /// Material register of the shading tape's result, or [`NONE`].
+        pub material_result: u32,
+        /// The distance tape.
+        pub distance: TapeRef,
+        /// The shading tape (distance and blended material).
+        pub shading: TapeRef,
+    }
+}
+
+gpu_struct! {
+    /// A node of a flattened BVH2: an inner node when `count` is 0 (children at `first` and
+    /// `first + 1`), else a leaf over `count` primitives from `first`.
+    pub struct BvhNode(32) {
+        /// Box minimum.
+        pub lo: [f32; 3],
+        /// First child or first primitive.
+        pub first: u32,
+        /// Box maximum.
+        pub hi: [f32; 3],
+        /// Primitive count (0 for inner nodes).
+        pub count: u32,
+    }
+}
+
+gpu_struct! {
+    /// A triangle in leaf order: its object-space vertices and its index in the mesh.
+    pub struct TriangleRecord(48) {
+        /// First vertex.
+        pub a: [f32; 3],
+        /// Index of the triangle in its mesh's triangle list.
+        pub id: u32,
+        /// Second vertex.
+        pub b: [f32; 3],
+        /// Unused.
+        pub pad0: u32,
+        /// Third vertex.
+        pub c: [f32; 3],
+        /// Unused.
+        pub pad1: u32,
+    }
+}
+
+gpu_struct! {
+    /// One mesh: its BLAS and where its vertex attributes start.
+    pub struct MeshRecord(16) {
+        /// Root node of the mesh's BVH, or [`NONE`] for a mesh with no valid triangle.
+        pub root: u32,
+        /// First vertex in the vertex buffer.
+        pub vertex_start: u32,
+        /// First triangle in the triangle-index buffer.
+        pub triangle_start: u32,
+        /// 1 when the mesh has texture coordinates.
+        pub has_uvs: u32,
+    }
+}
+
+gpu_struct! {
+    /// A mesh vertex's shading attributes.
+    pub struct VertexRecord(32) {
+        /// Object-space position.
+        pub position: [f32; 3],
+        /// Texture coordinate u.
+        pub u: f32,
+        /// Object-space unit normal.
+        pub normal: [f32; 3],
+        /// Texture coordinate v.
+        pub v: f32,
+    }
+}
+
+gpu_struct! {
+    /// A triangle's vertex indices (relative to its mesh) and its file material.
+    pub struct TriangleIndices(16) {
+        /// First vertex.
+        pub a: u32,
+        /// Second vertex.
+        pub b: u32,
+        /// Third vertex.
+        pub c: u32,
+        /// Index into the file's materials.
+        pub material: u32,
+    }
+}
+
+gpu_struct! {
+    /// A mesh instance: transforms and material mapping.
+    pub struct InstanceRecord(112) {
+        /// World → object, rows of a 3×4 matrix.
+        pub world_to_object: [[f32; 4]; 3],
+        /// Inverse transpose of the object → world linear part (maps normals), rows.
+        pub normal_matrix: [[f32; 4]; 3],
+        /// Index into the mesh records.
+        pub mesh: u32,
+        /// Scene material of the file's material 0.
+        pub material_base: u32,
+        /// Scene material replacing the file's, or [`NONE`].
+        pub material_override: u32,
+        /// Unused.
+        pub pad: u32,
+    }
+}
+
+gpu_struct! {
+    /// A scene material: the 12 lanes of `MaterialVec` and its base-colour texture.
+    pub struct MaterialRecord(64) {
+        /// The lanes, four per vector.
+        pub lanes: [[f32; 4]; 3],
+        /// Base-colour texture index, or [`NONE`].
+        pub texture: u32,
+        /// Unused.
+        pub pad0: u32,
+        /// Unused.
+        pub pad1: u32,
+        /// Unused.
+        pub pad2: u32,
+    }
+}
+
+gpu_struct! {
+    /// A texture in the shared texel buffer.
+    pub struct TextureRecord(16) {
+        /// First texel (row-major, row 0 at the top).
+        pub texel_start: u32,
+        /// Width in texels.
+        pub width: u32,
+        /// Height in texels.
+        pub height: u32,
+        /// Wrap modes: u in bits 0–3, v in bits 4–7 (`WRAP_*` constants).
+        pub wrap: u32,
+    }
+}
+
+gpu_struct! {
+    /// Scene-wide values: the tracer settings and the roots of the BVHs.
+    pub struct SceneGlobals(64) {
+        /// ε at t = 0.
+        pub epsilon: f32,
+        /// Growth of ε per unit distance.
+        pub epsilon_per_unit: f32,
+        /// Maximum ray distance.
+        pub max_distance: f32,
+        /// Maximum sphere-tracing steps.
+        pub max_steps: u32,
+        /// Normal estimator (`NORMALS_*`).
+        pub normals: u32,
+        /// Number of SDF objects.
+        pub object_count: u32,
+        /// Root of the SDF objects' BVH, or [`NONE`].
+        pub object_root: u32,
+        /// First entry of the unbounded objects' list in the reference buffer.
+        pub unbounded_start: u32,
+        /// Number of unbounded objects.
+        pub unbounded_count: u32,
+        /// Number of mesh instances.
+        pub instance_count: u32,
+        /// Root of the instances' BVH, or [`NONE`].
+        pub tlas_root: u32,
+        /// Number of scene materials.
+        pub material_count: u32,
+        /// Unused.
+        pub pad0: u32,
+        /// Unused.
+        pub pad1: u32,
+        /// Unused.
+        pub pad2: u32,
+        /// Unused.
+        pub pad3: u32,
+    }
+}
+
+gpu_struct! {
+    /// One ray of a query batch.
+    pub struct QueryRay(32) {
+        /// Origin.
+        pub origin: [f32; 3],
+        /// Lower end of the interval.
+        pub tmin: f32,
+        /// Unit direction.
+        pub direction: [f32; 3],
+        /// Upper end of the interval.
+        pub tmax: f32,
+    }
+}
+
+gpu_struct! {
+    /// The answer to one query ray.
+    pub struct QueryResult(32) {
+        /// Unit normal at the hit.
+        pub normal: [f32; 3],
+        /// Hit distance (meaningless on a miss).
+        pub t: f32,
+        /// `HIT_MISS`, `HIT_SDF` or `HIT_MESH`.
+        pub kind: u32,
+        /// SDF object or mesh instance.
+        pub object: u32,
+        /// 1 when the shadow query found the ray blocked.
+        pub occluded: u32,
+        /// Sphere-tracing steps.
+        pub steps: u32,
+    }
+}
+
+gpu_struct! {
+    /// Parameters of one chunk of a dispatch.
+    pub struct ChunkParams(16) {
+        /// First item of the chunk.
+        pub first: u32,
+        /// Items in the chunk.
+        pub count: u32,
+        /// What to compute (`QUERY_*` bits) or, for tape evaluation, the object whose tape runs.
+        pub mode: u32,
+        /// Unused.
+        pub pad: u32,
+    }
+}
+
+gpu_struct! {
+    /// The answers of the probe kernel (`shaders/probe.wgsl`) for one ray: the scene queries
+    /// that shading uses, for checking them against the CPU.
+    pub struct ProbeResult(80) {
+        /// `scene_material` at the closest hit (zero on a miss).
+        pub material: [[f32; 4]; 3],
+        /// `scene_exit` from just inside the hit, along the ray: (t, normal), t < 0 for none.
+        pub exit: [f32; 4],
+        /// `scene_visibility` along the ray with `SHADOW_SOFT`.
+        pub soft: f32,
+        /// `scene_visibility` along the ray with `SHADOW_SOFT_IMPROVED`.
+        pub soft_improved: f32,
+        /// `scene_distance` at the ray's origin with reach 1.
+        pub distance: f32,
+        /// The closest hit's kind.
+        pub kind: u32,
+    }
+}

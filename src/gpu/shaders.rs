@@ -1,0 +1,335 @@
+//! The WGSL sources: the generated prelude (constants, structs, bindings shared with Rust) and
+//! the shader files of `shaders/`, assembled into modules.
+
+use super::layout::{WgslStruct, WgslType};
+use super::records::*;
+use crate::scene::Shadow;
+use crate::scene::file::NormalMethod;
+use crate::scene::mesh::Wrap;
+use crate::sdf::tape::{self, Instr};
+use crate::shade::material::MaterialParams;
+use glam::Vec3;
+use std::mem::offset_of;
+
+/// The tape interpreter (`Tape::eval_in`, `Tape::eval_material`).
+pub const TAPE_WGSL: &str = include_str!("../../shaders/tape.wgsl");
+/// Sphere tracing, normals, penumbrae, exits (`src/trace/sphere.rs`, `src/trace/normal.rs`).
+pub const SDF_WGSL: &str = include_str!("../../shaders/sdf.wgsl");
+/// BVH2 traversal and the watertight triangle test (`src/accel`).
+pub const MESH_WGSL: &str = include_str!("../../shaders/mesh.wgsl");
+/// The hybrid scene queries (`SceneTracer`).
+pub const SCENE_WGSL: &str = include_str!("../../shaders/scene.wgsl");
+/// The batch query kernel ([`crate::gpu::query::GpuQuery`]).
+pub const QUERY_WGSL: &str = include_str!("../../shaders/query.wgsl");
+/// The tape evaluation kernel ([`crate::gpu::query::GpuSdfEvaluator`]).
+pub const EVAL_WGSL: &str = include_str!("../../shaders/eval.wgsl");
+
+/// The probe kernel: shading's scene queries per ray, for tests against the CPU.
+pub const PROBE_WGSL: &str = include_str!("../../shaders/probe.wgsl");
+
+/// Threads per workgroup of the compute kernels (1-D).
+pub const WORKGROUP_SIZE: u32 = 64;
+
+/// `SceneHit.kind` / `QueryResult.kind`: nothing hit.
+pub const HIT_MISS: u32 = 0;
+/// An SDF object was hit.
+pub const HIT_SDF: u32 = 1;
+/// A mesh instance was hit.
+pub const HIT_MESH: u32 = 2;
+
+/// `ChunkParams.mode` bit of the query kernel: compute the closest hit.
+pub const QUERY_CLOSEST: u32 = 1;
+/// `ChunkParams.mode` bit of the query kernel: compute occlusion.
+pub const QUERY_OCCLUDED: u32 = 2;
+
+/// The number a shadow kind has in WGSL (`SHADOW_*`) and its sharpness k.
+pub fn shadow_code(shadow: Shadow) -> (u32, f32) {
+    match shadow {
+        Shadow::None => (0, 0.0),
+        Shadow::Hard => (1, 0.0),
+        Shadow::Soft(k) => (2, k),
+        Shadow::SoftImproved(k) => (3, k),
+    }
+}
+
+/// The number a normal estimator has in WGSL (`NORMALS_*`).
+pub fn normals_code(method: NormalMethod) -> u32 {
+    match method {
+        NormalMethod::Central => 0,
+        NormalMethod::Tetrahedral => 1,
+    }
+}
+
+/// The number a texture wrap mode has in WGSL (`WRAP_*`).
+pub fn wrap_code(wrap: Wrap) -> u32 {
+    match wrap {
+        Wrap::Repeat => 0,
+        Wrap::ClampToEdge => 1,
+        Wrap::MirroredRepeat => 2,
+    }
+}
+
+/// How a scene buffer is bound.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BindingKind {
+    /// `var<uniform>`.
+    Uniform,
+    /// `var<storage, read>`.
+    Storage,
+}
+
+/// The scene buffers of bind group 0 in binding order: (name, kind, WGSL type). The host
+/// creates its buffers in this order ([`crate::gpu::scene::GpuScene`]) and the prelude
+/// declares them from the same list.
+pub fn scene_bindings() -> Vec<(&'static str, BindingKind, String)> {
+    use BindingKind::*;
+    let array = |t: String| format!("array<{t}>");
+    vec![
+        ("globals", Uniform, SceneGlobals::wgsl_name()),
+        ("instrs", Storage, array("Instr".into())),
+        ("tape_constants", Storage, array(<[f32; 4]>::wgsl_name())),
+        ("objects", Storage, array(SdfObjectRecord::wgsl_name())),
+        ("nodes", Storage, array(BvhNode::wgsl_name())),
+        ("refs", Storage, array(u32::wgsl_name())),
+        ("triangles", Storage, array(TriangleRecord::wgsl_name())),
+        ("meshes", Storage, array(MeshRecord::wgsl_name())),
+        ("vertices", Storage, array(VertexRecord::wgsl_name())),
+        (
+            "triangle_indices",
+            Storage,
+            array(TriangleIndices::wgsl_name()),
+        ),
+        ("instances", Storage, array(InstanceRecord::wgsl_name())),
+        ("materials", Storage, array(MaterialRecord::wgsl_name())),
+        ("textures", Storage, array(TextureRecord::wgsl_name())),
+        ("texels", Storage, array(<[f32; 4]>::wgsl_name())),
+    ]
+}
+
+// `Instr` is declared in `src/sdf/tape.rs` (not with `gpu_struct!`); its WGSL twin below is
+// checked field by field against the Rust offsets.
+const _: () = {
+    assert!(offset_of!(Instr, op) == 0);
+    assert!(offset_of!(Instr, dst) == 4);
+    assert!(offset_of!(Instr, a) == 8);
+    assert!(offset_of!(Instr, b) == 12);
+    assert!(offset_of!(Instr, c) == 16);
+    assert!(offset_of!(Instr, aux) == 20);
+    assert!(offset_of!(Instr, pad) == 24);
+    assert!(offset_of!(Instr, imm) == 32);
+    assert!(std::mem::size_of::<Instr>() == 48);
+};
+
+fn instr_wgsl() -> String {
+    "struct Instr {\n    op: u32,\n    dst: u32,\n    a: u32,\n    b: u32,\n    c: u32,\n    \
+     aux: u32,\n    pad0: u32,\n    pad1: u32,\n    imm: vec4<f32>,\n}\n"
+        .into()
+}
+
+/// The WGSL `Material` struct (the fields of [`MaterialParams`]) and `material_from_lanes`,
+/// which reads it from the 12 lanes of a `MaterialVec`. Which lane holds which field is found
+/// by packing a probe material with [`MaterialParams::to_vec`], so the packing is defined once.
+fn material_wgsl() -> String {
+    let probe = MaterialParams {
+        color: Vec3::new(1.0, 2.0, 3.0),
+        diffuse: 4.0,
+        specular: Vec3::new(5.0, 6.0, 7.0),
+        shininess: 8.0,
+        reflectivity: 9.0,
+        transparency: 10.0,
+        ior: 11.0,
+    };
+    let lanes = probe.to_vec();
+    let lane = |marker: f32| -> String {
+        let i = lanes
+            .iter()
+            .position(|&l| l == marker)
+            .expect("every field of MaterialParams has a lane");
+        format!("l[{}][{}]", i / 4, i % 4)
+    };
+    let fields: [(&str, &[f32]); 7] = [
+        ("color", &[1.0, 2.0, 3.0]),
+        ("diffuse", &[4.0]),
+        ("specular", &[5.0, 6.0, 7.0]),
+        ("shininess", &[8.0]),
+        ("reflectivity", &[9.0]),
+        ("transparency", &[10.0]),
+        ("ior", &[11.0]),
+    ];
+    let mut s = String::from("struct Material {\n");
+    for (name, markers) in &fields {
+        let ty = if markers.len() == 3 {
+            "vec3<f32>"
+        } else {
+            "f32"
+        };
+        s += &format!("    {name}: {ty},\n");
+    }
+    s +=
+        "}\n\nfn material_from_lanes(l: array<vec4<f32>, 3>) -> Material {\n    return Material(\n";
+    for (name, markers) in &fields {
+        let parts: Vec<String> = markers.iter().map(|&m| lane(m)).collect();
+        if parts.len() == 3 {
+            s += &format!("        vec3<f32>({}), // {name}\n", parts.join(", "));
+        } else {
+            s += &format!("        {}, // {name}\n", parts[0]);
+        }
+    }
+    s += "    );\n}\n";
+    s
+}
+
+/// Everything the shader files share with Rust, generated: tape opcodes and limits, the
+/// buffer structs, the enumerations' numbers, `Material`, and the scene bindings (group 0).
+pub fn wgsl_prelude() -> String {
+    let mut s = String::from("// ---- generated by hytrace::gpu::shaders::wgsl_prelude ----\n");
+    s += &tape::wgsl_constants();
+    let u = |name: &str, v: u32| format!("const {name}: u32 = {v}u;\n");
+    s += &u("NONE", NONE);
+    s += &u("STACK_SIZE", STACK_SIZE);
+    s += &u("WORKGROUP_SIZE", WORKGROUP_SIZE);
+    s += &u("HIT_MISS", HIT_MISS);
+    s += &u("HIT_SDF", HIT_SDF);
+    s += &u("HIT_MESH", HIT_MESH);
+    s += &u("QUERY_CLOSEST", QUERY_CLOSEST);
+    s += &u("QUERY_OCCLUDED", QUERY_OCCLUDED);
+    s += &u("SHADOW_NONE", shadow_code(Shadow::None).0);
+    s += &u("SHADOW_HARD", shadow_code(Shadow::Hard).0);
+    s += &u("SHADOW_SOFT", shadow_code(Shadow::Soft(1.0)).0);
+    s += &u(
+        "SHADOW_SOFT_IMPROVED",
+        shadow_code(Shadow::SoftImproved(1.0)).0,
+    );
+    s += &u("NORMALS_CENTRAL", normals_code(NormalMethod::Central));
+    s += &u(
+        "NORMALS_TETRAHEDRAL",
+        normals_code(NormalMethod::Tetrahedral),
+    );
+    s += &u("WRAP_REPEAT", wrap_code(Wrap::Repeat));
+    s += &u("WRAP_CLAMP_TO_EDGE", wrap_code(Wrap::ClampToEdge));
+    s += &u("WRAP_MIRRORED_REPEAT", wrap_code(Wrap::MirroredRepeat));
+    s += "\n";
+    s += &instr_wgsl();
+    for decl in [
+        TapeRef::wgsl(),
+        SdfObjectRecord::wgsl(),
+        BvhNode::wgsl(),
+        TriangleRecord::wgsl(),
+        MeshRecord::wgsl(),
+        VertexRecord::wgsl(),
+        TriangleIndices::wgsl(),
+        InstanceRecord::wgsl(),
+        MaterialRecord::wgsl(),
+        TextureRecord::wgsl(),
+        SceneGlobals::wgsl(),
+        QueryRay::wgsl(),
+        QueryResult::wgsl(),
+        ChunkParams::wgsl(),
+        ProbeResult::wgsl(),
+    ] {
+        s += &decl;
+    }
+    s += &material_wgsl();
+    s += "\n";
+    for (i, (name, kind, ty)) in scene_bindings().iter().enumerate() {
+        let space = match kind {
+            BindingKind::Uniform => "uniform",
+            BindingKind::Storage => "storage, read",
+        };
+        s += &format!("@group(0) @binding({i}) var<{space}> {name}: {ty};\n");
+    }
+    s += "// ---- end of generated prelude ----\n\n";
+    s
+}
+
+/// The scene library: prelude, tape interpreter, sphere tracing, mesh traversal and the hybrid
+/// queries of `scene.wgsl` (the functions shading builds on). Kernels are appended to it.
+pub fn scene_library() -> String {
+    let mut s = wgsl_prelude();
+    for part in [TAPE_WGSL, SDF_WGSL, MESH_WGSL, SCENE_WGSL] {
+        s += part;
+        s += "\n";
+    }
+    s
+}
+
+/// The library followed by a kernel source (a `@compute` entry point and its group-1
+/// bindings).
+pub fn with_kernel(kernel: &str) -> String {
+    scene_library() + kernel
+}
+
+/// Every shader module the crate builds, by name (validated with naga in the tests).
+pub fn all_modules() -> Vec<(&'static str, String)> {
+    vec![
+        ("query.wgsl", with_kernel(QUERY_WGSL)),
+        ("eval.wgsl", with_kernel(EVAL_WGSL)),
+        ("probe.wgsl", with_kernel(PROBE_WGSL)),
+    ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn validate(name: &str, src: &str) {
+        let module = naga::front::wgsl::parse_str(src)
+            .unwrap_or_else(|e| panic!("{name} does not parse:\n{}", e.emit_to_string(src)));
+        naga::valid::Validator::new(
+            naga::valid::ValidationFlags::all(),
+            naga::valid::Capabilities::default(),
+        )
+        .validate(&module)
+        .unwrap_or_else(|e| panic!("{name} does not validate:\n{}", e.emit_to_string(src)));
+    }
+
+    /// Every file of `shaders/` with the prelude and the files it builds on, and every
+    /// module the crate compiles, parse and validate with naga (no adapter needed).
+    #[test]
+    fn every_shader_parses_and_validates() {
+        let mut src = wgsl_prelude();
+        validate("the prelude", &src);
+        for (name, part) in [
+            ("tape.wgsl", TAPE_WGSL),
+            ("sdf.wgsl", SDF_WGSL),
+            ("mesh.wgsl", MESH_WGSL),
+            ("scene.wgsl", SCENE_WGSL),
+        ] {
+            src += part;
+            validate(name, &src);
+        }
+        for (name, module) in all_modules() {
+            validate(name, &module);
+        }
+    }
+
+    #[test]
+    fn the_prelude_declares_every_opcode_and_binding_once() {
+        let p = wgsl_prelude();
+        for op in crate::sdf::tape::Op::ALL {
+            let decl = format!(
+                "const OP_{}: u32 = {}u;",
+                op.name().to_uppercase(),
+                *op as u32
+            );
+            assert_eq!(p.matches(&decl).count(), 1, "{decl}");
+        }
+        for (i, (name, _, _)) in scene_bindings().iter().enumerate() {
+            assert!(
+                p.contains(&format!("@group(0) @binding({i}) var<")) && p.contains(name),
+                "binding {i} `{name}`"
+            );
+        }
+    }
+
+    #[test]
+    fn material_lanes_follow_the_rust_packing() {
+        let m = material_wgsl();
+        // MaterialParams::to_vec puts colour in lanes 0–2 and the ior in lane 10
+        assert!(
+            m.contains("vec3<f32>(l[0][0], l[0][1], l[0][2]), // color"),
+            "{m}"
+        );
+        assert!(m.contains("l[2][2], // ior"), "{m}");
+    }
+}
