@@ -66,10 +66,10 @@ fn camera_ray(u: f32, v: f32, aspect: f32) -> CameraRay {
     let sy = 1.0 - 2.0 * v;
     let c = shade_camera;
     if c.projection == PROJECTION_PERSPECTIVE {
-        return CameraRay(c.position, normalize(c.forward + c.scale * (sx * c.right + sy * c.up)));
+        return CameraRay(c.position, unit_vector(c.forward + c.scale * (sx * c.right + sy * c.up)));
     }
     let h = 0.5 * c.scale;
-    return CameraRay(c.position + h * (sx * c.right + sy * c.up), normalize(c.forward));
+    return CameraRay(c.position + h * (sx * c.right + sy * c.up), unit_vector(c.forward));
 }
 
 /// What one camera sample sees (integrator::CameraSample); depth < 0 on a miss.
@@ -103,7 +103,7 @@ var<private> path_len: u32;
 /// limit (the `spawn` closure of trace_camera_ray). Ray::new normalises the direction.
 fn spawn(parent: PendingRay, max_bounces: u32, origin: vec3<f32>, direction: vec3<f32>, weight: vec3<f32>, inside: u32, inside_hit: SceneHit, ior: f32) {
     if parent.bounces < max_bounces && max(max(weight.x, weight.y), weight.z) >= MIN_WEIGHT && path_len < RENDER_STACK {
-        path_stack[path_len] = PendingRay(origin, normalize(direction), weight, parent.bounces + 1u, inside, inside_hit, ior);
+        path_stack[path_len] = PendingRay(origin, unit_vector(direction), weight, parent.bounces + 1u, inside, inside_hit, ior);
         path_len += 1u;
     }
 }

@@ -12,6 +12,13 @@
 /// its tmax to the scene's max_distance, so any value above that behaves the same.
 const T_FAR: f32 = 3.0e38;
 
+/// v/|v| computed as glam's `Vec3::normalize` does, v·(1/√(v·v)), rather than with WGSL's
+/// normalize (which a driver may compute with an approximate inverse square root): refraction
+/// magnifies the last-bit differences between the two.
+fn unit_vector(v: vec3<f32>) -> vec3<f32> {
+    return v * (1.0 / sqrt(dot(v, v)));
+}
+
 /// x^5 by multiplication, as Rust's powi(5) computes it.
 fn pow5(x: f32) -> f32 {
     let x2 = x * x;
@@ -104,7 +111,7 @@ fn shade_local(p: vec3<f32>, n: vec3<f32>, to_eye: vec3<f32>, t: f32, m: Materia
             continue;
         } else if light.kind == LIGHT_POINT {
             let to_light = light.vector - p;
-            dist = length(to_light);
+            dist = sqrt(dot(to_light, to_light));
             if dist <= 0.0 {
                 continue;
             }
@@ -122,7 +129,7 @@ fn shade_local(p: vec3<f32>, n: vec3<f32>, to_eye: vec3<f32>, t: f32, m: Materia
         }
         var visibility = 1.0;
         if shade_settings.shadows != 0u {
-            visibility = scene_visibility(origin, normalize(l), 0.0, dist - offset, light.shadow, light.shadow_k);
+            visibility = scene_visibility(origin, unit_vector(l), 0.0, dist - offset, light.shadow, light.shadow_k);
         }
         if visibility <= 0.0 {
             continue;

@@ -9,7 +9,7 @@
 
 use hytrace::geom::Ray;
 use hytrace::gpu::context::GpuContext;
-use hytrace::gpu::render::{render as gpu_render, render_tiled};
+use hytrace::gpu::render::GpuRenderer;
 use hytrace::render::output::ToneMapping;
 use hytrace::render::view::{View, picture};
 use hytrace::render::{Framebuffer, RenderOptions, cpu};
@@ -30,13 +30,29 @@ const MIN_PSNR: f64 = 40.0;
 /// The fraction of pixels whose depths must agree.
 const MIN_DEPTH_AGREEMENT: f64 = 0.999;
 
-fn context() -> GpuContext {
-    GpuContext::new().unwrap_or_else(|e| {
+/// A device and the compiled render kernel.
+struct Gpu {
+    ctx: GpuContext,
+    renderer: GpuRenderer,
+}
+
+fn gpu() -> Gpu {
+    let ctx = GpuContext::new().unwrap_or_else(|e| {
         panic!(
             "no GPU adapter ({e}); on a machine without a GPU install Mesa's lavapipe \
              (Debian: mesa-vulkan-drivers, see scripts/setup.sh)"
         )
-    })
+    });
+    let renderer = GpuRenderer::new(&ctx);
+    Gpu { ctx, renderer }
+}
+
+impl Gpu {
+    fn render(&self, scene: &Scene, opts: &RenderOptions) -> Framebuffer {
+        self.renderer
+            .render(&self.ctx, scene, opts)
+            .unwrap_or_else(|e| panic!("{}: {e:#}", scene.source_name))
+    }
 }
 
 fn options(samples: u32) -> RenderOptions {
@@ -167,13 +183,13 @@ struct Outcome {
     problems: Vec<String>,
 }
 
-fn compare_scene(name: &str, scene: &Scene, ctx: &GpuContext) -> Outcome {
+fn compare_scene(name: &str, scene: &Scene, gpu: &Gpu) -> Outcome {
     let spp = scene.image.samples.min(MAX_SPP);
     let start = Instant::now();
     let cpu_fb = cpu::render(scene, &options(spp)).unwrap();
     let cpu_seconds = start.elapsed().as_secs_f64();
     let start = Instant::now();
-    let gpu_fb = gpu_render(scene, &options(spp), ctx).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+    let gpu_fb = gpu.render(scene, &options(spp));
     let gpu_seconds = start.elapsed().as_secs_f64();
     let (cpu_img, gpu_img) = (shaded(scene, &cpu_fb), shaded(scene, &gpu_fb));
     let psnr = psnr(&cpu_img, &gpu_img);
@@ -189,7 +205,7 @@ fn compare_scene(name: &str, scene: &Scene, ctx: &GpuContext) -> Outcome {
         depth_agreement(scene, &cpu_fb, &gpu_fb)
     } else {
         let cpu1 = cpu::render(scene, &options(1)).unwrap();
-        let gpu1 = gpu_render(scene, &options(1), ctx).unwrap();
+        let gpu1 = gpu.render(scene, &options(1));
         depth_agreement(scene, &cpu1, &gpu1)
     };
     if depth < MIN_DEPTH_AGREEMENT {
@@ -244,8 +260,8 @@ fn report(outcomes: &[Outcome]) {
 
 #[test]
 fn every_shipped_scene_renders_the_same_on_cpu_and_gpu() {
-    let ctx = context();
-    println!("GPU adapter: {}", ctx.adapter_name());
+    let gpu = gpu();
+    println!("GPU adapter: {}", gpu.ctx.adapter_name());
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/scenes");
     let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
         .unwrap()
@@ -267,7 +283,7 @@ fn every_shipped_scene_renders_the_same_on_cpu_and_gpu() {
         }
         let scene = Scene::load(path).unwrap_or_else(|e| panic!("{e}"));
         let name = path.file_stem().unwrap().to_string_lossy().into_owned();
-        outcomes.push(compare_scene(&name, &scene, &ctx));
+        outcomes.push(compare_scene(&name, &scene, &gpu));
     }
     report(&outcomes);
 }
@@ -275,7 +291,7 @@ fn every_shipped_scene_renders_the_same_on_cpu_and_gpu() {
 #[test]
 fn a_textured_gltf_model_renders_the_same_on_cpu_and_gpu() {
     let Some(assets) = assets() else { return };
-    let ctx = context();
+    let gpu = gpu();
     let mut outcomes = Vec::new();
     for model in [
         "glTF/BoxTextured/glTF/BoxTextured.gltf",
@@ -287,14 +303,14 @@ fn a_textured_gltf_model_renders_the_same_on_cpu_and_gpu() {
             "{model} should carry a base-colour texture"
         );
         let name = Path::new(model).file_stem().unwrap().to_string_lossy();
-        outcomes.push(compare_scene(&name, &scene, &ctx));
+        outcomes.push(compare_scene(&name, &scene, &gpu));
     }
     report(&outcomes);
 }
 
 #[test]
 fn many_small_tiles_give_the_same_image_as_few_large_ones() {
-    let ctx = context();
+    let gpu = gpu();
     // Glass: refraction, internal reflection and several bounces; an image size that no tile
     // size divides.
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/scenes/glass.ron");
@@ -306,8 +322,14 @@ fn many_small_tiles_give_the_same_image_as_few_large_ones() {
         threads: None,
         progress: false,
     };
-    let small = render_tiled(&scene, &opts, &ctx, 8).unwrap();
-    let large = render_tiled(&scene, &opts, &ctx, 128).unwrap();
+    let small = gpu
+        .renderer
+        .render_tiled(&gpu.ctx, &scene, &opts, 8)
+        .unwrap();
+    let large = gpu
+        .renderer
+        .render_tiled(&gpu.ctx, &scene, &opts, 128)
+        .unwrap();
     let bits = |fb: &Framebuffer| -> Vec<u32> {
         let v3 = |v: &[glam::Vec3]| -> Vec<u32> {
             v.iter()

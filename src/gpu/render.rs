@@ -3,7 +3,7 @@
 //! so PNG/EXR output, AOVs and debug views are shared with the CPU path.
 
 use super::context::GpuContext;
-use super::scene::{GpuScene, SceneData};
+use super::scene::{GpuScene, SceneData, scene_layout};
 use super::shade::{RenderPixel, RenderTile, ShadeCamera, ShadeLight, ShadeSettings, wgsl_prelude};
 use super::shaders::with_kernel;
 use crate::render::{Framebuffer, RenderOptions, Tile};
@@ -33,9 +33,10 @@ pub fn render_shader_source() -> String {
     with_kernel(&kernel)
 }
 
-/// Renders the scene on the GPU in tiles of [`GPU_TILE`] pixels.
+/// Renders the scene on the GPU in tiles of [`GPU_TILE`] pixels (compiling the kernel first;
+/// keep a [`GpuRenderer`] to render several images with one compilation).
 pub fn render(scene: &Scene, opts: &RenderOptions, ctx: &GpuContext) -> Result<Framebuffer> {
-    render_tiled(scene, opts, ctx, GPU_TILE)
+    GpuRenderer::new(ctx).render(ctx, scene, opts)
 }
 
 /// The image cut into square tiles of side `side`, row by row.
@@ -54,180 +55,210 @@ fn tiles_of(width: u32, height: u32, side: u32) -> Vec<Tile> {
     v
 }
 
-/// Renders the scene on the GPU with one dispatch per tile of side `tile_side`. Every pixel
-/// depends only on its own coordinates, so the image does not depend on the tile size.
-pub fn render_tiled(
-    scene: &Scene,
-    opts: &RenderOptions,
-    ctx: &GpuContext,
-    tile_side: u32,
-) -> Result<Framebuffer> {
-    if tile_side == 0 {
-        bail!("GPU tile size must be at least 1 pixel");
-    }
-    let device = &ctx.device;
-    let queue = &ctx.queue;
-    let gpu_scene = GpuScene::new(ctx, &SceneData::from_scene(scene)?)?;
+/// The compiled render kernel and its bind-group layouts; it does not depend on the scene.
+pub struct GpuRenderer {
+    pipeline: wgpu::ComputePipeline,
+    render_layout: wgpu::BindGroupLayout,
+}
 
-    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some("render.wgsl"),
-        source: wgpu::ShaderSource::Wgsl(render_shader_source().into()),
-    });
-    let uniform = |binding| wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Uniform,
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    };
-    let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Storage { read_only },
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    };
-    let render_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-        label: Some("render bindings"),
-        entries: &[
-            uniform(0),
-            uniform(1),
-            storage(2, true),
-            uniform(3),
-            storage(4, false),
-        ],
-    });
-    let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-        label: Some("render pipeline layout"),
-        bind_group_layouts: &[Some(&gpu_scene.layout), Some(&render_layout)],
-        immediate_size: 0,
-    });
-    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: Some("render pipeline"),
-        layout: Some(&pipeline_layout),
-        module: &module,
-        entry_point: Some("render_tile_main"),
-        compilation_options: Default::default(),
-        cache: None,
-    });
-
-    let init = |label, contents: &[u8], usage| {
-        device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(label),
-            contents,
-            usage,
-        })
-    };
-    let camera = ShadeCamera::new(&scene.camera);
-    let settings = ShadeSettings::new(scene);
-    // A storage binding cannot be empty: a scene without lights gets one unused record
-    // (light_count says how many are real).
-    let mut lights: Vec<ShadeLight> = scene.lights.iter().map(ShadeLight::new).collect();
-    if lights.is_empty() {
-        lights.push(ShadeLight::default());
-    }
-    let camera_buffer = init(
-        "camera",
-        bytemuck::bytes_of(&camera),
-        wgpu::BufferUsages::UNIFORM,
-    );
-    let settings_buffer = init(
-        "shading settings",
-        bytemuck::bytes_of(&settings),
-        wgpu::BufferUsages::UNIFORM,
-    );
-    let light_buffer = init(
-        "lights",
-        bytemuck::cast_slice(&lights),
-        wgpu::BufferUsages::STORAGE,
-    );
-    let tile_buffer = init(
-        "tile",
-        bytemuck::bytes_of(&RenderTile::default()),
-        wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-    );
-    let pixel_bytes = std::mem::size_of::<RenderPixel>() as u64;
-    let max_tile_pixels = tile_side.min(opts.width) as u64 * tile_side.min(opts.height) as u64;
-    let output_buffer = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("tile pixels"),
-        size: max_tile_pixels * pixel_bytes,
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-        mapped_at_creation: false,
-    });
-    let readback_buffer = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("tile readback"),
-        size: max_tile_pixels * pixel_bytes,
-        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    let render_bindings = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("render bindings"),
-        layout: &render_layout,
-        entries: &[
-            wgpu::BindGroupEntry {
-                binding: 0,
-                resource: camera_buffer.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 1,
-                resource: settings_buffer.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 2,
-                resource: light_buffer.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 3,
-                resource: tile_buffer.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 4,
-                resource: output_buffer.as_entire_binding(),
-            },
-        ],
-    });
-
-    let all = tiles_of(opts.width, opts.height, tile_side);
-    let bar = progress_bar(opts.progress, all.len() as u64)?;
-    let mut fb = Framebuffer::new(opts.width, opts.height);
-    for tile in all {
-        queue.write_buffer(
-            &tile_buffer,
-            0,
-            bytemuck::bytes_of(&RenderTile::new(opts, tile)),
-        );
-        let bytes = (tile.w * tile.h) as u64 * pixel_bytes;
-        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("render tile"),
+impl GpuRenderer {
+    /// Compiles the render kernel for the context's device.
+    pub fn new(ctx: &GpuContext) -> Self {
+        let device = &ctx.device;
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("render.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(render_shader_source().into()),
         });
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("render tile"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(&pipeline);
-            pass.set_bind_group(0, &gpu_scene.bind_group, &[]);
-            pass.set_bind_group(1, &render_bindings, &[]);
-            pass.dispatch_workgroups(
-                tile.w.div_ceil(WORKGROUP_SIDE),
-                tile.h.div_ceil(WORKGROUP_SIDE),
-                1,
-            );
+        let uniform = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        // binding numbers as declared at the top of render.wgsl
+        let render_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("render bindings"),
+            entries: &[
+                uniform(0),
+                uniform(1),
+                storage(2, true),
+                uniform(3),
+                storage(4, false),
+            ],
+        });
+        let scene_layout = scene_layout(ctx);
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("render pipeline layout"),
+            bind_group_layouts: &[Some(&scene_layout), Some(&render_layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("render pipeline"),
+            layout: Some(&pipeline_layout),
+            module: &module,
+            entry_point: Some("render_tile_main"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        GpuRenderer {
+            pipeline,
+            render_layout,
         }
-        encoder.copy_buffer_to_buffer(&output_buffer, 0, &readback_buffer, 0, bytes);
-        queue.submit([encoder.finish()]);
-        let pixels = read_back(ctx, &readback_buffer, bytes)?;
-        store_tile(&mut fb, tile, &pixels);
-        bar.inc(1);
     }
-    bar.finish_and_clear();
-    Ok(fb)
+
+    /// Renders the scene in tiles of [`GPU_TILE`] pixels.
+    pub fn render(
+        &self,
+        ctx: &GpuContext,
+        scene: &Scene,
+        opts: &RenderOptions,
+    ) -> Result<Framebuffer> {
+        self.render_tiled(ctx, scene, opts, GPU_TILE)
+    }
+
+    /// Renders the scene with one dispatch per tile of side `tile_side`. Every pixel depends
+    /// only on its own coordinates, so the image does not depend on the tile size.
+    pub fn render_tiled(
+        &self,
+        ctx: &GpuContext,
+        scene: &Scene,
+        opts: &RenderOptions,
+        tile_side: u32,
+    ) -> Result<Framebuffer> {
+        if tile_side == 0 {
+            bail!("GPU tile size must be at least 1 pixel");
+        }
+        let device = &ctx.device;
+        let queue = &ctx.queue;
+        let gpu_scene = GpuScene::new(ctx, &SceneData::from_scene(scene)?)?;
+        let (pipeline, render_layout) = (&self.pipeline, &self.render_layout);
+
+        let init = |label, contents: &[u8], usage| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage,
+            })
+        };
+        let camera = ShadeCamera::new(&scene.camera);
+        let settings = ShadeSettings::new(scene);
+        // A storage binding cannot be empty: a scene without lights gets one unused record
+        // (light_count says how many are real).
+        let mut lights: Vec<ShadeLight> = scene.lights.iter().map(ShadeLight::new).collect();
+        if lights.is_empty() {
+            lights.push(ShadeLight::default());
+        }
+        let camera_buffer = init(
+            "camera",
+            bytemuck::bytes_of(&camera),
+            wgpu::BufferUsages::UNIFORM,
+        );
+        let settings_buffer = init(
+            "shading settings",
+            bytemuck::bytes_of(&settings),
+            wgpu::BufferUsages::UNIFORM,
+        );
+        let light_buffer = init(
+            "lights",
+            bytemuck::cast_slice(&lights),
+            wgpu::BufferUsages::STORAGE,
+        );
+        let tile_buffer = init(
+            "tile",
+            bytemuck::bytes_of(&RenderTile::default()),
+            wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        );
+        let pixel_bytes = std::mem::size_of::<RenderPixel>() as u64;
+        let max_tile_pixels = tile_side.min(opts.width) as u64 * tile_side.min(opts.height) as u64;
+        let output_buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("tile pixels"),
+            size: max_tile_pixels * pixel_bytes,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let readback_buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("tile readback"),
+            size: max_tile_pixels * pixel_bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let render_bindings = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("render bindings"),
+            layout: render_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: camera_buffer.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: settings_buffer.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: light_buffer.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: tile_buffer.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 4,
+                    resource: output_buffer.as_entire_binding(),
+                },
+            ],
+        });
+
+        let all = tiles_of(opts.width, opts.height, tile_side);
+        let bar = progress_bar(opts.progress, all.len() as u64)?;
+        let mut fb = Framebuffer::new(opts.width, opts.height);
+        for tile in all {
+            queue.write_buffer(
+                &tile_buffer,
+                0,
+                bytemuck::bytes_of(&RenderTile::new(opts, tile)),
+            );
+            let bytes = (tile.w * tile.h) as u64 * pixel_bytes;
+            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("render tile"),
+            });
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("render tile"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(pipeline);
+                pass.set_bind_group(0, &gpu_scene.bind_group, &[]);
+                pass.set_bind_group(1, &render_bindings, &[]);
+                pass.dispatch_workgroups(
+                    tile.w.div_ceil(WORKGROUP_SIDE),
+                    tile.h.div_ceil(WORKGROUP_SIDE),
+                    1,
+                );
+            }
+            encoder.copy_buffer_to_buffer(&output_buffer, 0, &readback_buffer, 0, bytes);
+            queue.submit([encoder.finish()]);
+            let pixels = read_back(ctx, &readback_buffer, bytes)?;
+            store_tile(&mut fb, tile, &pixels);
+            bar.inc(1);
+        }
+        bar.finish_and_clear();
+        Ok(fb)
+    }
 }
 
 /// The progress bar the CPU backend draws, or a hidden one.
