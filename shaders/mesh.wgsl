@@ -144,6 +144,12 @@ fn intersect_triangle(r: WatertightRay, a: vec3<f32>, b: vec3<f32>, c: vec3<f32>
     return TriHit(true, t, v * rcp, w * rcp);
 }
 
+// Traversal stacks, one per nesting level, at module scope: function-local arrays are
+// allocated once per inlined call site, and lavapipe (Mesa 22.3) silently corrupted private
+// memory once a kernel had many of them (the probe kernel, which calls every query).
+var<private> blas_stack: array<u32, STACK_SIZE>;
+var<private> tlas_stack: array<u32, STACK_SIZE>;
+
 struct MeshHit {
     hit: bool,
     t: f32,
@@ -154,7 +160,7 @@ struct MeshHit {
 
 // Pushes the two children of an inner node, the one whose centre lies farther along the ray
 // first, so the nearer is popped first.
-fn push_children(stack: ptr<function, array<u32, STACK_SIZE>>, sp: ptr<function, u32>, first: u32, o: vec3<f32>, d: vec3<f32>) {
+fn push_children(stack: ptr<private, array<u32, STACK_SIZE>>, sp: ptr<function, u32>, first: u32, o: vec3<f32>, d: vec3<f32>) {
     let c0 = nodes[first];
     let c1 = nodes[first + 1u];
     let k0 = dot(c0.lo + c0.hi - 2.0 * o, d);
@@ -175,17 +181,16 @@ fn blas_closest(root: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax_in: f32) 
     let wr = watertight_ray(o, d);
     var best = MeshHit(false, tmax_in, 0u, 0.0, 0.0);
     var tmax = tmax_in;
-    var stack: array<u32, STACK_SIZE>;
-    stack[0] = root;
+    blas_stack[0] = root;
     var sp = 1u;
     while sp > 0u {
         sp = sp - 1u;
-        let node = nodes[stack[sp]];
+        let node = nodes[blas_stack[sp]];
         if !ray_interval(node.lo, node.hi, o, d, tmin, tmax).hit {
             continue;
         }
         if node.count == 0u {
-            push_children(&stack, &sp, node.first, o, d);
+            push_children(&blas_stack, &sp, node.first, o, d);
             continue;
         }
         for (var j = node.first; j < node.first + node.count; j = j + 1u) {
@@ -203,17 +208,16 @@ fn blas_closest(root: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax_in: f32) 
 // MeshBvh::any_hit: whether any triangle lies at tmin ≤ t ≤ tmax.
 fn blas_any(root: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32) -> bool {
     let wr = watertight_ray(o, d);
-    var stack: array<u32, STACK_SIZE>;
-    stack[0] = root;
+    blas_stack[0] = root;
     var sp = 1u;
     while sp > 0u {
         sp = sp - 1u;
-        let node = nodes[stack[sp]];
+        let node = nodes[blas_stack[sp]];
         if !ray_interval(node.lo, node.hi, o, d, tmin, tmax).hit {
             continue;
         }
         if node.count == 0u {
-            push_children(&stack, &sp, node.first, o, d);
+            push_children(&blas_stack, &sp, node.first, o, d);
             continue;
         }
         for (var j = node.first; j < node.first + node.count; j = j + 1u) {
@@ -261,17 +265,16 @@ fn tlas_closest(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax_in: f32) -> Instance
         return best;
     }
     var tmax = tmax_in;
-    var stack: array<u32, STACK_SIZE>;
-    stack[0] = globals.tlas_root;
+    tlas_stack[0] = globals.tlas_root;
     var sp = 1u;
     while sp > 0u {
         sp = sp - 1u;
-        let node = nodes[stack[sp]];
+        let node = nodes[tlas_stack[sp]];
         if !ray_interval(node.lo, node.hi, o, d, tmin, tmax).hit {
             continue;
         }
         if node.count == 0u {
-            push_children(&stack, &sp, node.first, o, d);
+            push_children(&tlas_stack, &sp, node.first, o, d);
             continue;
         }
         for (var j = node.first; j < node.first + node.count; j = j + 1u) {
@@ -294,17 +297,16 @@ fn tlas_any(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32) -> bool {
     if globals.tlas_root == NONE {
         return false;
     }
-    var stack: array<u32, STACK_SIZE>;
-    stack[0] = globals.tlas_root;
+    tlas_stack[0] = globals.tlas_root;
     var sp = 1u;
     while sp > 0u {
         sp = sp - 1u;
-        let node = nodes[stack[sp]];
+        let node = nodes[tlas_stack[sp]];
         if !ray_interval(node.lo, node.hi, o, d, tmin, tmax).hit {
             continue;
         }
         if node.count == 0u {
-            push_children(&stack, &sp, node.first, o, d);
+            push_children(&tlas_stack, &sp, node.first, o, d);
             continue;
         }
         for (var j = node.first; j < node.first + node.count; j = j + 1u) {

@@ -21,34 +21,29 @@ struct SceneHit {
 }
 
 // ---- walking the SDF objects (SdfAccel::visit_within): unbounded objects first, then the
-// BVH over the bounded ones, every box grown by `margin` when margin > 0.
+// BVH over the bounded ones, every box grown by `margin` when margin > 0. WGSL has no
+// closures, so the four visitors of SceneTracer are one switch (`WALK_*`) and the walk state
+// is passed by value; its stack is a module-scope array (see `blas_stack`).
 
-struct ObjectWalk {
-    stack: array<u32, STACK_SIZE>,
-    sp: u32,
-    next_unbounded: u32,
-    leaf_next: u32,
-    leaf_end: u32,
-}
+var<private> object_stack: array<u32, STACK_SIZE>;
 
-struct Candidate {
-    valid: bool,
+const WALK_CLOSEST: u32 = 0u;
+const WALK_OCCLUDED: u32 = 1u;
+const WALK_PENUMBRA: u32 = 2u;
+const WALK_DISTANCE: u32 = 3u;
+
+struct WalkState {
+    // closest: a hit was found; occluded: the ray is blocked
+    found: bool,
+    // closest: the hit distance and object, and the steps spent
+    t: f32,
     object: u32,
-    t0: f32,
-    t1: f32,
-}
-
-fn object_walk() -> ObjectWalk {
-    var w: ObjectWalk;
-    w.sp = 0u;
-    if globals.object_root != NONE {
-        w.stack[0] = globals.object_root;
-        w.sp = 1u;
-    }
-    w.next_unbounded = 0u;
-    w.leaf_next = 0u;
-    w.leaf_end = 0u;
-    return w;
+    steps: u32,
+    // penumbra: the smallest visibility; distance: the smallest field value
+    value: f32,
+    // the current upper end of the interval (closest hits shorten it)
+    limit: f32,
+    stop: bool,
 }
 
 fn object_interval(index: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32, margin: f32) -> Interval {
@@ -62,60 +57,94 @@ fn object_interval(index: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32,
     return ray_interval(obj.lo, obj.hi, o, d, tmin, tmax);
 }
 
-// The next object whose (grown) bounds the ray crosses within [tmin, tmax], with that
-// interval; `valid` is false when the walk is over.
-fn object_walk_next(w: ptr<function, ObjectWalk>, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32, margin: f32) -> Candidate {
-    let none = Candidate(false, 0u, 0.0, 0.0);
-    loop {
-        if (*w).next_unbounded < globals.unbounded_count {
-            if tmin != tmin || tmax != tmax || tmin > tmax {
-                // AabbBvh::visit_within gives up on an empty or NaN interval
-                (*w).next_unbounded = globals.unbounded_count;
-                (*w).sp = 0u;
-                return none;
+// One object whose (grown) bounds the ray crosses over [t0, t1]: the body of the closure
+// SceneTracer passes to the walk, for each query.
+fn walk_visit(query: u32, index: u32, t0: f32, t1: f32, o: vec3<f32>, d: vec3<f32>, k: f32, improved: bool, state: WalkState) -> WalkState {
+    var s = state;
+    let tape = objects[index].distance;
+    switch query {
+        case WALK_CLOSEST: {
+            // the march stays within [t0, t1] ⊆ [tmin, limit]: any hit is the nearest so far
+            let r = sdf_trace(tape, o, d, t0, t1);
+            s.steps = s.steps + r.steps;
+            if r.hit {
+                s.found = true;
+                s.t = r.t;
+                s.object = index;
+                s.limit = r.t;
             }
-            let index = refs[globals.unbounded_start + (*w).next_unbounded];
-            (*w).next_unbounded = (*w).next_unbounded + 1u;
-            let iv = object_interval(index, o, d, tmin, tmax, margin);
-            if iv.hit {
-                return Candidate(true, index, iv.t0, iv.t1);
+        }
+        case WALK_OCCLUDED: {
+            if sdf_trace(tape, o, d, t0, t1).hit {
+                s.found = true;
+                s.stop = true;
             }
-            continue;
         }
-        if (*w).leaf_next < (*w).leaf_end {
-            let index = refs[(*w).leaf_next];
-            (*w).leaf_next = (*w).leaf_next + 1u;
-            let iv = object_interval(index, o, d, tmin, tmax, margin);
-            if iv.hit {
-                return Candidate(true, index, iv.t0, iv.t1);
+        case WALK_PENUMBRA: {
+            s.value = min(s.value, sdf_penumbra(tape, o, d, t0, t1, k, improved));
+            if s.value <= 0.0 {
+                s.stop = true;
             }
-            continue;
         }
-        if (*w).sp == 0u {
-            return none;
+        default: {
+            s.value = min(s.value, tape_eval(tape, o));
         }
-        (*w).sp = (*w).sp - 1u;
-        let node = nodes[(*w).stack[(*w).sp]];
+    }
+    return s;
+}
+
+// Walks the objects for one query; `value` starts at `initial_value`.
+fn sdf_walk(query: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32, margin: f32, k: f32, improved: bool, initial_value: f32) -> WalkState {
+    var s = WalkState(false, 0.0, 0u, 0u, initial_value, tmax, false);
+    for (var u = 0u; u < globals.unbounded_count; u = u + 1u) {
+        if tmin != tmin || s.limit != s.limit || tmin > s.limit {
+            // AabbBvh::visit_within gives up on an empty or NaN interval
+            s.stop = true;
+        }
+        if s.stop {
+            break;
+        }
+        let index = refs[globals.unbounded_start + u];
+        let iv = object_interval(index, o, d, tmin, s.limit, margin);
+        if iv.hit {
+            s = walk_visit(query, index, iv.t0, iv.t1, o, d, k, improved, s);
+        }
+    }
+    var sp = 0u;
+    if !s.stop && globals.object_root != NONE {
+        object_stack[0] = globals.object_root;
+        sp = 1u;
+    }
+    while sp > 0u && !s.stop {
+        sp = sp - 1u;
+        let node = nodes[object_stack[sp]];
         var lo = node.lo;
         var hi = node.hi;
         if margin > 0.0 {
             lo = lo - vec3<f32>(margin);
             hi = hi + vec3<f32>(margin);
         }
-        if !ray_interval(lo, hi, o, d, tmin, tmax).hit {
+        if !ray_interval(lo, hi, o, d, tmin, s.limit).hit {
             continue;
         }
         if node.count == 0u {
-            let sp = (*w).sp;
-            (*w).stack[sp] = node.first + 1u;
-            (*w).stack[sp + 1u] = node.first;
-            (*w).sp = sp + 2u;
-        } else {
-            (*w).leaf_next = node.first;
-            (*w).leaf_end = node.first + node.count;
+            object_stack[sp] = node.first + 1u;
+            object_stack[sp + 1u] = node.first;
+            sp = sp + 2u;
+            continue;
+        }
+        for (var j = node.first; j < node.first + node.count; j = j + 1u) {
+            if s.stop {
+                break;
+            }
+            let index = refs[j];
+            let iv = object_interval(index, o, d, tmin, s.limit, margin);
+            if iv.hit {
+                s = walk_visit(query, index, iv.t0, iv.t1, o, d, k, improved, s);
+            }
         }
     }
-    return none;
+    return s;
 }
 
 // ---- mesh surfaces (SceneMeshes::surface) and textures (Texture::sample).
@@ -244,29 +273,12 @@ fn scene_closest_hit(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32) -> SceneH
     if mesh.hit {
         limit = mesh.t;
     }
-    var found = false;
-    var best_t = 0.0;
-    var best_object = 0u;
-    var steps = 0u;
-    var walk = object_walk();
-    loop {
-        let c = object_walk_next(&walk, o, d, tmin, limit, 0.0);
-        if !c.valid {
-            break;
-        }
-        let r = sdf_trace(objects[c.object].distance, o, d, c.t0, c.t1);
-        steps = steps + r.steps;
-        if r.hit {
-            found = true;
-            best_t = r.t;
-            best_object = c.object;
-            limit = r.t;
-        }
-    }
-    if found {
-        let tape = objects[best_object].distance;
-        let g = sdf_gradient(tape, o + d * best_t, normal_step(best_t));
-        return SceneHit(best_t, HIT_SDF, best_object, 0u, vec2<f32>(0.0), normalize_or_y(g), g, steps);
+    let w = sdf_walk(WALK_CLOSEST, o, d, tmin, limit, 0.0, 0.0, false, 0.0);
+    let steps = w.steps;
+    if w.found {
+        let tape = objects[w.object].distance;
+        let g = sdf_gradient(tape, o + d * w.t, normal_step(w.t));
+        return SceneHit(w.t, HIT_SDF, w.object, 0u, vec2<f32>(0.0), normalize_or_y(g), g, steps);
     }
     if mesh.hit {
         let s = mesh_surface(mesh.instance, mesh.triangle, mesh.u, mesh.v);
@@ -288,17 +300,7 @@ fn scene_occluded(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32) -> bool {
         return true;
     }
     let limit = min(tmax, globals.max_distance);
-    var walk = object_walk();
-    loop {
-        let c = object_walk_next(&walk, o, d, tmin, limit, 0.0);
-        if !c.valid {
-            break;
-        }
-        if sdf_trace(objects[c.object].distance, o, d, c.t0, c.t1).hit {
-            return true;
-        }
-    }
-    return false;
+    return sdf_walk(WALK_OCCLUDED, o, d, tmin, limit, 0.0, 0.0, false, 0.0).found;
 }
 
 // SceneTracer::visibility: 1 or 0 for hard shadows; for soft ones the smallest penumbra over
@@ -317,36 +319,19 @@ fn scene_visibility(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32, shadow_kin
         return 0.0;
     }
     let improved = shadow_kind == SHADOW_SOFT_IMPROVED;
-    var res = 1.0;
     let limit = min(tmax, globals.max_distance);
+    // k·h/t < 1 only where h < t/k ≤ limit/k: objects farther than that from the ray cannot
+    // darken it
     let margin = limit / k;
-    var walk = object_walk();
-    loop {
-        let c = object_walk_next(&walk, o, d, tmin, limit, margin);
-        if !c.valid {
-            break;
-        }
-        res = min(res, sdf_penumbra(objects[c.object].distance, o, d, c.t0, c.t1, k, improved));
-        if res <= 0.0 {
-            break;
-        }
-    }
+    let res = sdf_walk(WALK_PENUMBRA, o, d, tmin, limit, margin, k, improved, 1.0).value;
     return res * res * (3.0 - 2.0 * res);
 }
 
 // SceneTracer::distance: the minimum field over objects whose bounds grown by `reach`
 // contain p, clamped to reach.
 fn scene_distance(p: vec3<f32>, reach: f32) -> f32 {
-    var dist = reach;
-    var walk = object_walk();
-    loop {
-        let c = object_walk_next(&walk, p, vec3<f32>(0.0, 1.0, 0.0), 0.0, 0.0, reach);
-        if !c.valid {
-            break;
-        }
-        dist = min(dist, tape_eval(objects[c.object].distance, p));
-    }
-    return dist;
+    // a zero-length probe ray along +y, as the CPU's
+    return sdf_walk(WALK_DISTANCE, p, vec3<f32>(0.0, 1.0, 0.0), 0.0, 0.0, reach, 0.0, false, reach).value;
 }
 
 // SceneTracer::exit: where a ray that starts inside the solid of `hit` leaves it, with the

@@ -20,6 +20,8 @@ fn swizzle_lane(a: vec4<f32>, pattern: u32, i: u32) -> f32 {
 fn tape_run(tape: TapeRef, p: vec3<f32>, materials_on: bool) {
     let mask = MAX_REGISTERS - 1u;
     regs[0] = vec4<f32>(p, 0.0);
+    var out: vec4<f32>;
+    var write: bool;
     for (var i = 0u; i < tape.len; i = i + 1u) {
         let ins = instrs[tape.start + i];
         let a = regs[ins.a & mask];
@@ -30,8 +32,8 @@ fn tape_run(tape: TapeRef, p: vec3<f32>, materials_on: bool) {
             b = regs[ins.b & mask];
         }
         let c = regs[ins.c & mask];
-        var out = vec4<f32>(0.0);
-        var write = true;
+        out = vec4<f32>(0.0);
+        write = true;
         switch ins.op {
             case OP_CONST: { out = ins.imm; }
             case OP_ADD: { out = a + b; }

@@ -90,6 +90,7 @@ impl Kernel {
 
     /// Runs the kernel over items `0..count` in dispatches of at most `chunk` items, each
     /// submitted on its own, and waits for the last.
+    #[allow(clippy::too_many_arguments)]
     pub fn run(
         &self,
         ctx: &GpuContext,

@@ -475,7 +475,7 @@ impl GpuScene {
     /// Uploads a scene's buffers; fails when one exceeds the device's binding size limit.
     pub fn new(ctx: &GpuContext, data: &SceneData) -> Result<Self, GpuError> {
         let layout = scene_layout(ctx);
-        let limit = u64::from(ctx.limits().max_storage_buffer_binding_size);
+        let limit = ctx.limits().max_storage_buffer_binding_size;
         let mut buffers = Vec::new();
         let mut total = 0;
         for ((name, bytes), (_, kind, _)) in data.buffers().into_iter().zip(scene_bindings()) {
