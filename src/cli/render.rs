@@ -82,7 +82,7 @@ pub enum Backend {
 enum Chosen {
     Cpu,
     #[cfg(feature = "gpu")]
-    Gpu(hytrace::gpu::context::GpuContext),
+    Gpu(Box<hytrace::gpu::context::GpuContext>),
 }
 
 /// Picks the backend. `auto` says on one line which it took (unless `quiet`).
@@ -108,7 +108,7 @@ fn choose_backend(backend: Backend, quiet: bool, verbose: bool) -> Result<Chosen
             if verbose {
                 eprintln!("GPU adapter: {}", describe(&ctx));
             }
-            Ok(Chosen::Gpu(ctx))
+            Ok(Chosen::Gpu(Box::new(ctx)))
         }
         #[cfg(feature = "gpu")]
         Backend::Auto => match hytrace::gpu::context::GpuContext::new() {
@@ -117,7 +117,7 @@ fn choose_backend(backend: Backend, quiet: bool, verbose: bool) -> Result<Chosen
                     "backend auto: rendering on the GPU ({})",
                     describe(&ctx)
                 ));
-                Ok(Chosen::Gpu(ctx))
+                Ok(Chosen::Gpu(Box::new(ctx)))
             }
             Ok(ctx) => {
                 say(format!(
