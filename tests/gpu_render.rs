@@ -271,27 +271,8 @@ fn report(outcomes: &[Outcome]) {
     );
 }
 
-/// Scenes whose GPU picture does not match the CPU's yet (see
-/// `glass_renders_the_same_on_cpu_and_gpu`); compared by their own ignored test.
-const KNOWN_MISMATCHES: [&str; 1] = ["glass"];
-
 #[test]
 fn every_shipped_scene_renders_the_same_on_cpu_and_gpu() {
-    compare_shipped_scenes(|name| !KNOWN_MISMATCHES.contains(&name));
-}
-
-/// KNOWN FAILURE, not yet fixed: glass.ron's GPU picture differs from the CPU's at 4 spp
-/// (PSNR ≈ 26 dB; at 1 spp 320×240 only 92 pixels differ, PSNR 55 dB). The differences sit
-/// on the glass sphere's rim and the glass torus, where rays refract and reflect inside the
-/// solids (`scene_exit`, soft visibility); the core's probe test of those queries on glass.ron
-/// disagrees as well (tests/gpu_core.rs, `shading_queries_agree_with_the_cpu_on_glass`).
-#[test]
-#[ignore = "known GPU/CPU disagreement on glass.ron, see the doc comment"]
-fn glass_renders_the_same_on_cpu_and_gpu() {
-    compare_shipped_scenes(|name| KNOWN_MISMATCHES.contains(&name));
-}
-
-fn compare_shipped_scenes(include: impl Fn(&str) -> bool) {
     let gpu = gpu();
     println!("GPU adapter: {}", gpu.ctx.adapter_name());
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/scenes");
@@ -314,10 +295,6 @@ fn compare_shipped_scenes(include: impl Fn(&str) -> bool) {
             continue;
         }
         let name = path.file_stem().unwrap().to_string_lossy().into_owned();
-        if !include(&name) {
-            println!("{name}: compared by its own test (known mismatch)");
-            continue;
-        }
         let scene = Scene::load(path).unwrap_or_else(|e| panic!("{e}"));
         outcomes.push(compare_scene(&name, &scene, &gpu));
     }

@@ -226,34 +226,43 @@ impl GpuRenderer {
         let all = tiles_of(opts.width, opts.height, tile_side);
         let bar = progress_bar(opts.progress, all.len() as u64)?;
         let mut fb = Framebuffer::new(opts.width, opts.height);
+        let samples = opts.samples.max(1);
         for tile in all {
-            queue.write_buffer(
-                &tile_buffer,
-                0,
-                bytemuck::bytes_of(&RenderTile::new(opts, tile)),
-            );
             let bytes = (tile.w * tile.h) as u64 * pixel_bytes;
-            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("render tile"),
-            });
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("render tile"),
-                    timestamp_writes: None,
-                });
-                pass.set_pipeline(pipeline);
-                pass.set_bind_group(0, &gpu_scene.bind_group, &[]);
-                pass.set_bind_group(1, &render_bindings, &[]);
-                pass.dispatch_workgroups(
-                    tile.w.div_ceil(WORKGROUP_SIDE),
-                    tile.h.div_ceil(WORKGROUP_SIDE),
-                    1,
+            // One submission per sample: the tile uniform written before each submission is
+            // the one its dispatch reads.
+            for sample in 0..samples {
+                queue.write_buffer(
+                    &tile_buffer,
+                    0,
+                    bytemuck::bytes_of(&RenderTile::new(opts, tile, sample)),
                 );
+                let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("render tile sample"),
+                });
+                {
+                    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                        label: Some("render tile sample"),
+                        timestamp_writes: None,
+                    });
+                    pass.set_pipeline(pipeline);
+                    pass.set_bind_group(0, &gpu_scene.bind_group, &[]);
+                    pass.set_bind_group(1, &render_bindings, &[]);
+                    pass.dispatch_workgroups(
+                        tile.w.div_ceil(WORKGROUP_SIDE),
+                        tile.h.div_ceil(WORKGROUP_SIDE),
+                        1,
+                    );
+                }
+                if sample + 1 < samples {
+                    queue.submit([encoder.finish()]);
+                    continue;
+                }
+                encoder.copy_buffer_to_buffer(&output_buffer, 0, &readback_buffer, 0, bytes);
+                queue.submit([encoder.finish()]);
             }
-            encoder.copy_buffer_to_buffer(&output_buffer, 0, &readback_buffer, 0, bytes);
-            queue.submit([encoder.finish()]);
             let pixels = read_back(ctx, &readback_buffer, bytes)?;
-            store_tile(&mut fb, tile, &pixels);
+            store_tile(&mut fb, tile, &pixels, samples);
             bar.inc(1);
         }
         bar.finish_and_clear();
@@ -302,22 +311,24 @@ fn read_back(ctx: &GpuContext, buffer: &wgpu::Buffer, bytes: u64) -> Result<Vec<
     Ok(pixels)
 }
 
-/// Copies a tile's pixels into the framebuffer; a negative depth means every sample missed.
-fn store_tile(fb: &mut Framebuffer, tile: Tile, pixels: &[RenderPixel]) {
+/// Copies a tile's per-pixel sums over `samples` samples into the framebuffer as means (the
+/// division `Framebuffer::set` does); a negative depth means every sample missed.
+fn store_tile(fb: &mut Framebuffer, tile: Tile, pixels: &[RenderPixel], samples: u32) {
+    let n = samples as f32;
     for j in 0..tile.h {
         for i in 0..tile.w {
             let p = &pixels[(j * tile.w + i) as usize];
             let k = ((tile.y0 + j) * fb.width + tile.x0 + i) as usize;
-            fb.pixels[k] = Vec3::from_array(p.radiance);
+            fb.pixels[k] = Vec3::from_array(p.radiance) / n;
             fb.depth[k] = if p.depth < 0.0 {
                 f32::INFINITY
             } else {
                 p.depth
             };
-            fb.normal[k] = Vec3::from_array(p.normal);
-            fb.albedo[k] = Vec3::from_array(p.albedo);
-            fb.steps[k] = p.steps;
-            fb.gradient[k] = p.gradient;
+            fb.normal[k] = Vec3::from_array(p.normal) / n;
+            fb.albedo[k] = Vec3::from_array(p.albedo) / n;
+            fb.steps[k] = p.steps / n;
+            fb.gradient[k] = p.gradient / n;
         }
     }
 }

@@ -100,26 +100,26 @@ crate::gpu_struct! {
         pub w: u32,
         /// Tile height.
         pub h: u32,
-        /// Unused.
-        pub _pad0: u32,
+        /// The sample this dispatch adds (0 ..= samples − 1).
+        pub sample: u32,
     }
 }
 
 crate::gpu_struct! {
-    /// One rendered pixel as `Framebuffer::set` combines its samples; `depth` < 0 when every
-    /// sample missed.
+    /// One rendered pixel: the sums over its samples so far (the host divides them by the
+    /// count, as `Framebuffer::set` does) and the nearest depth, < 0 while every sample missed.
     pub struct RenderPixel (48) {
-        /// Mean linear radiance.
+        /// Sum of linear radiance.
         pub radiance: [f32; 3],
         /// Nearest first-hit distance, or −1.
         pub depth: f32,
-        /// Mean first-hit normal.
+        /// Sum of first-hit normals.
         pub normal: [f32; 3],
-        /// Mean sphere-tracing steps of the camera rays.
+        /// Sum of the camera rays' sphere-tracing steps.
         pub steps: f32,
-        /// Mean first-hit albedo.
+        /// Sum of first-hit albedos.
         pub albedo: [f32; 3],
-        /// Mean |∇f| at the first hits.
+        /// Sum of |∇f| at the first hits.
         pub gradient: f32,
     }
 }
@@ -230,8 +230,8 @@ impl ShadeLight {
 }
 
 impl RenderTile {
-    /// The tile `tile` of an image rendered with `opts`.
-    pub fn new(opts: &RenderOptions, tile: Tile) -> Self {
+    /// Sample `sample` of the tile `tile` of an image rendered with `opts`.
+    pub fn new(opts: &RenderOptions, tile: Tile, sample: u32) -> Self {
         RenderTile {
             width: opts.width,
             height: opts.height,
@@ -240,7 +240,7 @@ impl RenderTile {
             y0: tile.y0,
             w: tile.w,
             h: tile.h,
-            _pad0: 0,
+            sample,
         }
     }
 }
