@@ -53,9 +53,98 @@ pub struct RenderArgs {
     /// Normal estimator (overrides the scene).
     #[arg(long, value_enum)]
     normals: Option<hytrace::scene::file::NormalMethod>,
+    /// Where to render. `auto` (the default) uses a hardware GPU when wgpu finds one and
+    /// otherwise the CPU; it treats a software Vulkan driver such as Mesa's lavapipe
+    /// (llvmpipe) as no GPU, since it runs on the CPU and is slower than the CPU tracer.
+    /// `gpu` uses any adapter, lavapipe included, and fails when there is none.
+    #[arg(long, value_enum, default_value = "auto")]
+    backend: Backend,
+    /// Say more: the backend and GPU adapter used.
+    #[arg(short, long)]
+    verbose: bool,
     /// No progress bar.
     #[arg(short, long)]
     quiet: bool,
+}
+
+/// Which tracer renders the image.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Backend {
+    /// A hardware GPU if there is one, else the CPU.
+    Auto,
+    /// The CPU tracer.
+    Cpu,
+    /// The GPU tracer on any adapter (software ones included).
+    Gpu,
+}
+
+/// The tracer chosen for a render.
+enum Chosen {
+    Cpu,
+    #[cfg(feature = "gpu")]
+    Gpu(Box<hytrace::gpu::context::GpuContext>),
+}
+
+/// Picks the backend. `auto` says on one line which it took (unless `quiet`).
+fn choose_backend(backend: Backend, quiet: bool, verbose: bool) -> Result<Chosen> {
+    let say = |line: String| {
+        if !quiet || verbose {
+            eprintln!("{line}");
+        }
+    };
+    match backend {
+        Backend::Cpu => Ok(Chosen::Cpu),
+        #[cfg(not(feature = "gpu"))]
+        Backend::Gpu => bail!("--backend gpu: this hytrace was built without the `gpu` feature"),
+        #[cfg(not(feature = "gpu"))]
+        Backend::Auto => {
+            say("backend auto: built without the `gpu` feature; rendering on the CPU".into());
+            Ok(Chosen::Cpu)
+        }
+        #[cfg(feature = "gpu")]
+        Backend::Gpu => {
+            let ctx = hytrace::gpu::context::GpuContext::new()
+                .map_err(|e| anyhow::anyhow!("--backend gpu: no usable GPU adapter: {e}"))?;
+            if verbose {
+                eprintln!("GPU adapter: {}", describe(&ctx));
+            }
+            Ok(Chosen::Gpu(Box::new(ctx)))
+        }
+        #[cfg(feature = "gpu")]
+        Backend::Auto => match hytrace::gpu::context::GpuContext::new() {
+            Ok(ctx) if ctx.adapter_info().device_type != wgpu::DeviceType::Cpu => {
+                say(format!(
+                    "backend auto: rendering on the GPU ({})",
+                    describe(&ctx)
+                ));
+                Ok(Chosen::Gpu(Box::new(ctx)))
+            }
+            Ok(ctx) => {
+                say(format!(
+                    "backend auto: only a software GPU adapter ({}), rendering on the CPU \
+                     (--backend gpu uses it anyway)",
+                    describe(&ctx)
+                ));
+                Ok(Chosen::Cpu)
+            }
+            Err(e) => {
+                say(format!(
+                    "backend auto: no GPU adapter ({e}), rendering on the CPU"
+                ));
+                Ok(Chosen::Cpu)
+            }
+        },
+    }
+}
+
+/// The adapter's name, device type and driver API.
+#[cfg(feature = "gpu")]
+fn describe(ctx: &hytrace::gpu::context::GpuContext) -> String {
+    let info = ctx.adapter_info();
+    format!(
+        "{}, {:?} on {:?}",
+        info.name, info.device_type, info.backend
+    )
 }
 
 /// Renders and writes the image.
@@ -132,8 +221,13 @@ pub fn run(args: RenderArgs) -> Result<()> {
         threads: args.threads,
         progress: !args.quiet && std::io::stderr().is_terminal(),
     };
+    let backend = choose_backend(args.backend, args.quiet, args.verbose)?;
     let start = Instant::now();
-    let fb = cpu::render(&scene, &opts)?;
+    let (fb, used) = match &backend {
+        Chosen::Cpu => (cpu::render(&scene, &opts)?, "CPU"),
+        #[cfg(feature = "gpu")]
+        Chosen::Gpu(ctx) => (hytrace::gpu::render::render(&scene, &opts, ctx)?, "GPU"),
+    };
     let elapsed = start.elapsed();
     if exr {
         write_exr(&fb, &args.aov, &args.output)?;
@@ -143,12 +237,13 @@ pub fn run(args: RenderArgs) -> Result<()> {
     }
     if !args.quiet {
         eprintln!(
-            "{}: {}×{} px, {} spp, {} object(s), rendered in {:.3} s → {}",
+            "{}: {}×{} px, {} spp, {} object(s), rendered on the {} in {:.3} s → {}",
             scene.source_name,
             width,
             height,
             samples,
             scene.objects.len(),
+            used,
             elapsed.as_secs_f64(),
             args.output.display()
         );

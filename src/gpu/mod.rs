@@ -9,7 +9,9 @@ pub mod context;
 pub mod layout;
 pub mod query;
 pub mod records;
+pub mod render;
 pub mod scene;
+pub mod shade;
 pub mod shaders;
 
 pub use context::GpuContext;

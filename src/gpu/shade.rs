@@ -1,0 +1,246 @@
+//! Host-side packing of what the GPU shading and render kernels read: camera, lights, shading
+//! settings, the tile being rendered and the per-pixel result, as `#[repr(C)]` Pod structs whose
+//! WGSL twins (and the constants the shaders test against) are generated here.
+
+use crate::gpu::layout::WgslStruct;
+use crate::gpu::shaders::shadow_code;
+use crate::render::RenderOptions;
+use crate::render::Tile;
+use crate::scene::camera::{Camera, Projection};
+use crate::scene::{Light, MAX_BOUNCES, Scene, Shadow};
+use glam::Vec3;
+
+crate::gpu_struct! {
+    /// The camera (`scene::camera::Camera`): `scale` is tan(fov/2) for a pinhole camera and
+    /// the view height for an orthographic one.
+    pub struct ShadeCamera (64) {
+        /// Eye (perspective) or image-plane centre (orthographic).
+        pub position: [f32; 3],
+        /// [`PROJECTION_PERSPECTIVE`] or [`PROJECTION_ORTHOGRAPHIC`].
+        pub projection: u32,
+        /// Unit viewing direction.
+        pub forward: [f32; 3],
+        /// tan(fov_y / 2), or the orthographic view height.
+        pub scale: f32,
+        /// Unit right vector.
+        pub right: [f32; 3],
+        /// Unused.
+        pub _pad0: u32,
+        /// Unit up vector.
+        pub up: [f32; 3],
+        /// Unused.
+        pub _pad1: u32,
+    }
+}
+
+crate::gpu_struct! {
+    /// Scene-wide shading settings: background, bounce limit, shadows switch, ambient
+    /// occlusion (`ao_steps` = 0: off) and the light count (tracer ε is in `SceneGlobals`).
+    pub struct ShadeSettings (48) {
+        /// Background radiance.
+        pub background: [f32; 3],
+        /// Number of lights in the light buffer.
+        pub light_count: u32,
+        /// `shading.max_bounces`.
+        pub max_bounces: u32,
+        /// 1 when shadows are on.
+        pub shadows: u32,
+        /// Ambient-occlusion samples along the normal (0: no ambient occlusion).
+        pub ao_steps: u32,
+        /// Ambient-occlusion strength.
+        pub ao_strength: f32,
+        /// Spacing of the ambient-occlusion samples.
+        pub ao_step: f32,
+        /// Unused.
+        pub _pad0: u32,
+        /// Unused.
+        pub _pad1: u32,
+        /// Unused.
+        pub _pad2: u32,
+    }
+}
+
+crate::gpu_struct! {
+    /// One light: `vector` is the position of a point light and the travel direction of a
+    /// directional one; `shadow` and `shadow_k` are the `scene_visibility` arguments.
+    pub struct ShadeLight (48) {
+        /// Position (point) or unit travel direction (directional).
+        pub vector: [f32; 3],
+        /// [`LIGHT_POINT`], [`LIGHT_DIRECTIONAL`] or [`LIGHT_AMBIENT`].
+        pub kind: u32,
+        /// Colour × intensity.
+        pub radiance: [f32; 3],
+        /// Shadow kind, numbered as `scene_visibility` expects.
+        pub shadow: u32,
+        /// Soft-shadow sharpness k.
+        pub shadow_k: f32,
+        /// Unused.
+        pub _pad0: u32,
+        /// Unused.
+        pub _pad1: u32,
+        /// Unused.
+        pub _pad2: u32,
+    }
+}
+
+crate::gpu_struct! {
+    /// The image and the tile one dispatch renders.
+    pub struct RenderTile (32) {
+        /// Image width.
+        pub width: u32,
+        /// Image height.
+        pub height: u32,
+        /// Samples per pixel.
+        pub samples: u32,
+        /// Left column of the tile.
+        pub x0: u32,
+        /// Top row of the tile.
+        pub y0: u32,
+        /// Tile width.
+        pub w: u32,
+        /// Tile height.
+        pub h: u32,
+        /// The sample this dispatch adds (0 ..= samples − 1).
+        pub sample: u32,
+    }
+}
+
+crate::gpu_struct! {
+    /// One rendered pixel: the sums over its samples so far (the host divides them by the
+    /// count, as `Framebuffer::set` does) and the nearest depth, < 0 while every sample missed.
+    pub struct RenderPixel (48) {
+        /// Sum of linear radiance.
+        pub radiance: [f32; 3],
+        /// Nearest first-hit distance, or −1.
+        pub depth: f32,
+        /// Sum of first-hit normals.
+        pub normal: [f32; 3],
+        /// Sum of the camera rays' sphere-tracing steps.
+        pub steps: f32,
+        /// Sum of first-hit albedos.
+        pub albedo: [f32; 3],
+        /// Sum of |∇f| at the first hits.
+        pub gradient: f32,
+    }
+}
+
+/// `ShadeCamera::projection` of a pinhole camera.
+pub const PROJECTION_PERSPECTIVE: u32 = 0;
+/// `ShadeCamera::projection` of an orthographic camera.
+pub const PROJECTION_ORTHOGRAPHIC: u32 = 1;
+/// `ShadeLight::kind` of a point light.
+pub const LIGHT_POINT: u32 = 0;
+/// `ShadeLight::kind` of a directional light.
+pub const LIGHT_DIRECTIONAL: u32 = 1;
+/// `ShadeLight::kind` of an ambient light.
+pub const LIGHT_AMBIENT: u32 = 2;
+/// Capacity of the render kernel's path stack: max_bounces + 1 entries at most are pending
+/// (see `shade::integrator`), and one more keeps the bound obvious.
+pub const RENDER_STACK: u32 = MAX_BOUNCES + 2;
+
+/// The WGSL declarations of this module's structs and constants, generated from the Rust ones.
+pub fn wgsl_prelude() -> String {
+    let mut s =
+        String::from("// Generated from src/gpu/shade.rs by hytrace::gpu::shade::wgsl_prelude.\n");
+    for decl in [
+        ShadeCamera::wgsl(),
+        ShadeSettings::wgsl(),
+        ShadeLight::wgsl(),
+        RenderTile::wgsl(),
+        RenderPixel::wgsl(),
+    ] {
+        s += &decl;
+    }
+    for (name, value) in [
+        ("PROJECTION_PERSPECTIVE", PROJECTION_PERSPECTIVE),
+        ("PROJECTION_ORTHOGRAPHIC", PROJECTION_ORTHOGRAPHIC),
+        ("LIGHT_POINT", LIGHT_POINT),
+        ("LIGHT_DIRECTIONAL", LIGHT_DIRECTIONAL),
+        ("LIGHT_AMBIENT", LIGHT_AMBIENT),
+        ("MAX_BOUNCES", MAX_BOUNCES),
+        ("RENDER_STACK", RENDER_STACK),
+    ] {
+        s += &format!("const {name}: u32 = {value}u;\n");
+    }
+    s
+}
+
+impl ShadeCamera {
+    /// Packs a camera.
+    pub fn new(camera: &Camera) -> Self {
+        let (projection, scale) = match camera.projection {
+            Projection::Perspective { tan_half_fov } => (PROJECTION_PERSPECTIVE, tan_half_fov),
+            Projection::Orthographic { height } => (PROJECTION_ORTHOGRAPHIC, height),
+        };
+        ShadeCamera {
+            position: camera.position.to_array(),
+            projection,
+            forward: camera.forward.to_array(),
+            scale,
+            right: camera.right.to_array(),
+            up: camera.up.to_array(),
+            ..Default::default()
+        }
+    }
+}
+
+impl ShadeSettings {
+    /// Packs the scene's shading and tracer settings.
+    pub fn new(scene: &Scene) -> Self {
+        let ao = scene.shading.ambient_occlusion;
+        ShadeSettings {
+            background: scene.image.background.to_array(),
+            light_count: scene.lights.len() as u32,
+            max_bounces: scene.shading.max_bounces,
+            shadows: scene.tracer.shadows as u32,
+            ao_steps: ao.map_or(0, |a| a.steps),
+            ao_strength: ao.map_or(0.0, |a| a.strength),
+            ao_step: ao.map_or(0.0, |a| a.step),
+            ..Default::default()
+        }
+    }
+}
+
+impl ShadeLight {
+    /// Packs a light.
+    pub fn new(light: &Light) -> Self {
+        let (kind, vector, radiance, shadow) = match *light {
+            Light::Point {
+                position,
+                radiance,
+                shadow,
+            } => (LIGHT_POINT, position, radiance, shadow),
+            Light::Directional {
+                direction,
+                radiance,
+                shadow,
+            } => (LIGHT_DIRECTIONAL, direction, radiance, shadow),
+            Light::Ambient { radiance } => (LIGHT_AMBIENT, Vec3::ZERO, radiance, Shadow::None),
+        };
+        let (shadow, shadow_k) = shadow_code(shadow);
+        ShadeLight {
+            vector: vector.to_array(),
+            kind,
+            radiance: radiance.to_array(),
+            shadow,
+            shadow_k,
+            ..Default::default()
+        }
+    }
+}
+
+impl RenderTile {
+    /// Sample `sample` of the tile `tile` of an image rendered with `opts`.
+    pub fn new(opts: &RenderOptions, tile: Tile, sample: u32) -> Self {
+        RenderTile {
+            width: opts.width,
+            height: opts.height,
+            samples: opts.samples,
+            x0: tile.x0,
+            y0: tile.y0,
+            w: tile.w,
+            h: tile.h,
+            sample,
+        }
+    }
+}
