@@ -1,5 +1,7 @@
-//! Ground truth: closed-form ray intersections (and, behind the `embree` feature, Embree 4).
+//! Ground truth: closed-form ray intersections, meshes of SDF objects extracted by our own
+//! mesher, and (behind the `embree` feature) Embree 4 tracing both.
 pub mod analytic;
 #[cfg(feature = "embree")]
 pub mod embree;
+pub mod mesher;
 pub mod query;
