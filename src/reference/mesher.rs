@@ -69,13 +69,26 @@ pub const REFINE_BRACKET: f32 = 1e-3;
 /// Most field evaluations spent refining one vertex.
 pub const REFINE_MAX_STEPS: u32 = 24;
 
+/// Fewest cells across the thinnest side of the meshed region (within the triangle budget):
+/// with two cells across a slab, grid points fall inside it and its sign change is seen.
+pub const MIN_CELLS_ACROSS: f32 = 2.0;
+
+/// The thin-side rule raises the resolution at most this many times (the cost grows as its
+/// square).
+pub const MAX_RAISE: u32 = 4;
+
+/// Most cells along the longest side, whatever the thinnest side asks for.
+pub const MAX_RESOLUTION: u32 = 4096;
+
 /// Cells of padding around a bounded object's box, so the grid's outer corners are outside.
 const PAD_CELLS: f32 = 2.0;
 
 /// How to mesh.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MeshOptions {
-    /// Cells along the longest side of the meshed region.
+    /// Cells along the longest side of the meshed region; raised for thin regions so that
+    /// the thinnest side has [`MIN_CELLS_ACROSS`] cells (at most [`MAX_RAISE`] times, and
+    /// up to [`MAX_RESOLUTION`]).
     pub resolution: u32,
     /// Move each vertex onto the surface by a root search along its edge.
     pub refine: bool,
@@ -101,7 +114,8 @@ pub struct SdfMesh {
     pub positions: Vec<Vec3>,
     /// Triangles, counter-clockwise seen from outside the solid (where the field is positive).
     pub triangles: Vec<[u32; 3]>,
-    /// Cells along the longest side of the meshed region (after any budget reduction).
+    /// Cells along the longest side of the meshed region (after the thin-side rise and the
+    /// budget reduction).
     pub resolution: u32,
     /// Edge length h of a grid cell.
     pub cell: f32,
@@ -132,8 +146,31 @@ pub fn mesh_sdf(
     if options.resolution == 0 {
         return Err("mesh resolution 0: at least one cell is needed".into());
     }
+    let region = bounds.intersection(clip);
     let mut resolution = options.resolution;
     let mut total_evaluations = 0;
+    if !region.is_empty() {
+        // Thin objects (a ground slab) get at least MIN_CELLS_ACROSS cells across their
+        // thinnest side, so that they do not fall between grid points.
+        let size = region.max - region.min;
+        let (longest, thinnest) = (size.max_element(), size.min_element());
+        if thinnest > 0.0 {
+            let needed = (MIN_CELLS_ACROSS * longest / thinnest).ceil();
+            let cap = (MAX_RAISE * resolution).min(MAX_RESOLUTION);
+            resolution = resolution.max(needed.min(cap as f32) as u32);
+        }
+        // Predict the triangle count from a pass at a quarter of the resolution (a 16th
+        // of the cost), so that a mesh far over budget is not made in full first.
+        if resolution >= 4 * LEAF {
+            let coarse = mesh_at(tape, bounds, clip, resolution / 4, false);
+            total_evaluations += coarse.evaluations;
+            let predicted = 16.0 * coarse.triangles.len() as f64;
+            if predicted > options.max_triangles as f64 {
+                let scale = (0.9 * options.max_triangles as f64 / predicted).sqrt();
+                resolution = ((resolution as f64 * scale) as u32).max(LEAF);
+            }
+        }
+    }
     loop {
         let mut mesh = mesh_at(tape, bounds, clip, resolution, options.refine);
         total_evaluations += mesh.evaluations;
@@ -170,23 +207,24 @@ impl Grid {
 
 fn mesh_at(tape: &Tape, bounds: &Aabb, clip: &Aabb, resolution: u32, refine: bool) -> SdfMesh {
     let region = bounds.intersection(clip);
-    let empty = |region: Aabb| SdfMesh {
+    let empty = |region: Aabb, clipped: bool| SdfMesh {
         positions: Vec::new(),
         triangles: Vec::new(),
         resolution,
         cell: 0.0,
         tolerance: 0.0,
         region,
-        clipped: false,
+        clipped,
         evaluations: 0,
     };
     if region.is_empty() {
-        return empty(region);
+        // all of the object (if it has any extent) lies outside the clip box
+        return empty(region, !bounds.is_empty());
     }
     let size = region.max - region.min;
     let h = size.max_element() / resolution as f32;
     if !(h > 0.0 && h.is_finite()) {
-        return empty(region);
+        return empty(region, false);
     }
     // Pad by a few cells where the object's own bounds end, not past the clip box.
     let padded = region.expand(PAD_CELLS * h).intersection(clip);
