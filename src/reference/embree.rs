@@ -24,12 +24,14 @@
 //! * **Every other SDF object** (CSG, smooth operators, rounding, onion, non-uniform `Scale`,
 //!   domain operators, twist/bend, implicits, and the primitives without a closed-form
 //!   intersector: RoundBox, Octahedron, HexPrism, …) is meshed from its distance tape by
-//!   [`mesher`] and added as a world-space `RTC_GEOMETRY_TYPE_TRIANGLE` geometry; its
-//!   [`SdfCheck::Meshed`] states the resolution and the tolerance (every mesh point lies within
-//!   `tolerance` of the true surface). The normal returned is the triangle's outward face
-//!   normal. Unbounded meshed objects (infinite repetition) are meshed only inside a clip box
-//!   ([`ReferenceOptions::mesh_clip`]); the mesh is open at the box's faces, so it adds no
-//!   walls, and [`EmbreeScene::mesh_region`] tells a comparison where the mesh stands for the
+//!   [`mesher`] (marching cubes, vertices refined onto the surface) into a world-space triangle
+//!   geometry, in a scene of its own of MEDIUM build quality instanced with the identity; its
+//!   [`SdfCheck::Meshed`] states the resolution and the tolerance: every mesh point lies within
+//!   `tolerance` = h·(1 + w) of the true surface, h the cell size and w ≤ 10⁻³ the widest root
+//!   bracket of the vertex refinement (see [`mesher`] for why). The normal returned is the
+//!   triangle's outward face normal. Unbounded meshed objects (infinite repetition) are meshed
+//!   only inside a clip box ([`ReferenceOptions::mesh_clip`]); the mesh is open at the box's
+//!   faces, so it adds no walls, and [`EmbreeScene::mesh_region`] tells a comparison where the mesh stands for the
 //!   object: a ray whose true hit on such an object lies outside that box has no counterpart
 //!   in Embree and must be left out of a comparison.
 //! * An object is [`SdfCheck::Skipped`] only if the mesher refuses it (bounds that are NaN),
@@ -48,6 +50,7 @@ use embree4_sys::{
     RTCIntersectFunctionNArguments, RTCOccludedFunctionNArguments, RTCRay, RTCRayHit, RTCScene,
 };
 use glam::{Affine3A, DAffine3, DMat3, DVec3, Mat3A, Vec3};
+use rayon::prelude::*;
 use std::ffi::c_void;
 use std::ptr;
 
@@ -539,8 +542,8 @@ pub struct ReferenceOptions {
     /// resolution (and a larger tolerance).
     pub mesh_max_triangles: usize,
     /// The box unbounded meshed objects are clipped to; `None`: the bounds of every finite
-    /// SDF object, every mesh instance and the camera, grown by a tenth of their diagonal
-    /// (at least one unit) on every side.
+    /// SDF object, every mesh instance, the camera and the finite axes of partly unbounded
+    /// objects, grown by a tenth of their diagonal (at least one unit) on every side.
     pub mesh_clip: Option<Aabb>,
 }
 
@@ -688,22 +691,39 @@ impl EmbreeScene {
         let mut checks = Vec::with_capacity(scene.objects.len());
         let mut sdf_face_normals = vec![Vec::new(); scene.objects.len()];
         let mut mesh_regions = vec![None; scene.objects.len()];
+        // Mesh every object without a closed form, in parallel over objects as well as over
+        // each object's octree leaves (the descent and the welding of one object are serial).
+        let mut meshes: Vec<Option<Result<SdfMesh, String>>> = scene
+            .objects
+            .par_iter()
+            .map(|object| {
+                analytic_form(&object.node).is_err().then(|| {
+                    mesher::mesh_sdf(
+                        &object.lowered.distance,
+                        &object.bounds(),
+                        &mesh_clip,
+                        &mesh_options,
+                    )
+                })
+            })
+            .collect();
         for (i, object) in scene.objects.iter().enumerate() {
             let (m, primitive) = match analytic_form(&object.node) {
                 Ok(x) => x,
                 Err(_) => {
-                    let tape = &object.lowered.distance;
-                    let mesh =
-                        match mesher::mesh_sdf(tape, &object.bounds(), &mesh_clip, &mesh_options) {
-                            Ok(mesh) => mesh,
-                            Err(why) => {
-                                checks.push(SdfCheck::Skipped(format!(
-                                    "object {i} ({}) cannot be meshed: {why}",
-                                    object.name
-                                )));
-                                continue;
-                            }
-                        };
+                    let meshed = meshes[i]
+                        .take()
+                        .expect("every object without a closed form was meshed");
+                    let mesh = match meshed {
+                        Ok(mesh) => mesh,
+                        Err(why) => {
+                            checks.push(SdfCheck::Skipped(format!(
+                                "object {i} ({}) cannot be meshed: {why}",
+                                object.name
+                            )));
+                            continue;
+                        }
+                    };
                     if !mesh.triangles.is_empty() {
                         // Its own scene of MEDIUM build quality, instanced with the identity:
                         // the top-level scene's HIGH quality (spatial splits) would cost
