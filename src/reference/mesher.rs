@@ -361,13 +361,15 @@ struct LeafMesh {
 
 const LP: usize = LEAF as usize + 1;
 
-/// Corner `c` of a cube (bit 0 = +x, bit 1 = +y, bit 2 = +z).
+/// Corner `c` of a cube (bit 0 = +x, bit 1 = +y, bit 2 = +z): the numbering of [`EDGES`] and
+/// of the case table's corner bits.
 fn corner_offset(c: usize) -> [u32; 3] {
     [(c & 1) as u32, ((c >> 1) & 1) as u32, ((c >> 2) & 1) as u32]
 }
 
-/// The 12 cube edges as (corner, corner); the first corner is the lower one along the axis.
-const EDGES: [(usize, usize); 12] = [
+/// The 12 cube edges as (corner, corner), corners numbered by their bits (bit 0 = +x, bit 1 =
+/// +y, bit 2 = +z): edges 0–3 run along x, 4–7 along y, 8–11 along z, from the lower corner.
+pub const EDGES: [(usize, usize); 12] = [
     (0, 1),
     (2, 3),
     (4, 5),
