@@ -819,6 +819,53 @@ mod tests {
         }
     }
 
+    /// On a bound field (not an exact distance) linear interpolation misplaces vertices by a
+    /// sizeable fraction of a cell; refinement moves them onto the surface. Both meshes share
+    /// the grid, so their vertices correspond one to one (sorted by edge key).
+    #[test]
+    fn refinement_moves_vertices_of_bound_fields_onto_the_surface() {
+        for src in [
+            "Implicit(expr: \"0.5 - exp(-6*((x - 0.5)^2 + y^2 + z^2)) - exp(-6*((x + 0.5)^2 + \
+             y^2 + z^2)) - exp(-6*(x^2 + (y - 0.55)^2 + z^2))\", half_extents: (1.2, 1.1, 0.8))",
+            "SmoothUnion(k: 0.5, shapes: [Box(half_extents: (0.7, 0.25, 0.7)), \
+             Transform(translate: (0, 0.7, 0), shape: Sphere(radius: 0.45))])",
+        ] {
+            let (tape, bounds) = tape_of(src);
+            let mesh = |refine| {
+                let options = MeshOptions {
+                    resolution: 64,
+                    refine,
+                    ..MeshOptions::default()
+                };
+                mesh_sdf(&tape, &bounds, &bounds.expand(1.0), &options).unwrap()
+            };
+            let (linear, refined) = (mesh(false), mesh(true));
+            assert_eq!(linear.triangles, refined.triangles);
+            let moved = linear
+                .positions
+                .iter()
+                .zip(&refined.positions)
+                .map(|(a, b)| (*a - *b).length())
+                .fold(0f32, f32::max);
+            let residual = |m: &SdfMesh| {
+                m.positions
+                    .iter()
+                    .map(|p| tape.eval(*p).abs())
+                    .fold(0f32, f32::max)
+            };
+            println!(
+                "{}…: refinement moves vertices by up to {:.3} cells; max |f| at vertices \
+                 {:.2e} interpolated, {:.2e} refined",
+                &src[..20],
+                moved / refined.cell,
+                residual(&linear),
+                residual(&refined)
+            );
+            assert!(moved > 10.0 * REFINE_BRACKET * refined.cell, "{moved}");
+            assert!(residual(&refined) < 0.1 * residual(&linear));
+        }
+    }
+
     /// An infinite slab clipped to a box is meshed inside the box only, open at its faces:
     /// no walls where the box cuts it.
     #[test]
