@@ -701,7 +701,16 @@ where
                 (Some(x), Some(y)) => {
                     let tol = tolerance(y, ray);
                     let dt = (x.t - y.t).abs();
-                    if x.object != y.object && dt > tol {
+                    if dt > tol && x.t < y.t && near(&ref_occ, x, ray) {
+                        // Our hit lies within the band of the referee's surface, which the
+                        // ray passes by: a sphere tracer's near miss at a silhouette (it stops
+                        // wherever the ray comes within ε(t) of a surface), then the referee
+                        // meets the same or another surface farther on.
+                        Outcome::Disagree {
+                            kind: kind_of(x.object),
+                            in_band: true,
+                        }
+                    } else if x.object != y.object && dt > tol {
                         // Different surfaces: a hit/miss disagreement on the nearer one.
                         if x.t < y.t {
                             only_ours(kind_of(x.object), || {
@@ -1076,7 +1085,7 @@ mod tests {
     fn scene() -> Scene {
         let src = "Scene(
             camera: Perspective(position: (0, 1, 6), look_at: (0, 0, 0), fov: 40),
-            lights: [Point(position: (3, 5, 4), intensity: 10), Directional(direction: (0, -1, 0))],
+            lights: [Point(position: (3, 5, 4), intensity: 10), Directional(direction: (0, -1, 0), intensity: 1)],
             objects: [
                 (shape: Sphere(radius: 1)),
                 (shape: Box(half_extents: (0.5, 0.5, 0.5)), translate: (2.2, 0, 0)),
