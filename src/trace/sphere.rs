@@ -1,6 +1,7 @@
 //! Hart's sphere tracing (J. C. Hart, "Sphere tracing: a geometric method for the antialiased
 //! ray tracing of implicit surfaces", The Visual Computer 12, 1996, §2).
 
+use super::crossing::{self, Candidate};
 use super::epsilon_at;
 use crate::geom::Ray;
 use crate::scene::TracerSettings;
@@ -17,8 +18,9 @@ pub struct TraceResult {
 
 /// Marches from t0 towards t1 by the field value: the field is 1-Lipschitz (every node of the
 /// lowered tape is step-corrected), so an unbounding sphere of radius f(p) around p contains no
-/// surface and the step never skips one (Hart 1996, Theorem 1). Stops with a hit when
-/// f < ε(t), with a miss past t1 or after `max_steps` evaluations.
+/// surface and the step never skips one (Hart 1996, Theorem 1). Where f < ε(t) the candidate
+/// is confirmed by a sign change and placed at the crossing ([`crossing::confirm`]); a miss
+/// past t1 or after `max_steps` evaluations.
 pub fn trace(
     tape: &Tape,
     ray: &Ray,
@@ -33,9 +35,13 @@ pub fn trace(
         let d = tape.eval_in(ray.at(t), regs);
         steps += 1;
         if d < epsilon_at(s, t) {
-            return TraceResult { t: Some(t), steps };
+            match crossing::confirm(tape, ray, t, d, t1, s, regs, &mut steps) {
+                Candidate::Hit(t) => return TraceResult { t: Some(t), steps },
+                Candidate::Continue(next) => t = next,
+            }
+        } else {
+            t += d;
         }
-        t += d;
         if t > t1 {
             break;
         }
