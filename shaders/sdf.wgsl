@@ -6,14 +6,71 @@ fn epsilon_at(t: f32) -> f32 {
     return globals.epsilon + globals.epsilon_per_unit * max(t, 0.0);
 }
 
+// trace::crossing::confirm: a candidate where f < ε(t) is a hit only where the ray crosses the
+// surface (Kalra & Barr 1989: a sign change, narrowed by bisection); otherwise the march goes on.
+struct Candidate {
+    hit: bool,
+    t: f32,
+}
+
+const MAX_BISECTIONS: u32 = 24u;
+
+// crossing::bisect: narrows (outside: f > 0, inside: f ≤ 0) to ε/2, returns the outside end.
+fn sdf_bisect(tape: TapeRef, o: vec3<f32>, d: vec3<f32>, outside_in: f32, inside_in: f32, steps: ptr<function, u32>) -> f32 {
+    var outside = outside_in;
+    var inside = inside_in;
+    for (var i = 0u; i < MAX_BISECTIONS; i = i + 1u) {
+        if inside - outside <= 0.5 * epsilon_at(outside) {
+            break;
+        }
+        let mid = 0.5 * (outside + inside);
+        let f = tape_eval(tape, o + d * mid);
+        *steps = *steps + 1u;
+        if f <= 0.0 {
+            inside = mid;
+        } else {
+            outside = mid;
+        }
+    }
+    return outside;
+}
+
+fn sdf_confirm(tape: TapeRef, o: vec3<f32>, d: vec3<f32>, t: f32, f: f32, t1: f32, steps: ptr<function, u32>) -> Candidate {
+    if f <= 0.0 {
+        return Candidate(true, t);
+    }
+    let eps = epsilon_at(t);
+    let ts = min(t + eps, t1);
+    if ts <= t {
+        return Candidate(false, t + eps);
+    }
+    let fs = tape_eval(tape, o + d * ts);
+    *steps = *steps + 1u;
+    if fs <= 0.0 {
+        return Candidate(true, sdf_bisect(tape, o, d, t, ts, steps));
+    }
+    let slope = (fs - f) / (ts - t);
+    if slope < 0.0 {
+        let tp = min(ts + fs / -slope + eps, t1);
+        if tp > ts {
+            let fp = tape_eval(tape, o + d * tp);
+            *steps = *steps + 1u;
+            if fp <= 0.0 {
+                return Candidate(true, sdf_bisect(tape, o, d, ts, tp, steps));
+            }
+        }
+    }
+    return Candidate(false, ts + max(fs, eps));
+}
+
 struct TraceResult {
     hit: bool,
     t: f32,
     steps: u32,
 }
 
-// sphere::trace: march from t0 by the field value; a hit where f < ε(t), a miss past t1 or
-// after max_steps evaluations.
+// sphere::trace_hart: march from t0 by the field value; where f < ε(t) the candidate is
+// confirmed by crossing::confirm (below); a miss past t1 or after max_steps evaluations.
 fn sdf_trace(tape: TapeRef, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> TraceResult {
     var t = t0;
     var steps = 0u;
@@ -21,9 +78,14 @@ fn sdf_trace(tape: TapeRef, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> Tra
         let f = tape_eval(tape, o + d * t);
         steps = steps + 1u;
         if f < epsilon_at(t) {
-            return TraceResult(true, t, steps);
+            let c = sdf_confirm(tape, o, d, t, f, t1, &steps);
+            if c.hit {
+                return TraceResult(true, c.t, steps);
+            }
+            t = c.t;
+        } else {
+            t = t + f;
         }
-        t = t + f;
         if t > t1 {
             break;
         }

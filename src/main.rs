@@ -1,5 +1,5 @@
-//! The `hytrace` command line: render scenes, draw 2D slices of their distance fields (and, as
-//! the project grows, validate and compare).
+//! The `hytrace` command line: render scenes, draw 2D slices of their distance fields, and
+//! validate and compare our tracer against Embree 4.
 
 mod cli;
 
@@ -29,6 +29,12 @@ enum Command {
     Slice(cli::slice::SliceArgs),
     /// Benchmark: meshes against Embree, SDF steppers, scaling (Markdown tables, --json).
     Bench(cli::bench::BenchArgs),
+    /// Compare our tracer with Embree 4 ray by ray (hit/miss, |Δt|, shadow rays) against the
+    /// thresholds of issue #5; exit status 1 when one fails (needs the `embree` feature).
+    Validate(cli::validate::ValidateArgs),
+    /// Render a scene with our CPU tracer and with our shading over Embree's hits; write both,
+    /// a side-by-side sheet, a difference heatmap and PSNR/SSIM (needs the `embree` feature).
+    Compare(cli::compare::CompareArgs),
     /// Write a generated test scene of N small SDF objects (for scaling tests and benchmarks).
     Generate {
         /// Number of objects.
@@ -47,6 +53,8 @@ fn main() {
         Some(Command::Slice(args)) => cli::slice::run(args),
         Some(Command::Info(args)) => cli::info::run(args),
         Some(Command::Bench(args)) => cli::bench::run(args),
+        Some(Command::Validate(args)) => cli::validate::run(args),
+        Some(Command::Compare(args)) => cli::compare::run(args),
         Some(Command::Generate { objects, output }) => generate(objects, output.as_deref()),
         None => cli::render::run(cli::render::RenderArgs::parse_from(["render"])),
     };

@@ -21,23 +21,36 @@
 //!   bounds of every finite object, every mesh instance and the camera position, grown by twice
 //!   the tracer's `max_distance` on every side. Every ray that starts in the scene's bounds and
 //!   stops at `max_distance` (as the CPU tracer's rays do) sees the same plane as the tracer.
-//! * Everything else (CSG, smooth operators, rounding, onion, non-uniform `Scale`, domain
-//!   operators, implicits, and the primitives without a closed-form intersector: RoundBox,
-//!   Octahedron, HexPrism) is **not** put into the Embree scene; [`EmbreeScene::skipped`] lists
-//!   each such object with the reason.
+//! * **Every other SDF object** (CSG, smooth operators, rounding, onion, non-uniform `Scale`,
+//!   domain operators, twist/bend, implicits, and the primitives without a closed-form
+//!   intersector: RoundBox, Octahedron, HexPrism, …) is meshed from its distance tape by
+//!   [`mesher`] (marching cubes, vertices refined onto the surface) into a world-space triangle
+//!   geometry, in a scene of its own of MEDIUM build quality instanced with the identity; its
+//!   [`SdfCheck::Meshed`] states the resolution and the tolerance: every mesh point lies within
+//!   `tolerance` = h·(1 + w) of the true surface, h the cell size and w ≤ 10⁻³ the widest root
+//!   bracket of the vertex refinement (see [`mesher`] for why). The normal returned is the
+//!   triangle's outward face normal. Unbounded meshed objects (infinite repetition) are meshed
+//!   only inside a clip box ([`ReferenceOptions::mesh_clip`]); the mesh is open at the box's
+//!   faces, so it adds no walls, and [`EmbreeScene::mesh_region`] tells a comparison where the mesh stands for the
+//!   object: a ray whose true hit on such an object lies outside that box has no counterpart
+//!   in Embree and must be left out of a comparison.
+//! * An object is [`SdfCheck::Skipped`] only if the mesher refuses it (bounds that are NaN),
+//!   with the reason.
 
 use super::analytic::{self, AnalyticHit};
+use super::mesher::{self, MeshOptions, SdfMesh};
 use super::query::{ObjectId, QueryHit, RayQuery};
 use crate::geom::{Aabb, Ray};
 use crate::scene::Scene;
 use crate::sdf::SdfNode;
 use crate::sdf::lower::transform_of;
 use embree4_sys::{
-    RTC_INVALID_GEOMETRY_ID, RTCBounds, RTCBoundsFunctionArguments, RTCBufferType, RTCBuildQuality,
+    RTC_INVALID_GEOMETRY_ID, RTCBounds, RTCBoundsFunctionArguments, RTCBufferType, RTCBuildQuality, RTCSceneFlags,
     RTCDevice, RTCError, RTCFormat, RTCGeometry, RTCGeometryType, RTCHit,
     RTCIntersectFunctionNArguments, RTCOccludedFunctionNArguments, RTCRay, RTCRayHit, RTCScene,
 };
 use glam::{Affine3A, DAffine3, DMat3, DVec3, Mat3A, Vec3};
+use rayon::prelude::*;
 use std::ffi::c_void;
 use std::ptr;
 
@@ -78,13 +91,23 @@ struct SceneHandle(RTCScene);
 
 impl SceneHandle {
     fn new(device: &Device) -> Result<Self, String> {
+        Self::with_quality(device, RTCBuildQuality::HIGH)
+    }
+
+    fn with_quality(device: &Device, quality: RTCBuildQuality) -> Result<Self, String> {
         // SAFETY: the device is alive.
         let s = unsafe { embree4_sys::rtcNewScene(device.0) };
         if s.is_null() {
             return Err("rtcNewScene failed".into());
         }
         // SAFETY: a fresh scene.
-        unsafe { embree4_sys::rtcSetSceneBuildQuality(s, RTCBuildQuality::HIGH) };
+        unsafe {
+            embree4_sys::rtcSetSceneBuildQuality(s, quality);
+            // A referee must be watertight: Embree's default triangle test lets rays through
+            // shared edges (seen on ReciprocatingSaw: hits 2.6 units behind an edge our
+            // watertight test catches); ROBUST mode makes its traversal and test watertight.
+            embree4_sys::rtcSetSceneFlags(s, RTCSceneFlags::ROBUST);
+        }
         Ok(SceneHandle(s))
     }
 
@@ -371,8 +394,7 @@ fn analytic_form(node: &SdfNode) -> Result<(Affine3A, Primitive), String> {
             let dbg = format!("{other:?}");
             let name: String = dbg.chars().take_while(|c| c.is_alphanumeric()).collect();
             return Err(format!(
-                "{name} is not an analytic primitive under rigid/uniform-scale transforms \
-                 (not supported by the Embree reference yet)"
+                "{name} is not an analytic primitive under rigid/uniform-scale transforms"
             ));
         }
     };
@@ -401,7 +423,87 @@ fn rtc_bounds(lo: Vec3, hi: Vec3) -> RTCBounds {
     }
 }
 
-/// A scene's meshes and analytic SDF objects as a committed Embree 4 scene.
+/// A committed Embree triangle geometry of `positions` and `triangles`.
+fn triangle_geometry(
+    device: &Device,
+    positions: &[Vec3],
+    triangles: &[[u32; 3]],
+) -> Result<Geometry, String> {
+    let g = Geometry::new(device, RTCGeometryType::TRIANGLE)?;
+    // SAFETY: each buffer is the one Embree just allocated with the size asked for.
+    unsafe {
+        let v = embree4_sys::rtcSetNewGeometryBuffer(
+            g.0,
+            RTCBufferType::VERTEX,
+            0,
+            RTCFormat::FLOAT3,
+            3 * size_of::<f32>(),
+            positions.len(),
+        ) as *mut f32;
+        if v.is_null() {
+            return Err("vertex buffer allocation failed".into());
+        }
+        for (i, p) in positions.iter().enumerate() {
+            v.add(3 * i)
+                .copy_from_nonoverlapping(p.to_array().as_ptr(), 3);
+        }
+        let ix = embree4_sys::rtcSetNewGeometryBuffer(
+            g.0,
+            RTCBufferType::INDEX,
+            0,
+            RTCFormat::UINT3,
+            3 * size_of::<u32>(),
+            triangles.len(),
+        ) as *mut u32;
+        if ix.is_null() {
+            return Err("index buffer allocation failed".into());
+        }
+        for (i, t) in triangles.iter().enumerate() {
+            ix.add(3 * i).copy_from_nonoverlapping(t.as_ptr(), 3);
+        }
+    }
+    g.commit();
+    device.check("building a triangle geometry")?;
+    Ok(g)
+}
+
+/// A committed instance of the committed scene `scene` under the object → world map `m`. The
+/// scene must outlive every scene the instance is attached to.
+fn instance(device: &Device, scene: &SceneHandle, m: &Affine3A) -> Result<Geometry, String> {
+    let g = Geometry::new(device, RTCGeometryType::INSTANCE)?;
+    let mut cols = [0f32; 12];
+    cols[0..3].copy_from_slice(&m.matrix3.x_axis.to_array());
+    cols[3..6].copy_from_slice(&m.matrix3.y_axis.to_array());
+    cols[6..9].copy_from_slice(&m.matrix3.z_axis.to_array());
+    cols[9..12].copy_from_slice(&m.translation.to_array());
+    // SAFETY: the instanced scene is committed and, as the caller ensures, outlives the
+    // top-level scene (field order); the matrix is 12 floats in the format named.
+    unsafe {
+        embree4_sys::rtcSetGeometryInstancedScene(g.0, scene.0);
+        embree4_sys::rtcSetGeometryTransform(
+            g.0,
+            0,
+            RTCFormat::FLOAT3X4_COLUMN_MAJOR,
+            cols.as_ptr() as *const c_void,
+        );
+    }
+    g.commit();
+    Ok(g)
+}
+
+/// The outward unit normal of each triangle of an SDF mesh (counter-clockwise seen from
+/// outside).
+fn face_normals_of(mesh: &SdfMesh) -> Vec<Vec3> {
+    mesh.triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+            (b - a).cross(c - a).normalize_or_zero()
+        })
+        .collect()
+}
+
+/// A scene's meshes and SDF objects (closed-form or meshed) as a committed Embree 4 scene.
 pub struct EmbreeScene {
     // Field order is drop order: the top-level scene goes first (it references the mesh scenes
     // and the user data), the device last.
@@ -417,9 +519,54 @@ pub struct EmbreeScene {
     face_normals: Vec<Vec<Vec3>>,
     /// Per instance: (mesh, normal matrix).
     instances: Vec<(usize, Mat3A)>,
+    /// Per SDF object: the outward unit normal of each triangle of its mesh (empty unless
+    /// meshed).
+    sdf_face_normals: Vec<Vec<Vec3>>,
+    /// Per SDF object: the box its mesh covers, if meshed.
+    mesh_regions: Vec<Option<MeshRegion>>,
     /// How each SDF object (index into `Scene::objects`) is represented in the Embree scene.
     pub checks: Vec<SdfCheck>,
 }
+
+/// Where a meshed SDF object's mesh stands for its surface.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeshRegion {
+    /// The box the mesher's grid covers.
+    pub bounds: Aabb,
+    /// Whether the object's surface extends outside `bounds` (an unbounded object clipped):
+    /// hits of the true surface outside `bounds` have no counterpart in the Embree scene.
+    pub clipped: bool,
+}
+
+/// How the referee is built.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReferenceOptions {
+    /// Grid cells along the longest side of each meshed object's box; the tolerance of a mesh
+    /// is about one cell.
+    pub mesh_resolution: u32,
+    /// Most triangles per meshed object: above it the object is meshed again at a lower
+    /// resolution (and a larger tolerance).
+    pub mesh_max_triangles: usize,
+    /// The box unbounded meshed objects are clipped to; `None`: the bounds of every finite
+    /// SDF object, every mesh instance, the camera and the finite axes of partly unbounded
+    /// objects, grown by a tenth of their diagonal (at least one unit) on every side.
+    pub mesh_clip: Option<Aabb>,
+}
+
+impl Default for ReferenceOptions {
+    fn default() -> Self {
+        ReferenceOptions {
+            mesh_resolution: DEFAULT_MESH_RESOLUTION,
+            mesh_max_triangles: DEFAULT_MESH_MAX_TRIANGLES,
+            mesh_clip: None,
+        }
+    }
+}
+
+/// Default [`ReferenceOptions::mesh_resolution`].
+pub const DEFAULT_MESH_RESOLUTION: u32 = 128;
+/// Default [`ReferenceOptions::mesh_max_triangles`].
+pub const DEFAULT_MESH_MAX_TRIANGLES: usize = 1_000_000;
 
 /// How the referee represents one SDF object.
 #[derive(Debug, Clone, PartialEq)]
@@ -443,6 +590,11 @@ pub enum SdfCheck {
 }
 
 impl EmbreeScene {
+    /// The box the mesh of SDF object `object` covers, if it was meshed.
+    pub fn mesh_region(&self, object: usize) -> Option<MeshRegion> {
+        self.mesh_regions.get(object).copied().flatten()
+    }
+
     /// SDF objects left out of the Embree scene: (index into `Scene::objects`, why).
     pub fn skipped(&self) -> Vec<(usize, &str)> {
         self.checks
@@ -463,8 +615,14 @@ unsafe impl Send for EmbreeScene {}
 unsafe impl Sync for EmbreeScene {}
 
 impl EmbreeScene {
-    /// Builds (and commits, build quality HIGH) the Embree scene of `scene`.
+    /// Builds (and commits, build quality HIGH) the Embree scene of `scene` with the default
+    /// [`ReferenceOptions`].
     pub fn build(scene: &Scene) -> Result<EmbreeScene, String> {
+        Self::build_with(scene, &ReferenceOptions::default())
+    }
+
+    /// Builds (and commits, build quality HIGH) the Embree scene of `scene`.
+    pub fn build_with(scene: &Scene, options: &ReferenceOptions) -> Result<EmbreeScene, String> {
         let device = Device::new()?;
         let top = SceneHandle::new(&device)?;
         let mut ids: Vec<Option<ObjectId>> = Vec::new();
@@ -482,40 +640,7 @@ impl EmbreeScene {
         for mesh in &meshes.meshes {
             let s = SceneHandle::new(&device)?;
             if !mesh.triangles.is_empty() {
-                let g = Geometry::new(&device, RTCGeometryType::TRIANGLE)?;
-                // SAFETY: each buffer is the one Embree just allocated with the size asked for.
-                unsafe {
-                    let v = embree4_sys::rtcSetNewGeometryBuffer(
-                        g.0,
-                        RTCBufferType::VERTEX,
-                        0,
-                        RTCFormat::FLOAT3,
-                        3 * size_of::<f32>(),
-                        mesh.positions.len(),
-                    ) as *mut f32;
-                    if v.is_null() {
-                        return Err("vertex buffer allocation failed".into());
-                    }
-                    for (i, p) in mesh.positions.iter().enumerate() {
-                        v.add(3 * i)
-                            .copy_from_nonoverlapping(p.to_array().as_ptr(), 3);
-                    }
-                    let ix = embree4_sys::rtcSetNewGeometryBuffer(
-                        g.0,
-                        RTCBufferType::INDEX,
-                        0,
-                        RTCFormat::UINT3,
-                        3 * size_of::<u32>(),
-                        mesh.triangles.len(),
-                    ) as *mut u32;
-                    if ix.is_null() {
-                        return Err("index buffer allocation failed".into());
-                    }
-                    for (i, t) in mesh.triangles.iter().enumerate() {
-                        ix.add(3 * i).copy_from_nonoverlapping(t.as_ptr(), 3);
-                    }
-                }
-                g.commit();
+                let g = triangle_geometry(&device, &mesh.positions, &mesh.triangles)?;
                 s.attach(&g);
             }
             s.commit();
@@ -537,25 +662,7 @@ impl EmbreeScene {
             .collect();
         let mut instances = Vec::with_capacity(meshes.instances.len());
         for (k, inst) in meshes.instances.iter().enumerate() {
-            let g = Geometry::new(&device, RTCGeometryType::INSTANCE)?;
-            let m = &inst.transform;
-            let mut cols = [0f32; 12];
-            cols[0..3].copy_from_slice(&m.matrix3.x_axis.to_array());
-            cols[3..6].copy_from_slice(&m.matrix3.y_axis.to_array());
-            cols[6..9].copy_from_slice(&m.matrix3.z_axis.to_array());
-            cols[9..12].copy_from_slice(&m.translation.to_array());
-            // SAFETY: the instanced scene is committed and outlives the top-level scene (field
-            // order); the matrix is 12 floats in the format named.
-            unsafe {
-                embree4_sys::rtcSetGeometryInstancedScene(g.0, mesh_scenes[inst.mesh].0);
-                embree4_sys::rtcSetGeometryTransform(
-                    g.0,
-                    0,
-                    RTCFormat::FLOAT3X4_COLUMN_MAJOR,
-                    cols.as_ptr() as *const c_void,
-                );
-            }
-            g.commit();
+            let g = instance(&device, &mesh_scenes[inst.mesh], &inst.transform)?;
             record(top.attach(&g), ObjectId::MeshInstance(k));
             instances.push((inst.mesh, inst.normal_matrix));
         }
@@ -564,16 +671,89 @@ impl EmbreeScene {
         let mut world = scene.finite_bounds().union(&meshes.bounds());
         let cam = scene.camera.position;
         world = world.union(&Aabb::new(cam, cam));
+        // The finite extent of partly unbounded objects (a slab, a row of columns): their
+        // infinite axes take the extent found so far.
+        let found = world;
+        for object in &scene.objects {
+            let b = object.bounds();
+            if !b.is_finite() && !b.is_empty() {
+                let lo = Vec3::select(b.min.is_finite_mask(), b.min, found.min);
+                let hi = Vec3::select(b.max.is_finite_mask(), b.max, found.max);
+                world = world.union(&Aabb::new(lo, hi));
+            }
+        }
         let clip = world.expand(2.0 * scene.tracer.max_distance);
+        let mesh_clip = options
+            .mesh_clip
+            .unwrap_or_else(|| world.expand((0.1 * world.diagonal()).max(1.0)));
+        let mesh_options = MeshOptions {
+            resolution: options.mesh_resolution,
+            refine: true,
+            max_triangles: options.mesh_max_triangles,
+        };
 
         // SDF objects.
         let mut shapes = Vec::new();
         let mut checks = Vec::with_capacity(scene.objects.len());
+        let mut sdf_face_normals = vec![Vec::new(); scene.objects.len()];
+        let mut mesh_regions = vec![None; scene.objects.len()];
+        // Mesh every object without a closed form, in parallel over objects as well as over
+        // each object's octree leaves (the descent and the welding of one object are serial).
+        let mut meshes: Vec<Option<Result<SdfMesh, String>>> = scene
+            .objects
+            .par_iter()
+            .map(|object| {
+                analytic_form(&object.node).is_err().then(|| {
+                    mesher::mesh_sdf(
+                        &object.lowered.distance,
+                        &object.bounds(),
+                        &mesh_clip,
+                        &mesh_options,
+                    )
+                })
+            })
+            .collect();
         for (i, object) in scene.objects.iter().enumerate() {
             let (m, primitive) = match analytic_form(&object.node) {
                 Ok(x) => x,
-                Err(why) => {
-                    checks.push(SdfCheck::Skipped(why));
+                Err(_) => {
+                    let meshed = meshes[i]
+                        .take()
+                        .expect("every object without a closed form was meshed");
+                    let mesh = match meshed {
+                        Ok(mesh) => mesh,
+                        Err(why) => {
+                            checks.push(SdfCheck::Skipped(format!(
+                                "object {i} ({}) cannot be meshed: {why}",
+                                object.name
+                            )));
+                            continue;
+                        }
+                    };
+                    if !mesh.triangles.is_empty() {
+                        // Its own scene of MEDIUM build quality, instanced with the identity:
+                        // the top-level scene's HIGH quality (spatial splits) would cost
+                        // seconds on millions of small, well-shaped triangles for little gain.
+                        let s = SceneHandle::with_quality(&device, RTCBuildQuality::MEDIUM)?;
+                        let g = triangle_geometry(&device, &mesh.positions, &mesh.triangles)?;
+                        s.attach(&g);
+                        s.commit();
+                        device.check("building a meshed SDF object's scene")?;
+                        let inst = instance(&device, &s, &Affine3A::IDENTITY)?;
+                        record(top.attach(&inst), ObjectId::Sdf(i));
+                        mesh_scenes.push(s);
+                    }
+                    sdf_face_normals[i] = face_normals_of(&mesh);
+                    mesh_regions[i] = Some(MeshRegion {
+                        bounds: mesh.region,
+                        clipped: mesh.clipped,
+                    });
+                    checks.push(SdfCheck::Meshed {
+                        resolution: mesh.resolution,
+                        cell: mesh.cell,
+                        tolerance: mesh.tolerance,
+                        triangles: mesh.triangles.len(),
+                    });
                     continue;
                 }
             };
@@ -621,6 +801,8 @@ impl EmbreeScene {
             ids,
             face_normals,
             instances,
+            sdf_face_normals,
+            mesh_regions,
             checks,
         })
     }
@@ -666,6 +848,9 @@ impl RayQuery for EmbreeScene {
             ObjectId::MeshInstance(k) if inside_instance => {
                 let (mesh, nm) = self.instances[k];
                 (nm * self.face_normals[mesh][hit.primID as usize]).normalize_or_zero()
+            }
+            ObjectId::Sdf(i) if !self.sdf_face_normals[i].is_empty() => {
+                self.sdf_face_normals[i][hit.primID as usize]
             }
             _ => Vec3::new(hit.Ng_x, hit.Ng_y, hit.Ng_z).normalize_or_zero(),
         };

@@ -1,5 +1,11 @@
-//! Ground truth: closed-form ray intersections (and, behind the `embree` feature, Embree 4).
+//! Ground truth: closed-form ray intersections in f64, meshes of SDF objects extracted by our
+//! own mesher, Embree 4 tracing both (behind the `embree` feature), and the ray-by-ray
+//! validation of a backend against a referee.
 pub mod analytic;
 #[cfg(feature = "embree")]
 pub mod embree;
+pub mod mesher;
 pub mod query;
+#[cfg(feature = "embree")]
+pub mod shading;
+pub mod validate;

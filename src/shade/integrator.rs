@@ -15,11 +15,11 @@
 //! and paths beyond `shading.max_bounces`, are dropped.
 
 use super::optics::{reflect, refract, schlick};
-use super::{SurfacePoint, shade, surface_offset};
+use super::{ShadingTracer, SurfacePoint, shade, surface_offset};
 use crate::geom::Ray;
 use crate::scene::MAX_BOUNCES;
 use crate::sdf::tape::MaterialVec;
-use crate::trace::{SceneTracer, Surface};
+use crate::trace::Surface;
 use glam::Vec3;
 
 /// What one camera sample sees: its radiance and the first hit's auxiliary values (AOVs).
@@ -54,7 +54,11 @@ const MIN_WEIGHT: f32 = 1e-3;
 
 /// Follows the camera ray `ray` and everything it spawns. `materials` is the scene's material
 /// table as the shading tapes expect it.
-pub fn trace_camera_ray(tracer: &SceneTracer, materials: &[MaterialVec], ray: Ray) -> CameraSample {
+pub fn trace_camera_ray<T: ShadingTracer + ?Sized>(
+    tracer: &T,
+    materials: &[MaterialVec],
+    ray: Ray,
+) -> CameraSample {
     let scene = tracer.scene();
     let max_bounces = scene.shading.max_bounces.min(MAX_BOUNCES);
     // Depth-first: each step pops one ray and pushes at most two, so the stack never holds

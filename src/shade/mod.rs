@@ -16,10 +16,53 @@ pub mod material;
 pub mod optics;
 
 use crate::geom::Ray;
-use crate::scene::{AmbientOcclusion, Light};
-use crate::trace::{SceneTracer, epsilon_at};
+use crate::scene::{AmbientOcclusion, Light, Scene, Shadow, TracerSettings};
+use crate::sdf::tape::MaterialVec;
+use crate::trace::{Hit, SceneTracer, Surface, epsilon_at};
 use glam::Vec3;
 use material::MaterialParams;
+
+/// The queries shading asks of a backend: closest hits (camera, reflected and refracted rays),
+/// where a ray leaves the solid it travels in, the visibility of a light, the scene's distance
+/// field (ambient occlusion) and the material at a hit. [`SceneTracer`] answers them all on the
+/// CPU; `reference::shading` answers the ray queries with Embree, so the same shading code runs
+/// on top of either backend's hits. Functions take the tracer generically, so the CPU path is
+/// compiled exactly as before (no dynamic dispatch).
+pub trait ShadingTracer {
+    /// The scene being traced.
+    fn scene(&self) -> &Scene;
+    /// The closest hit in (tmin, tmax), with its normal.
+    fn closest_hit(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<Hit>;
+    /// Where a ray starting inside the solid of `surface` leaves it, with the outward normal.
+    fn exit(&self, surface: Surface, ray: &Ray, tmax: f32) -> Option<(f32, Vec3)>;
+    /// The fraction of light arriving along a shadow ray over (tmin, tmax).
+    fn visibility(&self, ray: &Ray, tmin: f32, tmax: f32, shadow: Shadow) -> f32;
+    /// The scene's distance field at p, clamped to `reach`.
+    fn distance(&self, p: Vec3, reach: f32) -> f32;
+    /// The material at a hit (`materials` is the scene's table as the tapes expect it).
+    fn material_at(&self, hit: &Hit, p: Vec3, materials: &[MaterialVec]) -> MaterialParams;
+}
+
+impl ShadingTracer for SceneTracer<'_> {
+    fn scene(&self) -> &Scene {
+        SceneTracer::scene(self)
+    }
+    fn closest_hit(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<Hit> {
+        SceneTracer::closest_hit(self, ray, tmin, tmax)
+    }
+    fn exit(&self, surface: Surface, ray: &Ray, tmax: f32) -> Option<(f32, Vec3)> {
+        SceneTracer::exit(self, surface, ray, tmax)
+    }
+    fn visibility(&self, ray: &Ray, tmin: f32, tmax: f32, shadow: Shadow) -> f32 {
+        SceneTracer::visibility(self, ray, tmin, tmax, shadow)
+    }
+    fn distance(&self, p: Vec3, reach: f32) -> f32 {
+        SceneTracer::distance(self, p, reach)
+    }
+    fn material_at(&self, hit: &Hit, p: Vec3, materials: &[MaterialVec]) -> MaterialParams {
+        SceneTracer::material_at(self, hit, p, materials)
+    }
+}
 
 /// Everything the shader needs to know about a surface point.
 #[derive(Debug, Clone, Copy)]
@@ -40,12 +83,19 @@ pub struct SurfacePoint {
 /// point p: the tracer stopped within ε(t) of an SDF surface, so a few ε clear it; and a
 /// triangle hit is exact only to the f32 rounding of p's coordinates, so the offset also grows
 /// with |p| (2⁻¹⁶ relative, well above f32's 2⁻²⁴) and scales with the scene.
-pub fn surface_offset(tracer: &SceneTracer, t: f32, p: Vec3) -> f32 {
-    4.0 * epsilon_at(&tracer.scene().tracer, t) + p.abs().max_element() * (1.0 / 65536.0)
+pub fn surface_offset<T: ShadingTracer + ?Sized>(tracer: &T, t: f32, p: Vec3) -> f32 {
+    offset_from_surface(&tracer.scene().tracer, t, p)
+}
+
+/// [`surface_offset`] from the tracer settings alone (what `reference::validate` uses to cast
+/// shadow rays exactly as the renderer does).
+#[inline]
+pub fn offset_from_surface(settings: &TracerSettings, t: f32, p: Vec3) -> f32 {
+    4.0 * epsilon_at(settings, t) + p.abs().max_element() * (1.0 / 65536.0)
 }
 
 /// Local (direct) radiance from `sp` toward the eye.
-pub fn shade(tracer: &SceneTracer, sp: &SurfacePoint) -> Vec3 {
+pub fn shade<T: ShadingTracer + ?Sized>(tracer: &T, sp: &SurfacePoint) -> Vec3 {
     let scene = tracer.scene();
     let m = &sp.material;
     let n = sp.normal;
@@ -104,7 +154,12 @@ pub fn shade(tracer: &SceneTracer, sp: &SurfacePoint) -> Vec3 {
 /// unoccluded point has d = i·δ there, and each shortfall darkens by 2⁻ⁱ (nearer samples weigh
 /// more). ao = clamp(1 − strength·Σ 2⁻ⁱ (i·δ − d)/δ, 0, 1) (Evans 2006; the CS171 report's
 /// form, made scale-free by the division by δ).
-pub fn ambient_occlusion(tracer: &SceneTracer, p: Vec3, n: Vec3, ao: &AmbientOcclusion) -> f32 {
+pub fn ambient_occlusion<T: ShadingTracer + ?Sized>(
+    tracer: &T,
+    p: Vec3,
+    n: Vec3,
+    ao: &AmbientOcclusion,
+) -> f32 {
     let reach = ao.step * ao.steps as f32;
     let mut occlusion = 0.0;
     let mut weight = 0.5;

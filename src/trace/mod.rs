@@ -1,6 +1,7 @@
 //! Tracing: sphere tracing of SDF tapes, normals, and the scene's closest-hit and occlusion
 //! queries over SDF objects and triangle meshes together.
 
+pub mod crossing;
 pub mod normal;
 pub mod sphere;
 

@@ -2,6 +2,7 @@
 //! ray tracing of implicit surfaces", The Visual Computer 12, 1996, §2), and the opt-in
 //! over-relaxed stepper of Keinert et al. 2014 ("Enhanced Sphere Tracing", STAG 2014, §3.1).
 
+use super::crossing::{self, Candidate};
 use super::epsilon_at;
 use crate::geom::Ray;
 use crate::scene::{Stepper, TracerSettings};
@@ -35,8 +36,9 @@ pub fn trace(
 
 /// Marches from t0 towards t1 by the field value: the field is 1-Lipschitz (every node of the
 /// lowered tape is step-corrected), so an unbounding sphere of radius f(p) around p contains no
-/// surface and the step never skips one (Hart 1996, Theorem 1). Stops with a hit when
-/// f < ε(t), with a miss past t1 or after `max_steps` evaluations.
+/// surface and the step never skips one (Hart 1996, Theorem 1). Where f < ε(t) the candidate
+/// is confirmed by a sign change and placed at the crossing ([`crossing::confirm`]); a miss
+/// past t1 or after `max_steps` evaluations.
 pub fn trace_hart(
     tape: &Tape,
     ray: &Ray,
@@ -51,9 +53,13 @@ pub fn trace_hart(
         let d = tape.eval_in(ray.at(t), regs);
         steps += 1;
         if d < epsilon_at(s, t) {
-            return TraceResult { t: Some(t), steps };
+            match crossing::confirm(tape, ray, t, d, t1, s, regs, &mut steps) {
+                Candidate::Hit(t) => return TraceResult { t: Some(t), steps },
+                Candidate::Continue(next) => t = next,
+            }
+        } else {
+            t += d;
         }
-        t += d;
         if t > t1 {
             break;
         }
@@ -96,7 +102,19 @@ pub fn trace_relaxed(
             continue;
         }
         if d < epsilon_at(s, t) {
-            return TraceResult { t: Some(t), steps };
+            // Confirmed as Hart's candidates are; a near miss resumes with Hart's steps.
+            match crossing::confirm(tape, ray, t, d, t1, s, regs, &mut steps) {
+                Candidate::Hit(t) => return TraceResult { t: Some(t), steps },
+                Candidate::Continue(next) => {
+                    omega = 1.0;
+                    unverified = false;
+                    t = next;
+                    if t > t1 {
+                        break;
+                    }
+                    continue;
+                }
+            }
         }
         // Hart's step alone leaves the interval: nothing to find before t1.
         if t + d > t1 {
@@ -149,7 +167,18 @@ pub fn trace_adaptive(
             continue;
         }
         if d < epsilon_at(s, t) {
-            return TraceResult { t: Some(t), steps };
+            match crossing::confirm(tape, ray, t, d, t1, s, regs, &mut steps) {
+                Candidate::Hit(t) => return TraceResult { t: Some(t), steps },
+                Candidate::Continue(next) => {
+                    unverified = false;
+                    fell_back = true;
+                    t = next;
+                    if t > t1 {
+                        break;
+                    }
+                    continue;
+                }
+            }
         }
         if t + d > t1 {
             break;

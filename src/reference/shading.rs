@@ -1,0 +1,243 @@
+//! Shading on top of Embree's hits: a [`ShadingTracer`] whose ray queries (camera, reflected
+//! and refracted closest hits, the exit of a refracted ray, hard shadow rays) are answered by
+//! Embree 4, so `hytrace compare` can render the same integrator over both backends.
+//!
+//! What still comes from our side, and why:
+//! * **Soft-shadow penumbrae and ambient occlusion** need a distance field, which Embree does
+//!   not have: where Embree finds a shadow ray unblocked, the penumbra is our SDF's estimate
+//!   along that ray; ambient occlusion samples our SDF along the normal at Embree's hit point.
+//! * **Mesh attributes** (interpolated shading normal, material, texture): Embree reports the
+//!   instance and the hit distance; the triangle and barycentrics there are looked up with our
+//!   mesh BVH on the ray segment t ± 1e-4·D (D the scene's diameter) around Embree's t. When
+//!   no triangle of ours lies there (a hit only Embree sees), the geometric normal Embree
+//!   reports is used with the instance's first triangle's material; [`EmbreeTracer::fallbacks`]
+//!   counts these.
+//! * **SDF normals**: Embree's normal for analytic objects (exact); for objects the referee
+//!   meshed, our field's gradient at Embree's hit point (the facets are an artefact of the
+//!   referee's representation, not of the surface).
+//! * **SDF materials** are evaluated from our shading tape at Embree's hit point.
+
+use super::embree::{EmbreeScene, SdfCheck};
+use super::query::{ObjectId, QueryHit, RayQuery};
+use crate::geom::Ray;
+use crate::scene::{Scene, Shadow};
+use crate::sdf::tape::{MaterialVec, Registers};
+use crate::shade::ShadingTracer;
+use crate::shade::material::MaterialParams;
+use crate::trace::{Hit, SceneTracer, Surface, normal};
+use glam::Vec3;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// Most surfaces a ray travelling inside a solid may cross (other objects' surfaces) before
+/// its exit is given up.
+const MAX_CROSSINGS: usize = 64;
+
+/// Embree's hits with our shading (see the module documentation).
+pub struct EmbreeTracer<'a> {
+    embree: &'a EmbreeScene,
+    ours: &'a SceneTracer<'a>,
+    /// Half-width of the segment on which a mesh hit's triangle is looked up.
+    window: f32,
+    fallbacks: AtomicUsize,
+    mesh_hits: AtomicUsize,
+}
+
+impl<'a> EmbreeTracer<'a> {
+    /// Shading over `embree`'s hits, with `ours` for distance-field quantities and mesh
+    /// attributes (both built from the same scene).
+    pub fn new(embree: &'a EmbreeScene, ours: &'a SceneTracer<'a>) -> Self {
+        let scene = ours.scene();
+        let diameter = super::validate::scene_bounds(scene).diagonal();
+        EmbreeTracer {
+            embree,
+            ours,
+            window: super::validate::MESH_DT_OF_DIAMETER * diameter,
+            fallbacks: AtomicUsize::new(0),
+            mesh_hits: AtomicUsize::new(0),
+        }
+    }
+
+    /// (mesh hits whose triangle was not found on our side, mesh hits) so far.
+    pub fn fallbacks(&self) -> (usize, usize) {
+        (
+            self.fallbacks.load(Ordering::Relaxed),
+            self.mesh_hits.load(Ordering::Relaxed),
+        )
+    }
+
+    /// Our [`Hit`] for Embree's `QueryHit` on `ray`.
+    fn hit(&self, ray: &Ray, q: QueryHit) -> Hit {
+        let scene = self.ours.scene();
+        match q.object {
+            ObjectId::Sdf(i) => {
+                let normal = match self.embree.checks.get(i) {
+                    Some(SdfCheck::Meshed { .. }) => {
+                        let s = &scene.tracer;
+                        let mut regs = Registers::new();
+                        normal::estimate(
+                            &scene.objects[i].lowered.distance,
+                            ray.at(q.t),
+                            normal::step_for(s, q.t),
+                            s.normals,
+                            &mut regs,
+                        )
+                        .0
+                    }
+                    _ => q.normal,
+                };
+                Hit {
+                    t: q.t,
+                    surface: Surface::Sdf(i),
+                    normal,
+                    gradient: 1.0,
+                    steps: 0,
+                }
+            }
+            ObjectId::MeshInstance(k) => {
+                self.mesh_hits.fetch_add(1, Ordering::Relaxed);
+                let accel = self.ours.mesh_accel();
+                let found = accel.tlas.closest_hit(
+                    &accel.blas,
+                    ray,
+                    (q.t - self.window).max(0.0),
+                    q.t + self.window,
+                );
+                let (instance, triangle, u, v) = match found {
+                    Some(h) => (h.instance, h.triangle, h.u, h.v),
+                    None => {
+                        self.fallbacks.fetch_add(1, Ordering::Relaxed);
+                        (k as u32, 0, 0.0, 0.0)
+                    }
+                };
+                let surf = scene
+                    .meshes
+                    .surface(instance as usize, triangle as usize, u, v);
+                Hit {
+                    t: q.t,
+                    surface: Surface::Mesh {
+                        instance,
+                        triangle,
+                        u,
+                        v,
+                        material: surf.material,
+                        tint: surf.tint,
+                    },
+                    normal: if found.is_some() {
+                        surf.normal
+                    } else {
+                        q.normal
+                    },
+                    gradient: 1.0,
+                    steps: 0,
+                }
+            }
+        }
+    }
+}
+
+impl ShadingTracer for EmbreeTracer<'_> {
+    fn scene(&self) -> &Scene {
+        self.ours.scene()
+    }
+
+    /// Embree's closest hit, stopped at `tracer.max_distance` as our tracer stops.
+    fn closest_hit(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<Hit> {
+        let limit = tmax.min(self.scene().tracer.max_distance);
+        let q = self.embree.closest_hit(ray, tmin, limit)?;
+        Some(self.hit(ray, q))
+    }
+
+    /// The next crossing of the object's own surface along the ray (other objects' surfaces
+    /// are skipped, as our tracer ignores them inside a solid); for a mesh, the next mesh
+    /// surface. The outward normal points along the ray.
+    fn exit(&self, surface: Surface, ray: &Ray, tmax: f32) -> Option<(f32, Vec3)> {
+        let limit = tmax.min(self.scene().tracer.max_distance);
+        let mut tmin = 0.0;
+        for _ in 0..MAX_CROSSINGS {
+            let q = self.embree.closest_hit(ray, tmin, limit)?;
+            let same = match (surface, q.object) {
+                (Surface::Sdf(i), ObjectId::Sdf(j)) => i == j,
+                (Surface::Mesh { .. }, ObjectId::MeshInstance(_)) => true,
+                _ => false,
+            };
+            if same {
+                let n = self.hit(ray, q).normal;
+                return Some((q.t, if n.dot(ray.direction) < 0.0 { -n } else { n }));
+            }
+            // Step past the other surface; the next query starts just beyond it.
+            tmin = q.t * (1.0 + f32::EPSILON) + f32::MIN_POSITIVE;
+        }
+        None
+    }
+
+    /// Embree decides whether the ray is blocked; an unblocked ray gets our SDF penumbra for
+    /// soft shadows.
+    fn visibility(&self, ray: &Ray, tmin: f32, tmax: f32, shadow: Shadow) -> f32 {
+        if shadow == Shadow::None {
+            return 1.0;
+        }
+        let limit = tmax.min(self.scene().tracer.max_distance);
+        if self.embree.occluded(ray, tmin, limit) {
+            return 0.0;
+        }
+        match shadow {
+            Shadow::Soft(_) | Shadow::SoftImproved(_) => {
+                self.ours.visibility(ray, tmin, tmax, shadow)
+            }
+            _ => 1.0,
+        }
+    }
+
+    fn distance(&self, p: Vec3, reach: f32) -> f32 {
+        self.ours.distance(p, reach)
+    }
+
+    fn material_at(&self, hit: &Hit, p: Vec3, materials: &[MaterialVec]) -> MaterialParams {
+        self.ours.material_at(hit, p, materials)
+    }
+}
+
+/// Renders the scene through any [`ShadingTracer`] exactly as `render::cpu::render` renders
+/// through our tracer: the same camera rays, stratified sample positions and per-pixel
+/// combination, rayon over rows. With our `SceneTracer` it gives the CPU renderer's image bit
+/// for bit (tested), so a difference with another tracer is the tracer's alone.
+pub fn render_image<T: ShadingTracer + Sync + ?Sized>(
+    tracer: &T,
+    width: u32,
+    height: u32,
+    samples: u32,
+) -> crate::render::Framebuffer {
+    use crate::render::{Framebuffer, sample_offset};
+    use crate::shade::integrator::{CameraSample, trace_camera_ray};
+    use rayon::prelude::*;
+    let scene = tracer.scene();
+    let materials = scene.material_table();
+    let aspect = width as f32 / height as f32;
+    let rows: Vec<Vec<Vec<CameraSample>>> = (0..height)
+        .into_par_iter()
+        .map(|y| {
+            (0..width)
+                .map(|x| {
+                    (0..samples)
+                        .map(|s| {
+                            let (dx, dy) = sample_offset(x, y, s, samples);
+                            let (px, py) = (x as f32 + dx, y as f32 + dy);
+                            let ray =
+                                scene
+                                    .camera
+                                    .ray(px / width as f32, py / height as f32, aspect);
+                            trace_camera_ray(tracer, &materials, ray)
+                        })
+                        .collect()
+                })
+                .collect()
+        })
+        .collect();
+    let mut fb = Framebuffer::new(width, height);
+    for (y, row) in rows.iter().enumerate() {
+        for (x, samples) in row.iter().enumerate() {
+            fb.set(x as u32, y as u32, samples);
+        }
+    }
+    fb
+}

@@ -1,0 +1,1179 @@
+//! Ray-by-ray validation of one backend against a referee: the same rays (every pixel's camera
+//! ray, random rays through the scene, shadow rays toward every light) asked of both through
+//! [`RayQuery`], compared on hit/miss, hit distance and occlusion per object kind, against the
+//! thresholds of issue #5.
+//!
+//! The comparison ([`validate`]) is generic over the two backends, so the GPU can be checked
+//! the same way; [`validate_with_embree`] (feature `embree`) checks our CPU tracer against
+//! Embree 4.
+//!
+//! **Thresholds and tolerances** (t is the referee's hit distance, n its unit normal, d the unit
+//! ray direction, ε(t) = ε₀ + ε₁·t the tracer's hit threshold, D the diameter of the scene's
+//! finite bounds):
+//!
+//! | kind | hit/miss agreement | \|Δt\| tolerance | hit/miss disagreements |
+//! |---|---|---|---|
+//! | mesh | ≥ 99.99 % | 1e-4·D | counted (band: grazing) |
+//! | analytic SDF | ≥ 99.9 % | max(10·ε(t), 2·ε(t)/\|n·d\|) | only inside the ε band |
+//! | meshed SDF | — | max(10·ε(t), (τ + 2·ε(t))/\|n·d\|) | only inside the τ band |
+//! | shadow rays | ≥ 99.9 % | — | counted (band: grazing) |
+//!
+//! Why the SDF tolerance grows as 1/|n·d|: a sphere tracer stops where the field drops below
+//! ε(t), i.e. up to ε(t) before the surface *along its normal*, which is ε(t)/|n·d| along the
+//! ray (Hart 1996, §4.2); the factor 2 covers the normal estimate and f32 rounding, and 10·ε(t)
+//! is the issue's floor for rays that meet the surface head-on. A meshed SDF's triangles lie
+//! within the mesher's stated tolerance τ of the true surface, which adds τ/|n·d| along the
+//! ray. "Inside the band" means the disagreement is at a silhouette: the ray grazes the
+//! surface that one side hit (|n·d| < 0.05, [`GRAZING`]), or the surface one side hit lies
+//! within the band width (3·ε(t) for analytic SDFs, τ + 3·ε(t) for meshed ones; not for meshes,
+//! which both sides intersect exactly) of the other side's surface — found by a short probe ray of the other backend along
+//! the normal. Every SDF object must be checked by the referee: an object it skipped is a
+//! failure, as are all thresholds above.
+
+use super::query::{ObjectId, QueryHit, RayQuery};
+use crate::geom::{Aabb, Ray};
+use crate::rng::Rng;
+use crate::scene::{Light, Scene};
+use crate::sdf::tape::Registers;
+use crate::shade::offset_from_surface;
+use crate::trace::epsilon_at;
+use glam::Vec3;
+use rayon::prelude::*;
+use serde::Serialize;
+use std::fmt::Write as _;
+
+/// Below this |n·d| a ray grazes a surface: a hit/miss disagreement there is at a silhouette.
+pub const GRAZING: f32 = 0.05;
+/// Least hit/miss agreement on mesh rays (issue #5).
+pub const MESH_AGREEMENT: f64 = 0.9999;
+/// Largest mesh |Δt| as a fraction of the scene's diameter (issue #5).
+pub const MESH_DT_OF_DIAMETER: f32 = 1e-4;
+/// Least hit/miss agreement on analytic-SDF rays (issue #5).
+pub const SDF_AGREEMENT: f64 = 0.999;
+/// Least agreement of shadow rays (issue #5).
+pub const SHADOW_AGREEMENT: f64 = 0.999;
+
+/// How the referee represents one SDF object (the backend-independent form of
+/// `embree::SdfCheck`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "check", rename_all = "snake_case")]
+pub enum ObjectCheck {
+    /// A closed-form ray intersection.
+    Analytic,
+    /// A mesh extracted from the field.
+    Meshed {
+        /// Grid cells along the longest side of the meshed box.
+        resolution: u32,
+        /// Edge length of one grid cell.
+        cell: f32,
+        /// Largest distance of a mesh point from the true surface, as the mesher states it.
+        tolerance: f32,
+        /// Triangles of the mesh.
+        triangles: usize,
+    },
+    /// Not represented: the object cannot be validated.
+    Skipped {
+        /// Why.
+        why: String,
+    },
+}
+
+impl ObjectCheck {
+    /// One line saying how the object is checked.
+    pub fn describe(&self) -> String {
+        match self {
+            ObjectCheck::Analytic => "analytic (closed-form intersection)".into(),
+            ObjectCheck::Meshed {
+                resolution,
+                cell,
+                tolerance,
+                triangles,
+            } => format!(
+                "meshed: {resolution} cells along the longest side (cell {cell:.3e}), \
+                 {triangles} triangles, tolerance {tolerance:.3e}"
+            ),
+            ObjectCheck::Skipped { why } => format!("SKIPPED: {why}"),
+        }
+    }
+}
+
+#[cfg(feature = "embree")]
+impl From<&super::embree::SdfCheck> for ObjectCheck {
+    fn from(c: &super::embree::SdfCheck) -> Self {
+        use super::embree::SdfCheck;
+        #[allow(clippy::unneeded_field_pattern)]
+        match c {
+            SdfCheck::Analytic => ObjectCheck::Analytic,
+            SdfCheck::Meshed {
+                resolution,
+                cell,
+                tolerance,
+                triangles,
+                ..
+            } => ObjectCheck::Meshed {
+                resolution: *resolution,
+                cell: *cell,
+                tolerance: *tolerance,
+                triangles: *triangles,
+            },
+            SdfCheck::Skipped(why) => ObjectCheck::Skipped { why: why.clone() },
+        }
+    }
+}
+
+/// The kind of object a ray is classified by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Kind {
+    /// A triangle-mesh instance.
+    Mesh,
+    /// An SDF object the referee intersects in closed form.
+    AnalyticSdf,
+    /// An SDF object the referee intersects as an extracted mesh.
+    MeshedSdf,
+    /// An SDF object the referee skipped (only our side can hit it).
+    UncheckedSdf,
+}
+
+impl Kind {
+    /// Every kind, in table order.
+    pub const ALL: [Kind; 4] = [
+        Kind::Mesh,
+        Kind::AnalyticSdf,
+        Kind::MeshedSdf,
+        Kind::UncheckedSdf,
+    ];
+
+    /// The name in tables.
+    pub fn label(self) -> &'static str {
+        match self {
+            Kind::Mesh => "mesh",
+            Kind::AnalyticSdf => "analytic SDF",
+            Kind::MeshedSdf => "meshed SDF",
+            Kind::UncheckedSdf => "unchecked SDF",
+        }
+    }
+
+    fn index(self) -> usize {
+        self as usize
+    }
+}
+
+/// Which rays to cast.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Options {
+    /// Camera rays: one through every pixel centre of a width × height image.
+    pub width: u32,
+    /// See `width`.
+    pub height: u32,
+    /// Random rays through the scene's bounds.
+    pub random: usize,
+    /// Seed of the random rays.
+    pub seed: u64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            width: 320,
+            height: 240,
+            random: 10_000,
+            seed: 1,
+        }
+    }
+}
+
+/// What the primary ray of one pixel showed (for the mismatch image).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PixelClass {
+    /// Both missed.
+    Miss,
+    /// Both hit within tolerance, and the shadow rays agree; `shade` ∈ 0..=255 is |n·d|.
+    Agree {
+        /// Grey level for the picture.
+        shade: u8,
+    },
+    /// Only one side hit (or they hit different surfaces), at a silhouette.
+    DisagreeInBand,
+    /// Only one side hit, away from any silhouette.
+    DisagreeElsewhere,
+    /// Both hit but |Δt| is over tolerance.
+    OverTolerance,
+    /// The primary hits agree, a shadow ray from it does not.
+    ShadowMismatch,
+    /// We hit an object the referee skipped.
+    Unchecked,
+}
+
+impl PixelClass {
+    /// Every class that has a fixed colour, in legend order.
+    pub const LEGEND: [PixelClass; 6] = [
+        PixelClass::Miss,
+        PixelClass::DisagreeInBand,
+        PixelClass::DisagreeElsewhere,
+        PixelClass::OverTolerance,
+        PixelClass::ShadowMismatch,
+        PixelClass::Unchecked,
+    ];
+
+    /// Its colour in the mismatch image: agreeing hits in grey (brighter where the ray meets
+    /// the surface head-on), misses dark blue, silhouette disagreements yellow, other
+    /// disagreements red, |Δt| over tolerance magenta, shadow mismatches cyan, unchecked
+    /// objects green.
+    pub fn colour(self) -> [u8; 3] {
+        match self {
+            PixelClass::Miss => [20, 24, 48],
+            PixelClass::Agree { shade } => [shade, shade, shade],
+            PixelClass::DisagreeInBand => [255, 200, 0],
+            PixelClass::DisagreeElsewhere => [255, 0, 0],
+            PixelClass::OverTolerance => [255, 0, 255],
+            PixelClass::ShadowMismatch => [0, 200, 255],
+            PixelClass::Unchecked => [0, 170, 0],
+        }
+    }
+
+    /// What the colour means.
+    pub fn meaning(self) -> &'static str {
+        match self {
+            PixelClass::Miss => "both miss",
+            PixelClass::Agree { .. } => "both hit, agree (grey = |n.d|)",
+            PixelClass::DisagreeInBand => "hit/miss mismatch at a silhouette",
+            PixelClass::DisagreeElsewhere => "hit/miss mismatch elsewhere",
+            PixelClass::OverTolerance => "|dt| over tolerance",
+            PixelClass::ShadowMismatch => "shadow-ray mismatch",
+            PixelClass::Unchecked => "object the referee skipped",
+        }
+    }
+
+    /// Whether two classes share a legend entry.
+    pub fn same_entry(self, other: PixelClass) -> bool {
+        std::mem::discriminant(&self) == std::mem::discriminant(&other)
+    }
+}
+
+/// The figures of one object kind.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct KindStats {
+    /// Rays classified under this kind (primary and random).
+    pub rays: usize,
+    /// Rays on which both sides agree on hit/miss and surface.
+    pub agree: usize,
+    /// agree / rays, in percent.
+    pub agreement_percent: f64,
+    /// Rays both hit (the |Δt| sample).
+    pub both_hit: usize,
+    /// Largest |Δt|.
+    pub dt_max: f32,
+    /// 99th percentile of |Δt|.
+    pub dt_p99: f32,
+    /// Largest |Δt| / tolerance.
+    pub dt_worst_of_tolerance: f32,
+    /// Rays both hit with |Δt| over tolerance.
+    pub dt_over_tolerance: usize,
+    /// Hit/miss disagreements at silhouettes (the band).
+    pub disagree_in_band: usize,
+    /// Hit/miss disagreements elsewhere.
+    pub disagree_elsewhere: usize,
+    /// Shadow rays from hits of this kind.
+    pub shadow_rays: usize,
+    /// Of which both sides agree.
+    pub shadow_agree: usize,
+}
+
+/// Shadow-ray figures over all kinds.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct ShadowStats {
+    /// Shadow rays cast.
+    pub rays: usize,
+    /// Rays both sides answered alike.
+    pub agree: usize,
+    /// agree / rays, in percent (100 with no rays).
+    pub agreement_percent: f64,
+    /// Disagreements where the ray leaves the surface at a grazing angle (|n·l| < GRAZING).
+    pub disagree_grazing: usize,
+    /// Disagreements elsewhere.
+    pub disagree_elsewhere: usize,
+}
+
+/// One SDF object and how the referee checked it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ObjectEntry {
+    /// Index into `Scene::objects`.
+    pub index: usize,
+    /// Name.
+    pub name: String,
+    /// How it was checked.
+    pub check: ObjectCheck,
+}
+
+/// One row of the per-kind table.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct KindRow {
+    /// The kind.
+    pub kind: Kind,
+    /// Its figures.
+    #[serde(flatten)]
+    pub stats: KindStats,
+}
+
+/// A ray on which the two sides disagree, for reproducing it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Example {
+    /// What went wrong.
+    pub what: String,
+    /// Kind the ray is classified under.
+    pub kind: Kind,
+    /// Ray origin.
+    pub origin: [f32; 3],
+    /// Unit ray direction.
+    pub direction: [f32; 3],
+    /// Our hit: (t, object, |n·d|).
+    pub ours: Option<(f32, String, f32)>,
+    /// The referee's hit: (t, object, |n·d|).
+    pub referee: Option<(f32, String, f32)>,
+}
+
+/// How many disagreeing rays a report keeps as examples.
+pub const EXAMPLES: usize = 20;
+
+/// The result of a validation.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Report {
+    /// The scene's name.
+    pub scene: String,
+    /// Camera rays: width.
+    pub width: u32,
+    /// Camera rays: height.
+    pub height: u32,
+    /// Random rays cast.
+    pub random_rays: usize,
+    /// Their seed.
+    pub seed: u64,
+    /// Diameter of the scene's finite bounds (the mesh |Δt| scale).
+    pub diameter: f32,
+    /// The mesh |Δt| tolerance, 1e-4 × diameter.
+    pub mesh_dt_tolerance: f32,
+    /// SDF objects and how each was checked.
+    pub objects: Vec<ObjectEntry>,
+    /// Mesh instances (each checked as Embree triangles).
+    pub mesh_instances: usize,
+    /// Triangles placed.
+    pub mesh_triangles: usize,
+    /// Rays both sides missed.
+    pub both_miss: usize,
+    /// Per kind, the kinds that occurred (every kind in [`Kind::ALL`] order, rows with no ray
+    /// left out).
+    pub kinds: Vec<KindRow>,
+    /// Shadow rays over all kinds.
+    pub shadow: ShadowStats,
+    /// Every threshold that failed, in words (empty when the validation passed).
+    pub failures: Vec<String>,
+    /// The first disagreeing rays (hit/miss outside the band, then |Δt| over tolerance, then
+    /// in the band), at most [`EXAMPLES`].
+    pub examples: Vec<Example>,
+    /// Per pixel of the camera grid, row-major: what its ray showed.
+    #[serde(skip)]
+    pub pixels: Vec<PixelClass>,
+}
+
+impl Report {
+    /// Whether every threshold holds and every object was checked.
+    pub fn passed(&self) -> bool {
+        self.failures.is_empty()
+    }
+
+    /// The figures of one kind (zeros when no ray met it).
+    pub fn kind(&self, kind: Kind) -> KindStats {
+        self.kinds
+            .iter()
+            .find(|r| r.kind == kind)
+            .map(|r| r.stats.clone())
+            .unwrap_or_default()
+    }
+
+    /// The camera grid's pixels coloured by [`PixelClass::colour`] (no legend).
+    pub fn mismatch_image(&self) -> image::RgbImage {
+        image::RgbImage::from_fn(self.width, self.height, |x, y| {
+            image::Rgb(self.pixels[(y * self.width + x) as usize].colour())
+        })
+    }
+
+    /// The report as Markdown: the per-kind table, shadow rays, the objects, the verdict.
+    pub fn markdown(&self) -> String {
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "### `validate` {}: {}×{} camera rays + {} random rays (seed {}), scene diameter {:.4}\n",
+            self.scene, self.width, self.height, self.random_rays, self.seed, self.diameter
+        );
+        s += "| kind | rays | hit/miss agree | max \\|Δt\\| | p99 \\|Δt\\| | worst \\|Δt\\|/tol | \\|Δt\\| over tol | disagree in band | disagree elsewhere | shadow rays | shadow agree |\n";
+        s += "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
+        for row in &self.kinds {
+            let k = &row.stats;
+            let shadow = if k.shadow_rays == 0 {
+                "—".to_string()
+            } else {
+                format!(
+                    "{:.3}%",
+                    100.0 * k.shadow_agree as f64 / k.shadow_rays as f64
+                )
+            };
+            if row.kind == Kind::UncheckedSdf {
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | not checked | — | — | — | — | — | — | {} | {} |",
+                    row.kind.label(),
+                    k.rays,
+                    k.shadow_rays,
+                    shadow
+                );
+                continue;
+            }
+            let _ = writeln!(
+                s,
+                "| {} | {} | {:.3}% | {:.2e} | {:.2e} | {:.3} | {} | {} | {} | {} | {} |",
+                row.kind.label(),
+                k.rays,
+                k.agreement_percent,
+                k.dt_max,
+                k.dt_p99,
+                k.dt_worst_of_tolerance,
+                k.dt_over_tolerance,
+                k.disagree_in_band,
+                k.disagree_elsewhere,
+                k.shadow_rays,
+                shadow
+            );
+        }
+        let _ = writeln!(s, "| (both miss) | {} | | | | | | | | | |", self.both_miss);
+        let sh = &self.shadow;
+        let _ = writeln!(
+            s,
+            "\nShadow rays: {} cast, {:.3}% agree ({} disagreements at grazing angles, {} elsewhere).",
+            sh.rays, sh.agreement_percent, sh.disagree_grazing, sh.disagree_elsewhere
+        );
+        s += "\nObjects:\n\n";
+        if self.mesh_instances > 0 {
+            let _ = writeln!(
+                s,
+                "- {} mesh instance(s), {} triangles: Embree triangle geometry (instanced)",
+                self.mesh_instances, self.mesh_triangles
+            );
+        }
+        for o in &self.objects {
+            let _ = writeln!(s, "- SDF #{} `{}`: {}", o.index, o.name, o.check.describe());
+        }
+        if self.passed() {
+            s += "\n**PASSED**: every threshold holds.\n";
+        } else {
+            s += "\n**FAILED**:\n\n";
+            for f in &self.failures {
+                let _ = writeln!(s, "- {f}");
+            }
+        }
+        if !self.examples.is_empty() {
+            s += "\nDisagreeing rays (origin → direction: ours | referee as (t, object, |n·d|)):\n\n";
+            for e in &self.examples {
+                let hit = |h: &Option<(f32, String, f32)>| {
+                    h.as_ref().map_or("miss".to_string(), |(t, o, c)| {
+                        format!("({t:.5}, {o}, {c:.3})")
+                    })
+                };
+                let _ = writeln!(
+                    s,
+                    "- {} [{}]: {:?} → {:?}: {} | {}",
+                    e.what,
+                    e.kind.label(),
+                    e.origin,
+                    e.direction,
+                    hit(&e.ours),
+                    hit(&e.referee)
+                );
+            }
+        }
+        s
+    }
+}
+
+/// One ray to compare: the ray, and the pixel it belongs to (camera rays).
+#[derive(Debug, Clone, Copy)]
+struct Probe {
+    ray: Ray,
+    pixel: Option<usize>,
+}
+
+/// The outcome of one ray.
+#[derive(Debug, Clone, Copy)]
+enum Outcome {
+    BothMiss,
+    Agree { kind: Kind, dt: f32, tol: f32 },
+    Disagree { kind: Kind, in_band: bool },
+    Unchecked,
+}
+
+/// A shadow ray's outcome: the kind of the hit it leaves, whether both agree, whether it
+/// leaves at a grazing angle.
+#[derive(Debug, Clone, Copy)]
+struct ShadowOutcome {
+    kind: Kind,
+    agree: bool,
+    grazing: bool,
+}
+
+/// The finite bounds of the scene (SDF objects and meshes); around the camera when nothing is
+/// finite (a scene of planes), so random rays still have somewhere to go.
+pub fn scene_bounds(scene: &Scene) -> Aabb {
+    let b = scene.finite_bounds().union(&scene.meshes.bounds());
+    if b.is_empty() || !b.is_finite() {
+        let c = scene.camera.position;
+        Aabb::new(c, c).expand(1.0)
+    } else {
+        b
+    }
+}
+
+/// Every pixel's camera ray, then `random` rays from a sphere around the bounds (1.5 × their
+/// half-diagonal) toward uniform points inside them. Origins inside an SDF solid (below a ground
+/// plane, say) are drawn again: there the sphere tracer reports a hit at t = 0 and a
+/// closed-form referee the surface crossing, a known, intended difference.
+fn probes(scene: &Scene, options: &Options) -> Result<Vec<Probe>, String> {
+    let (w, h) = (options.width, options.height);
+    let aspect = w as f32 / h as f32;
+    let mut out = Vec::with_capacity((w * h) as usize + options.random);
+    for y in 0..h {
+        for x in 0..w {
+            let (u, v) = ((x as f32 + 0.5) / w as f32, (y as f32 + 0.5) / h as f32);
+            out.push(Probe {
+                ray: scene.camera.ray(u, v, aspect),
+                pixel: Some((y * w + x) as usize),
+            });
+        }
+    }
+    let b = scene_bounds(scene);
+    let (c, r) = (b.center(), 0.5 * b.diagonal().max(1e-6));
+    let clearance = 4.0 * epsilon_at(&scene.tracer, 0.0);
+    let mut regs = Registers::new();
+    let outside = |p: Vec3, regs: &mut Registers| {
+        scene
+            .objects
+            .iter()
+            .all(|o| o.lowered.distance.eval_in(p, regs) > clearance)
+    };
+    let mut rng = Rng::new(options.seed);
+    let mut attempts = 0usize;
+    let budget = 1000 * options.random.max(1);
+    for _ in 0..options.random {
+        let o = loop {
+            attempts += 1;
+            if attempts > budget {
+                return Err(format!(
+                    "could not find {} random ray origins outside every object on the sphere of \
+                     radius {:.4} around the scene's bounds",
+                    options.random,
+                    1.5 * r
+                ));
+            }
+            let o = c + 1.5 * r * rng.direction();
+            if outside(o, &mut regs) {
+                break o;
+            }
+        };
+        let target = rng.in_box(b.min, b.max);
+        if (target - o).length_squared() > 0.0 {
+            out.push(Probe {
+                ray: Ray::new(o, target - o),
+                pixel: None,
+            });
+        }
+    }
+    Ok(out)
+}
+
+/// Validates `ours` against `referee` on `scene`: `checks[i]` says how the referee represents
+/// SDF object i. Rays are cast in parallel (rayon); the result does not depend on the thread
+/// count. Fails only when the rays cannot be generated.
+pub fn validate<A, B>(
+    scene: &Scene,
+    ours: &A,
+    referee: &B,
+    checks: &[ObjectCheck],
+    options: &Options,
+) -> Result<Report, String>
+where
+    A: RayQuery + Sync + ?Sized,
+    B: RayQuery + Sync + ?Sized,
+{
+    if options.width == 0 || options.height == 0 {
+        return Err(format!(
+            "the camera grid must be at least 1×1 (got {}×{})",
+            options.width, options.height
+        ));
+    }
+    if checks.len() != scene.objects.len() {
+        return Err(format!(
+            "{} object checks for {} SDF objects",
+            checks.len(),
+            scene.objects.len()
+        ));
+    }
+    let settings = &scene.tracer;
+    let diameter = scene_bounds(scene).diagonal();
+    let mesh_tol = MESH_DT_OF_DIAMETER * diameter;
+    let tmax = settings.max_distance;
+    let kind_of = |object: ObjectId| match object {
+        ObjectId::MeshInstance(_) => Kind::Mesh,
+        ObjectId::Sdf(i) => match checks.get(i) {
+            Some(ObjectCheck::Analytic) => Kind::AnalyticSdf,
+            Some(ObjectCheck::Meshed { .. }) => Kind::MeshedSdf,
+            _ => Kind::UncheckedSdf,
+        },
+    };
+    let meshed_tolerance = |object: ObjectId| match object {
+        ObjectId::Sdf(i) => match checks.get(i) {
+            Some(ObjectCheck::Meshed { tolerance, .. }) => *tolerance,
+            _ => 0.0,
+        },
+        ObjectId::MeshInstance(_) => 0.0,
+    };
+    // The |Δt| tolerance at the referee's hit (see the module documentation).
+    let tolerance = |hit: &QueryHit, ray: &Ray| {
+        let e = epsilon_at(settings, hit.t);
+        let cos = hit.normal.dot(ray.direction).abs().max(1e-6);
+        match kind_of(hit.object) {
+            Kind::Mesh => mesh_tol,
+            Kind::AnalyticSdf => (10.0 * e).max(2.0 * e / cos),
+            Kind::MeshedSdf => (10.0 * e).max((meshed_tolerance(hit.object) + 2.0 * e) / cos),
+            Kind::UncheckedSdf => f32::INFINITY,
+        }
+    };
+    // Half-width of the band around a surface in which a hit/miss disagreement is excused.
+    let band = |hit: &QueryHit| {
+        let e = epsilon_at(settings, hit.t);
+        match kind_of(hit.object) {
+            Kind::Mesh => 0.0,
+            Kind::AnalyticSdf | Kind::UncheckedSdf => 3.0 * e,
+            Kind::MeshedSdf => meshed_tolerance(hit.object) + 3.0 * e,
+        }
+    };
+    let grazing = |hit: &QueryHit, ray: &Ray| hit.normal.dot(ray.direction).abs() < GRAZING;
+    // Whether `other` has a surface within the band of `hit`: a probe along the normal through
+    // the hit point, from one band-width outside to one band-width inside.
+    let near = |other: &dyn Fn(&Ray, f32) -> bool, hit: &QueryHit, ray: &Ray| {
+        if kind_of(hit.object) == Kind::Mesh {
+            // Both sides intersect the same triangles exactly: only grazing rays are excused.
+            return false;
+        }
+        let w = band(hit);
+        let n = hit.normal.normalize_or_zero();
+        if n == Vec3::ZERO {
+            return false;
+        }
+        let p = ray.at(hit.t);
+        other(&Ray::new(p + w * n, -n), 2.0 * w)
+    };
+    // A sphere tracer stops up to ε(t)/|n·d| before the surface, so near the end of the ray
+    // range it can report a surface that lies just beyond tmax, which the referee (stopping
+    // at tmax exactly) does not see. Such a hit agrees when the referee finds the same object
+    // within tolerance on the ray extended by that tolerance.
+    let beyond_the_end = |x: &QueryHit, ray: &Ray| {
+        let e = epsilon_at(settings, x.t);
+        let cos = x.normal.dot(ray.direction).abs().max(1e-6);
+        let reach = (10.0 * e).max(2.0 * e / cos) + meshed_tolerance(x.object) / cos;
+        if x.t + reach <= tmax {
+            return None;
+        }
+        let y = referee.closest_hit(ray, 0.0, x.t + reach)?;
+        (y.object == x.object && y.t > tmax && (x.t - y.t).abs() <= tolerance(&y, ray)).then_some(y)
+    };
+    let ours_occ = |r: &Ray, len: f32| ours.occluded(r, 0.0, len);
+    let ref_occ = |r: &Ray, len: f32| referee.occluded(r, 0.0, len);
+
+    let probes = probes(scene, options)?;
+    let results: Vec<(Probe, Option<QueryHit>, Outcome, Option<QueryHit>)> = probes
+        .par_iter()
+        .map(|probe| {
+            let ray = &probe.ray;
+            let a = ours.closest_hit(ray, 0.0, tmax);
+            let b = referee.closest_hit(ray, 0.0, tmax);
+            let outcome = match (&a, &b) {
+                (None, None) => Outcome::BothMiss,
+                (Some(x), Some(y)) => {
+                    let tol = tolerance(y, ray);
+                    let dt = (x.t - y.t).abs();
+                    if dt > tol && x.t < y.t && near(&ref_occ, x, ray) {
+                        // Our hit lies within the band of the referee's surface, which the
+                        // ray passes by: a sphere tracer's near miss at a silhouette (it stops
+                        // wherever the ray comes within ε(t) of a surface), then the referee
+                        // meets the same or another surface farther on.
+                        Outcome::Disagree {
+                            kind: kind_of(x.object),
+                            in_band: true,
+                        }
+                    } else if x.object != y.object && dt > tol {
+                        // Different surfaces: a hit/miss disagreement on the nearer one.
+                        if x.t < y.t {
+                            only_ours(kind_of(x.object), || {
+                                grazing(x, ray) || near(&ref_occ, x, ray)
+                            })
+                        } else {
+                            Outcome::Disagree {
+                                kind: kind_of(y.object),
+                                in_band: grazing(y, ray) || near(&ours_occ, y, ray),
+                            }
+                        }
+                    } else {
+                        Outcome::Agree {
+                            kind: kind_of(y.object),
+                            dt,
+                            tol,
+                        }
+                    }
+                }
+                (Some(x), None) => match beyond_the_end(x, ray) {
+                    Some(y) => Outcome::Agree {
+                        kind: kind_of(y.object),
+                        dt: (x.t - y.t).abs(),
+                        tol: tolerance(&y, ray),
+                    },
+                    None => only_ours(kind_of(x.object), || {
+                        grazing(x, ray) || near(&ref_occ, x, ray)
+                    }),
+                },
+                (None, Some(y)) => Outcome::Disagree {
+                    kind: kind_of(y.object),
+                    in_band: grazing(y, ray) || near(&ours_occ, y, ray),
+                },
+            };
+            (*probe, b, outcome, a)
+        })
+        .collect();
+
+    // Shadow rays from every camera-ray hit of the referee toward every light, offset from
+    // the surface as the renderer offsets them (`shade::surface_offset`), only toward lights
+    // in front of the surface (the renderer casts no others). A directional light's ray stops
+    // at `tracer.max_distance`, where our tracer stops every ray.
+    let shadows: Vec<(usize, ShadowOutcome)> = results
+        .par_iter()
+        .filter_map(|(probe, b, _, _)| Some((probe.pixel?, probe.ray, (*b)?)))
+        .flat_map_iter(|(pixel, ray, hit)| {
+            let p = ray.at(hit.t);
+            let n = if hit.normal.dot(ray.direction) > 0.0 {
+                -hit.normal
+            } else {
+                hit.normal
+            };
+            let offset = offset_from_surface(settings, hit.t, p);
+            let origin = p + n * offset;
+            let kind = kind_of(hit.object);
+            scene.lights.iter().filter_map(move |light| {
+                let (l, len) = match *light {
+                    Light::Ambient { .. } => return None,
+                    Light::Point { position, .. } => {
+                        let d = position - p;
+                        let dist = d.length();
+                        if dist <= 0.0 {
+                            return None;
+                        }
+                        (d / dist, dist - offset)
+                    }
+                    Light::Directional { direction, .. } => (-direction, tmax),
+                };
+                let cos = n.dot(l);
+                if cos <= 0.0 || len <= 0.0 {
+                    return None;
+                }
+                let shadow = Ray::new(origin, l);
+                let agree = ours.occluded(&shadow, 0.0, len) == referee.occluded(&shadow, 0.0, len);
+                Some((
+                    pixel,
+                    ShadowOutcome {
+                        kind,
+                        agree,
+                        grazing: cos < GRAZING,
+                    },
+                ))
+            })
+        })
+        .collect();
+
+    // Tally.
+    let mut stats: [KindStats; 4] = Default::default();
+    let mut dts: [Vec<f32>; 4] = Default::default();
+    let mut both_miss = 0;
+    let mut pixels = vec![PixelClass::Miss; (options.width * options.height) as usize];
+    let describe = |h: &Option<QueryHit>, ray: &Ray| {
+        h.map(|h| {
+            let object = match h.object {
+                ObjectId::Sdf(i) => format!("SDF #{i} `{}`", scene.objects[i].name),
+                ObjectId::MeshInstance(k) => format!(
+                    "mesh instance #{k} `{}`",
+                    scene
+                        .meshes
+                        .instances
+                        .get(k)
+                        .map_or("", |m| m.name.as_str())
+                ),
+            };
+            (h.t, object, h.normal.dot(ray.direction).abs())
+        })
+    };
+    let mut examples: [Vec<Example>; 3] = Default::default();
+    for (probe, b, outcome, a) in &results {
+        let (what, rank, kind) = match *outcome {
+            Outcome::Disagree {
+                kind,
+                in_band: false,
+            } => ("hit/miss disagreement away from silhouettes", 0, kind),
+            Outcome::Agree { kind, dt, tol } if dt > tol => ("|Δt| over tolerance", 1, kind),
+            Outcome::Disagree {
+                kind,
+                in_band: true,
+            } => ("hit/miss disagreement at a silhouette", 2, kind),
+            _ => ("", 3, Kind::Mesh),
+        };
+        if rank < 3 && examples[rank].len() < EXAMPLES {
+            examples[rank].push(Example {
+                what: what.into(),
+                kind,
+                origin: probe.ray.origin.to_array(),
+                direction: probe.ray.direction.to_array(),
+                ours: describe(a, &probe.ray),
+                referee: describe(b, &probe.ray),
+            });
+        }
+    }
+    let examples: Vec<Example> = examples.into_iter().flatten().take(EXAMPLES).collect();
+    for (probe, b, outcome, _) in &results {
+        let class = match *outcome {
+            Outcome::BothMiss => {
+                both_miss += 1;
+                PixelClass::Miss
+            }
+            Outcome::Agree { kind, dt, tol } => {
+                let k = &mut stats[kind.index()];
+                k.rays += 1;
+                k.agree += 1;
+                k.both_hit += 1;
+                dts[kind.index()].push(dt);
+                k.dt_worst_of_tolerance = k.dt_worst_of_tolerance.max(dt / tol);
+                if dt > tol {
+                    k.dt_over_tolerance += 1;
+                    PixelClass::OverTolerance
+                } else {
+                    let cos = b.map_or(0.0, |h| h.normal.dot(probe.ray.direction).abs());
+                    PixelClass::Agree {
+                        shade: (40.0 + 200.0 * cos.clamp(0.0, 1.0)) as u8,
+                    }
+                }
+            }
+            Outcome::Disagree { kind, in_band } => {
+                let k = &mut stats[kind.index()];
+                k.rays += 1;
+                if in_band {
+                    k.disagree_in_band += 1;
+                    PixelClass::DisagreeInBand
+                } else {
+                    k.disagree_elsewhere += 1;
+                    PixelClass::DisagreeElsewhere
+                }
+            }
+            Outcome::Unchecked => {
+                stats[Kind::UncheckedSdf.index()].rays += 1;
+                PixelClass::Unchecked
+            }
+        };
+        if let Some(i) = probe.pixel {
+            pixels[i] = class;
+        }
+    }
+    let mut shadow = ShadowStats::default();
+    for (pixel, s) in &shadows {
+        shadow.rays += 1;
+        let k = &mut stats[s.kind.index()];
+        k.shadow_rays += 1;
+        if s.agree {
+            shadow.agree += 1;
+            k.shadow_agree += 1;
+        } else {
+            if s.grazing {
+                shadow.disagree_grazing += 1;
+            } else {
+                shadow.disagree_elsewhere += 1;
+            }
+            if matches!(pixels[*pixel], PixelClass::Agree { .. }) {
+                pixels[*pixel] = PixelClass::ShadowMismatch;
+            }
+        }
+    }
+    shadow.agreement_percent = percent(shadow.agree, shadow.rays);
+    for (k, d) in stats.iter_mut().zip(dts.iter_mut()) {
+        k.agreement_percent = percent(k.agree, k.rays);
+        d.sort_by(f32::total_cmp);
+        k.dt_max = d.last().copied().unwrap_or(0.0);
+        k.dt_p99 = if d.is_empty() {
+            0.0
+        } else {
+            d[((d.len() - 1) as f64 * 0.99).round() as usize]
+        };
+    }
+
+    let objects: Vec<ObjectEntry> = scene
+        .objects
+        .iter()
+        .zip(checks)
+        .enumerate()
+        .map(|(index, (o, c))| ObjectEntry {
+            index,
+            name: o.name.clone(),
+            check: c.clone(),
+        })
+        .collect();
+    let failures = failures(&objects, &stats, &shadow, mesh_tol);
+    let kinds = Kind::ALL
+        .iter()
+        .zip(stats)
+        .filter(|(_, s)| s.rays > 0 || s.shadow_rays > 0)
+        .map(|(&kind, stats)| KindRow { kind, stats })
+        .collect();
+    Ok(Report {
+        scene: scene.source_name.clone(),
+        width: options.width,
+        height: options.height,
+        random_rays: options.random,
+        seed: options.seed,
+        diameter,
+        mesh_dt_tolerance: mesh_tol,
+        objects,
+        mesh_instances: scene.meshes.instances.len(),
+        mesh_triangles: scene.meshes.triangle_count(),
+        both_miss,
+        kinds,
+        shadow,
+        failures,
+        examples,
+        pixels,
+    })
+}
+
+/// A hit only our side has: counted under the object's kind, unless the referee skipped that
+/// object (then there is nothing to compare with).
+fn only_ours(kind: Kind, in_band: impl FnOnce() -> bool) -> Outcome {
+    if kind == Kind::UncheckedSdf {
+        Outcome::Unchecked
+    } else {
+        Outcome::Disagree {
+            kind,
+            in_band: in_band(),
+        }
+    }
+}
+
+fn percent(part: usize, whole: usize) -> f64 {
+    if whole == 0 {
+        100.0
+    } else {
+        100.0 * part as f64 / whole as f64
+    }
+}
+
+/// Every threshold that fails, in words.
+fn failures(
+    objects: &[ObjectEntry],
+    stats: &[KindStats; 4],
+    shadow: &ShadowStats,
+    mesh_tol: f32,
+) -> Vec<String> {
+    let mut out = Vec::new();
+    for o in objects {
+        if let ObjectCheck::Skipped { why } = &o.check {
+            out.push(format!(
+                "SDF object #{} `{}` is not checked by the referee: {why}",
+                o.index, o.name
+            ));
+        }
+    }
+    let disagreements = |k: &KindStats| {
+        format!(
+            "{} of {} rays disagree: {} at silhouettes, {} elsewhere",
+            k.rays - k.agree,
+            k.rays,
+            k.disagree_in_band,
+            k.disagree_elsewhere
+        )
+    };
+    let mesh = &stats[Kind::Mesh.index()];
+    if mesh.rays > 0 && mesh.agreement_percent < 100.0 * MESH_AGREEMENT {
+        out.push(format!(
+            "meshes: hit/miss agreement {:.4}% < {:.2}% ({})",
+            mesh.agreement_percent,
+            100.0 * MESH_AGREEMENT,
+            disagreements(mesh)
+        ));
+    }
+    if mesh.dt_over_tolerance > 0 {
+        out.push(format!(
+            "meshes: {} hits with |Δt| over 1e-4 × scene diameter = {mesh_tol:.3e} (max {:.3e})",
+            mesh.dt_over_tolerance, mesh.dt_max
+        ));
+    }
+    let analytic = &stats[Kind::AnalyticSdf.index()];
+    if analytic.rays > 0 && analytic.agreement_percent < 100.0 * SDF_AGREEMENT {
+        out.push(format!(
+            "analytic SDFs: hit/miss agreement {:.4}% < {:.1}% ({})",
+            analytic.agreement_percent,
+            100.0 * SDF_AGREEMENT,
+            disagreements(analytic)
+        ));
+    }
+    if analytic.disagree_elsewhere > 0 {
+        out.push(format!(
+            "analytic SDFs: {} hit/miss disagreements outside the ε band at silhouettes",
+            analytic.disagree_elsewhere
+        ));
+    }
+    if analytic.dt_over_tolerance > 0 {
+        out.push(format!(
+            "analytic SDFs: {} hits with |Δt| over max(10·ε(t), 2·ε(t)/|n·d|) (worst {:.2}× \
+             the tolerance, max |Δt| {:.3e})",
+            analytic.dt_over_tolerance, analytic.dt_worst_of_tolerance, analytic.dt_max
+        ));
+    }
+    let meshed = &stats[Kind::MeshedSdf.index()];
+    if meshed.disagree_elsewhere > 0 {
+        out.push(format!(
+            "meshed SDFs: {} hit/miss disagreements outside the mesher's tolerance band",
+            meshed.disagree_elsewhere
+        ));
+    }
+    if meshed.dt_over_tolerance > 0 {
+        out.push(format!(
+            "meshed SDFs: {} hits with |Δt| over (tolerance + 2·ε(t))/|n·d| (worst {:.2}× the \
+             tolerance, max |Δt| {:.3e})",
+            meshed.dt_over_tolerance, meshed.dt_worst_of_tolerance, meshed.dt_max
+        ));
+    }
+    if shadow.agreement_percent < 100.0 * SHADOW_AGREEMENT {
+        out.push(format!(
+            "shadow rays: agreement {:.4}% < {:.1}% ({} of {} disagree: {} at grazing angles, \
+             {} elsewhere)",
+            shadow.agreement_percent,
+            100.0 * SHADOW_AGREEMENT,
+            shadow.rays - shadow.agree,
+            shadow.rays,
+            shadow.disagree_grazing,
+            shadow.disagree_elsewhere
+        ));
+    }
+    out
+}
+
+/// Validates our CPU tracer against Embree 4 on `scene`.
+#[cfg(feature = "embree")]
+pub fn validate_with_embree(scene: &Scene, options: &Options) -> Result<Report, String> {
+    let embree = super::embree::EmbreeScene::build(scene)?;
+    let checks: Vec<ObjectCheck> = embree.checks.iter().map(ObjectCheck::from).collect();
+    let tracer = crate::trace::SceneTracer::new(scene);
+    validate(scene, &tracer, &embree, &checks, options)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn scene() -> Scene {
+        let src = "Scene(
+            camera: Perspective(position: (0, 1, 6), look_at: (0, 0, 0), fov: 40),
+            lights: [Point(position: (3, 5, 4), intensity: 10), Directional(direction: (0, -1, 0), intensity: 1)],
+            objects: [
+                (shape: Sphere(radius: 1)),
+                (shape: Box(half_extents: (0.5, 0.5, 0.5)), translate: (2.2, 0, 0)),
+                (shape: Plane(normal: (0, 1, 0), offset: -1)),
+            ],
+            tracer: (epsilon: 1e-4, epsilon_per_unit: 1e-4),
+        )";
+        Scene::from_source(src, Path::new("validate-test.ron")).unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    const ANALYTIC: [ObjectCheck; 3] = [
+        ObjectCheck::Analytic,
+        ObjectCheck::Analytic,
+        ObjectCheck::Analytic,
+    ];
+
+    fn options() -> Options {
+        Options {
+            width: 48,
+            height: 36,
+            random: 300,
+            seed: 7,
+        }
+    }
+
+    /// A backend compared with itself agrees on every ray.
+    #[test]
+    fn a_backend_agrees_with_itself() {
+        let scene = scene();
+        let tracer = crate::trace::SceneTracer::new(&scene);
+        let r = validate(&scene, &tracer, &tracer, &ANALYTIC, &options()).unwrap();
+        assert!(r.passed(), "{}", r.markdown());
+        let a = r.kind(Kind::AnalyticSdf);
+        assert_eq!(a.agree, a.rays);
+        assert!(a.rays > 1000, "{}", r.markdown());
+        assert_eq!(a.dt_max, 0.0);
+        assert!(r.shadow.rays > 500);
+        assert_eq!(r.shadow.agree, r.shadow.rays);
+        assert_eq!(r.pixels.len(), 48 * 36);
+    }
+
+    /// A backend that misses everything fails, with the failures in words; a skipped object
+    /// fails even when every ray agrees.
+    #[test]
+    fn failures_are_listed() {
+        struct Blind;
+        impl RayQuery for Blind {
+            fn closest_hit(&self, _: &Ray, _: f32, _: f32) -> Option<QueryHit> {
+                None
+            }
+            fn occluded(&self, _: &Ray, _: f32, _: f32) -> bool {
+                false
+            }
+        }
+        let scene = scene();
+        let tracer = crate::trace::SceneTracer::new(&scene);
+        let r = validate(&scene, &Blind, &tracer, &ANALYTIC, &options()).unwrap();
+        assert!(!r.passed());
+        let text = r.failures.join("\n");
+        assert!(text.contains("analytic SDFs: hit/miss agreement"), "{text}");
+        assert!(text.contains("outside the ε band"), "{text}");
+        assert!(text.contains("shadow rays"), "{text}");
+
+        let mut checks = ANALYTIC.to_vec();
+        checks[1] = ObjectCheck::Skipped { why: "test".into() };
+        let r = validate(&scene, &tracer, &tracer, &checks, &options()).unwrap();
+        assert!(!r.passed());
+        assert!(r.failures[0].contains("#1"), "{:?}", r.failures);
+        assert!(r.kind(Kind::UncheckedSdf).rays > 0);
+        assert!(r.markdown().contains("SKIPPED: test"));
+    }
+
+    /// Random ray origins lie outside every object, and bad grids are errors.
+    #[test]
+    fn random_rays_start_outside() {
+        let scene = scene();
+        let opts = options();
+        let p = probes(&scene, &opts).unwrap();
+        assert_eq!(p.len(), 48 * 36 + 300);
+        let mut regs = Registers::new();
+        for probe in &p[48 * 36..] {
+            for o in &scene.objects {
+                assert!(o.lowered.distance.eval_in(probe.ray.origin, &mut regs) > 0.0);
+            }
+        }
+        let bad = Options { width: 0, ..opts };
+        let tracer = crate::trace::SceneTracer::new(&scene);
+        assert!(validate(&scene, &tracer, &tracer, &ANALYTIC, &bad).is_err());
+        assert!(validate(&scene, &tracer, &tracer, &ANALYTIC[..2], &opts).is_err());
+    }
+}
