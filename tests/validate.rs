@@ -403,7 +403,7 @@ impl RayQuery for Broken<'_> {
 }
 
 fn checks(embree: &EmbreeScene) -> Vec<ObjectCheck> {
-    embree.checks.iter().map(ObjectCheck::from).collect()
+    hytrace::reference::validate::object_checks(embree)
 }
 
 /// The referee has teeth: a tracer off by 20·ε(t) and an overshooting sphere tracer fail on

@@ -29,6 +29,17 @@
 //! which both sides intersect exactly) of the other side's surface — found by a short probe ray of the other backend along
 //! the normal. Every SDF object must be checked by the referee: an object it skipped is a
 //! failure, as are all thresholds above.
+//!
+//! **Clipped unbounded objects.** The referee meshes an unbounded object (infinite repetition)
+//! only inside a box; a ray whose hit by our tracer lies outside that box (shrunk by the
+//! mesher's tolerance) with no referee surface before it, and a disagreeing shadow ray whose
+//! first occluder for our tracer lies there, have nothing to be compared with: they are left
+//! out of every figure and counted in the report.
+//!
+//! **Shadow rays** start at the referee's camera-ray hit, offset along its normal as the
+//! renderer offsets them, plus 2τ from a meshed SDF's hit (τ its tolerance): the mesh lies up to
+//! τ from the true surface on either side, and a ray starting inside the true solid would see
+//! the surface it leaves as its occluder.
 
 use super::query::{ObjectId, QueryHit, RayQuery};
 use crate::geom::{Aabb, Ray};
@@ -70,6 +81,10 @@ pub enum ObjectCheck {
         tolerance: f32,
         /// Triangles of the mesh.
         triangles: usize,
+        /// For an unbounded object meshed only inside a box (infinite repetition, say): that
+        /// box as (min, max). A hit of the true surface outside it has no counterpart in the
+        /// mesh, so rays whose hit lies there are left out of the comparison (and counted).
+        clipped_to: Option<[[f32; 3]; 2]>,
     },
     /// Not represented: the object cannot be validated.
     Skipped {
@@ -88,37 +103,51 @@ impl ObjectCheck {
                 cell,
                 tolerance,
                 triangles,
-            } => format!(
-                "meshed: {resolution} cells along the longest side (cell {cell:.3e}), \
-                 {triangles} triangles, tolerance {tolerance:.3e}"
-            ),
+                clipped_to,
+            } => {
+                let mut s = format!(
+                    "meshed: {resolution} cells along the longest side (cell {cell:.3e}), \
+                     {triangles} triangles, tolerance {tolerance:.3e}"
+                );
+                if let Some([lo, hi]) = clipped_to {
+                    let _ = write!(s, ", unbounded: meshed inside {lo:?}..{hi:?}");
+                }
+                s
+            }
             ObjectCheck::Skipped { why } => format!("SKIPPED: {why}"),
         }
     }
 }
 
+/// How the Embree referee represents each SDF object of its scene, with the box a clipped
+/// unbounded object's mesh stands for it in ([`super::embree::EmbreeScene::mesh_region`]).
 #[cfg(feature = "embree")]
-impl From<&super::embree::SdfCheck> for ObjectCheck {
-    fn from(c: &super::embree::SdfCheck) -> Self {
-        use super::embree::SdfCheck;
-        #[allow(clippy::unneeded_field_pattern)]
-        match c {
+pub fn object_checks(embree: &super::embree::EmbreeScene) -> Vec<ObjectCheck> {
+    use super::embree::SdfCheck;
+    embree
+        .checks
+        .iter()
+        .enumerate()
+        .map(|(i, c)| match c {
             SdfCheck::Analytic => ObjectCheck::Analytic,
             SdfCheck::Meshed {
                 resolution,
                 cell,
                 tolerance,
                 triangles,
-                ..
             } => ObjectCheck::Meshed {
                 resolution: *resolution,
                 cell: *cell,
                 tolerance: *tolerance,
                 triangles: *triangles,
+                clipped_to: embree
+                    .mesh_region(i)
+                    .filter(|r| r.clipped)
+                    .map(|r| [r.bounds.min.to_array(), r.bounds.max.to_array()]),
             },
             SdfCheck::Skipped(why) => ObjectCheck::Skipped { why: why.clone() },
-        }
-    }
+        })
+        .collect()
 }
 
 /// The kind of object a ray is classified by.
@@ -204,23 +233,26 @@ pub enum PixelClass {
     ShadowMismatch,
     /// We hit an object the referee skipped.
     Unchecked,
+    /// We hit a clipped unbounded object where the referee has no mesh for it (left out).
+    OutsideMesh,
 }
 
 impl PixelClass {
     /// Every class that has a fixed colour, in legend order.
-    pub const LEGEND: [PixelClass; 6] = [
+    pub const LEGEND: [PixelClass; 7] = [
         PixelClass::Miss,
         PixelClass::DisagreeInBand,
         PixelClass::DisagreeElsewhere,
         PixelClass::OverTolerance,
         PixelClass::ShadowMismatch,
         PixelClass::Unchecked,
+        PixelClass::OutsideMesh,
     ];
 
     /// Its colour in the mismatch image: agreeing hits in grey (brighter where the ray meets
     /// the surface head-on), misses dark blue, silhouette disagreements yellow, other
     /// disagreements red, |Δt| over tolerance magenta, shadow mismatches cyan, unchecked
-    /// objects green.
+    /// objects green, hits beyond a clipped object's mesh dark purple.
     pub fn colour(self) -> [u8; 3] {
         match self {
             PixelClass::Miss => [20, 24, 48],
@@ -230,6 +262,7 @@ impl PixelClass {
             PixelClass::OverTolerance => [255, 0, 255],
             PixelClass::ShadowMismatch => [0, 200, 255],
             PixelClass::Unchecked => [0, 170, 0],
+            PixelClass::OutsideMesh => [70, 40, 90],
         }
     }
 
@@ -243,6 +276,7 @@ impl PixelClass {
             PixelClass::OverTolerance => "|dt| over tolerance",
             PixelClass::ShadowMismatch => "shadow-ray mismatch",
             PixelClass::Unchecked => "object the referee skipped",
+            PixelClass::OutsideMesh => "beyond a clipped object's mesh (left out)",
         }
     }
 
@@ -294,6 +328,9 @@ pub struct ShadowStats {
     pub disagree_grazing: usize,
     /// Disagreements elsewhere.
     pub disagree_elsewhere: usize,
+    /// Shadow rays left out (not in `rays`): the two sides disagree and the occluder our
+    /// tracer finds first is a clipped unbounded meshed object outside the box its mesh covers.
+    pub excluded_outside_mesh: usize,
 }
 
 /// One SDF object and how the referee checked it.
@@ -362,6 +399,10 @@ pub struct Report {
     pub mesh_triangles: usize,
     /// Rays both sides missed.
     pub both_miss: usize,
+    /// Rays left out of every figure: our tracer hit a clipped unbounded meshed object outside
+    /// the box its mesh covers (shrunk by the mesher's tolerance), and the referee has no
+    /// surface before that hit.
+    pub excluded_outside_mesh: usize,
     /// Per kind, the kinds that occurred (every kind in [`Kind::ALL`] order, rows with no ray
     /// left out).
     pub kinds: Vec<KindRow>,
@@ -447,11 +488,23 @@ impl Report {
             );
         }
         let _ = writeln!(s, "| (both miss) | {} | | | | | | | | | |", self.both_miss);
+        if self.excluded_outside_mesh > 0 {
+            let _ = writeln!(
+                s,
+                "| (left out: our hit beyond a clipped object's mesh) | {} | | | | | | | | | |",
+                self.excluded_outside_mesh
+            );
+        }
         let sh = &self.shadow;
         let _ = writeln!(
             s,
-            "\nShadow rays: {} cast, {:.3}% agree ({} disagreements at grazing angles, {} elsewhere).",
-            sh.rays, sh.agreement_percent, sh.disagree_grazing, sh.disagree_elsewhere
+            "\nShadow rays: {} cast, {:.3}% agree ({} disagreements at grazing angles, {} elsewhere); \
+             {} more left out (our occluder beyond a clipped object's mesh).",
+            sh.rays,
+            sh.agreement_percent,
+            sh.disagree_grazing,
+            sh.disagree_elsewhere,
+            sh.excluded_outside_mesh
         );
         s += "\nObjects:\n\n";
         if self.mesh_instances > 0 {
@@ -510,6 +563,7 @@ enum Outcome {
     Agree { kind: Kind, dt: f32, tol: f32 },
     Disagree { kind: Kind, in_band: bool },
     Unchecked,
+    OutsideMesh,
 }
 
 /// A shadow ray's outcome: the kind of the hit it leaves, whether both agree, whether it
@@ -519,6 +573,7 @@ struct ShadowOutcome {
     kind: Kind,
     agree: bool,
     grazing: bool,
+    outside_mesh: bool,
 }
 
 /// The finite bounds of the scene (SDF objects and meshes); around the camera when nothing is
@@ -636,6 +691,22 @@ where
         },
         ObjectId::MeshInstance(_) => 0.0,
     };
+    // Where a clipped unbounded meshed object's mesh stands for it: its box, shrunk by the
+    // tolerance (a hit that close to the box's faces may belong to a cut-off triangle).
+    let mesh_box = |object: ObjectId| match object {
+        ObjectId::Sdf(i) => match checks.get(i) {
+            Some(ObjectCheck::Meshed {
+                clipped_to: Some([lo, hi]),
+                tolerance,
+                ..
+            }) => Some((Aabb::new(Vec3::from(*lo), Vec3::from(*hi)), *tolerance)),
+            _ => None,
+        },
+        ObjectId::MeshInstance(_) => None,
+    };
+    let outside_mesh = |hit: &QueryHit, ray: &Ray| {
+        mesh_box(hit.object).is_some_and(|(b, tol)| b.signed_distance(ray.at(hit.t)) > -tol)
+    };
     // The |Δt| tolerance at the referee's hit (see the module documentation).
     let tolerance = |hit: &QueryHit, ray: &Ray| {
         let e = epsilon_at(settings, hit.t);
@@ -698,6 +769,14 @@ where
             let b = referee.closest_hit(ray, 0.0, tmax);
             let outcome = match (&a, &b) {
                 (None, None) => Outcome::BothMiss,
+                // Our hit lies where the referee has no mesh for the surface, and the referee
+                // sees nothing before it: nothing to compare.
+                (Some(x), _)
+                    if outside_mesh(x, ray)
+                        && b.is_none_or(|y| y.t > x.t - tolerance(x, ray)) =>
+                {
+                    Outcome::OutsideMesh
+                }
                 (Some(x), Some(y)) => {
                     let tol = tolerance(y, ray);
                     let dt = (x.t - y.t).abs();
@@ -763,7 +842,13 @@ where
             } else {
                 hit.normal
             };
-            let offset = offset_from_surface(settings, hit.t, p);
+            // A meshed hit lies up to the mesher's tolerance τ from the true surface, on either
+            // side: started from the renderer's offset alone, the shadow ray could begin inside
+            // the true solid, where our tracer reports the surface itself as the occluder.
+            // From a meshed hit the ray therefore starts 2τ further out (≥ τ off the true
+            // surface, ≥ τ off the mesh); both sides trace the same ray.
+            let offset =
+                offset_from_surface(settings, hit.t, p) + 2.0 * meshed_tolerance(hit.object);
             let origin = p + n * offset;
             let kind = kind_of(hit.object);
             scene.lights.iter().filter_map(move |light| {
@@ -784,13 +869,21 @@ where
                     return None;
                 }
                 let shadow = Ray::new(origin, l);
-                let agree = ours.occluded(&shadow, 0.0, len) == referee.occluded(&shadow, 0.0, len);
+                let ours_occluded = ours.occluded(&shadow, 0.0, len);
+                let agree = ours_occluded == referee.occluded(&shadow, 0.0, len);
+                // Our occluder is where the referee has no mesh for it: nothing to compare.
+                let outside_mesh = !agree
+                    && ours_occluded
+                    && ours
+                        .closest_hit(&shadow, 0.0, len)
+                        .is_some_and(|h| outside_mesh(&h, &shadow));
                 Some((
                     pixel,
                     ShadowOutcome {
                         kind,
                         agree,
                         grazing: cos < GRAZING,
+                        outside_mesh,
                     },
                 ))
             })
@@ -801,6 +894,7 @@ where
     let mut stats: [KindStats; 4] = Default::default();
     let mut dts: [Vec<f32>; 4] = Default::default();
     let mut both_miss = 0;
+    let mut excluded_outside_mesh = 0;
     let mut pixels = vec![PixelClass::Miss; (options.width * options.height) as usize];
     let describe = |h: &Option<QueryHit>, ray: &Ray| {
         h.map(|h| {
@@ -882,6 +976,10 @@ where
                 stats[Kind::UncheckedSdf.index()].rays += 1;
                 PixelClass::Unchecked
             }
+            Outcome::OutsideMesh => {
+                excluded_outside_mesh += 1;
+                PixelClass::OutsideMesh
+            }
         };
         if let Some(i) = probe.pixel {
             pixels[i] = class;
@@ -889,6 +987,10 @@ where
     }
     let mut shadow = ShadowStats::default();
     for (pixel, s) in &shadows {
+        if s.outside_mesh {
+            shadow.excluded_outside_mesh += 1;
+            continue;
+        }
         shadow.rays += 1;
         let k = &mut stats[s.kind.index()];
         k.shadow_rays += 1;
@@ -948,6 +1050,7 @@ where
         mesh_instances: scene.meshes.instances.len(),
         mesh_triangles: scene.meshes.triangle_count(),
         both_miss,
+        excluded_outside_mesh,
         kinds,
         shadow,
         failures,
@@ -1072,7 +1175,7 @@ fn failures(
 #[cfg(feature = "embree")]
 pub fn validate_with_embree(scene: &Scene, options: &Options) -> Result<Report, String> {
     let embree = super::embree::EmbreeScene::build(scene)?;
-    let checks: Vec<ObjectCheck> = embree.checks.iter().map(ObjectCheck::from).collect();
+    let checks = object_checks(&embree);
     let tracer = crate::trace::SceneTracer::new(scene);
     validate(scene, &tracer, &embree, &checks, options)
 }
