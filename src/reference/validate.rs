@@ -26,8 +26,13 @@
 //! ray. "Inside the band" means the disagreement is at a silhouette: the ray grazes the
 //! surface that one side hit (|n·d| < 0.05, [`GRAZING`]), or the surface one side hit lies
 //! within the band width (3·ε(t) for analytic SDFs, τ + 3·ε(t) for meshed ones; not for meshes,
-//! which both sides intersect exactly) of the other side's surface — found by a short probe ray of the other backend along
-//! the normal. Every SDF object must be checked by the referee: an object it skipped is a
+//! which both sides intersect exactly) of the other side's surface — found by a short probe ray
+//! of the other backend along the normal; for meshed SDFs also where our ray only clips a
+//! sliver of the true solid (the object's field, sampled every h/4 past our hit, is positive
+//! again within √3·h, h the cell) or the other side's surface lies within a cell diagonal
+//! √3·h + 3·ε(t) along the three axes or the ray (τ bounds the mesh's distance from the
+//! surface, not the surface's from the mesh: marching cubes cuts sharp edges and thin rims by
+//! up to a cell, and features thinner than a cell can be lost). Every SDF object must be checked by the referee: an object it skipped is a
 //! failure, as are all thresholds above.
 //!
 //! **Clipped unbounded objects.** The referee meshes an unbounded object (infinite repetition)
@@ -39,7 +44,10 @@
 //! **Shadow rays** start at the referee's camera-ray hit, offset along its normal as the
 //! renderer offsets them, plus 2τ from a meshed SDF's hit (τ its tolerance): the mesh lies up to
 //! τ from the true surface on either side, and a ray starting inside the true solid would see
-//! the surface it leaves as its occluder.
+//! the surface it leaves as its occluder. A shadow ray on which the two sides disagree about
+//! a meshed blocker the ray passes within the mesh's tolerance of (our blocker within the band
+//! of the referee's mesh; the referee's mesh blocking at a point outside the true solid) is
+//! undecidable at that tolerance: it is left out of the agreement and counted.
 
 use super::query::{ObjectId, QueryHit, RayQuery};
 use crate::geom::{Aabb, Ray};
@@ -331,6 +339,11 @@ pub struct ShadowStats {
     /// Shadow rays left out (not in `rays`): the two sides disagree and the occluder our
     /// tracer finds first is a clipped unbounded meshed object outside the box its mesh covers.
     pub excluded_outside_mesh: usize,
+    /// Shadow rays left out (not in `rays`): the two sides disagree on a blocker that is a
+    /// meshed object within the mesh's tolerance of the ray — our blocker lies within the
+    /// band of the referee's mesh, or the referee's mesh blocks at a point outside the true
+    /// solid (field ≥ −3·ε(t)), where the mesh stands proud of the surface by up to τ.
+    pub within_mesh_tolerance: usize,
 }
 
 /// One SDF object and how the referee checked it.
@@ -499,12 +512,14 @@ impl Report {
         let _ = writeln!(
             s,
             "\nShadow rays: {} cast, {:.3}% agree ({} disagreements at grazing angles, {} elsewhere); \
-             {} more left out (our occluder beyond a clipped object's mesh).",
+             left out: {} whose occluder (ours) lies beyond a clipped object's mesh, {} whose \
+             meshed blocker lies within the mesh's tolerance of the ray.",
             sh.rays,
             sh.agreement_percent,
             sh.disagree_grazing,
             sh.disagree_elsewhere,
-            sh.excluded_outside_mesh
+            sh.excluded_outside_mesh,
+            sh.within_mesh_tolerance
         );
         s += "\nObjects:\n\n";
         if self.mesh_instances > 0 {
@@ -574,6 +589,7 @@ struct ShadowOutcome {
     agree: bool,
     grazing: bool,
     outside_mesh: bool,
+    within_mesh_tolerance: bool,
 }
 
 /// The finite bounds of the scene (SDF objects and meshes); around the camera when nothing is
@@ -691,6 +707,13 @@ where
         },
         ObjectId::MeshInstance(_) => 0.0,
     };
+    let meshed_cell = |object: ObjectId| match object {
+        ObjectId::Sdf(i) => match checks.get(i) {
+            Some(ObjectCheck::Meshed { cell, .. }) => *cell,
+            _ => 0.0,
+        },
+        ObjectId::MeshInstance(_) => 0.0,
+    };
     // Where a clipped unbounded meshed object's mesh stands for it: its box, shrunk by the
     // tolerance (a hit that close to the box's faces may belong to a cut-off triangle).
     let mesh_box = |object: ObjectId| match object {
@@ -741,7 +764,37 @@ where
             return false;
         }
         let p = ray.at(hit.t);
-        other(&Ray::new(p + w * n, -n), 2.0 * w)
+        if other(&Ray::new(p + w * n, -n), 2.0 * w) {
+            return true;
+        }
+        // A meshed object's tolerance bounds how far the mesh strays from the surface, not the
+        // converse: at a sharp edge or a thin rim marching cubes cuts the corner, and the
+        // surface there can lie up to a cell diagonal from the mesh in a direction other than
+        // its normal (the mesher's docs: features thinner than a cell can be lost). So a
+        // meshed object's band is also probed along the three axes and the ray, a cell
+        // diagonal (+ 3·ε(t)) each way.
+        let cell = meshed_cell(hit.object);
+        if cell == 0.0 {
+            return false;
+        }
+        let w = 3f32.sqrt() * cell + 3.0 * epsilon_at(settings, hit.t);
+        [Vec3::X, Vec3::Y, Vec3::Z, ray.direction]
+            .iter()
+            .any(|&a| other(&Ray::new(p - w * a, a), 2.0 * w))
+    };
+    // Our hit on a meshed object where the ray only clips a sliver of the true solid (an edge,
+    // a rim, a plate thinner than a cell): the object's field, sampled every quarter cell
+    // along the ray past the hit, is outside again within a cell diagonal. Marching cubes may
+    // lose such a sliver (the mesher's docs), so the referee's miss is at a silhouette.
+    let sliver = |hit: &QueryHit, ray: &Ray| {
+        let cell = meshed_cell(hit.object);
+        match hit.object {
+            ObjectId::Sdf(i) if cell > 0.0 => {
+                let field = &scene.objects[i].lowered.distance;
+                (1..=7).any(|k| field.eval(ray.at(hit.t + 0.25 * k as f32 * cell)) > 0.0)
+            }
+            _ => false,
+        }
     };
     // A sphere tracer stops up to ε(t)/|n·d| before the surface, so near the end of the ray
     // range it can report a surface that lies just beyond tmax, which the referee (stopping
@@ -772,15 +825,29 @@ where
                 // Our hit lies where the referee has no mesh for the surface, and the referee
                 // sees nothing before it: nothing to compare.
                 (Some(x), _)
-                    if outside_mesh(x, ray)
-                        && b.is_none_or(|y| y.t > x.t - tolerance(x, ray)) =>
+                    if outside_mesh(x, ray) && b.is_none_or(|y| y.t > x.t - tolerance(x, ray)) =>
                 {
                     Outcome::OutsideMesh
                 }
                 (Some(x), Some(y)) => {
-                    let tol = tolerance(y, ray);
+                    // τ bounds the mesh's distance from the surface along the surface's normal,
+                    // so along the ray it is τ/|n·d|. Near a crease the mesh cuts (an edge of a
+                    // twisted box, a rim) the surface has every normal between the two faces',
+                    // ours (from the field, one face) and the facet's (the chamfer, between
+                    // them): the tolerance takes the more grazing of the two.
+                    let tol = if x.object == y.object && kind_of(y.object) == Kind::MeshedSdf {
+                        let facet = y.normal.dot(ray.direction).abs();
+                        let normal = if x.normal.dot(ray.direction).abs() < facet {
+                            x.normal
+                        } else {
+                            y.normal
+                        };
+                        tolerance(&QueryHit { normal, ..*y }, ray)
+                    } else {
+                        tolerance(y, ray)
+                    };
                     let dt = (x.t - y.t).abs();
-                    if dt > tol && x.t < y.t && near(&ref_occ, x, ray) {
+                    if dt > tol && x.t < y.t && (near(&ref_occ, x, ray) || sliver(x, ray)) {
                         // Our hit lies within the band of the referee's surface, which the
                         // ray passes by: a sphere tracer's near miss at a silhouette (it stops
                         // wherever the ray comes within ε(t) of a surface), then the referee
@@ -793,7 +860,7 @@ where
                         // Different surfaces: a hit/miss disagreement on the nearer one.
                         if x.t < y.t {
                             only_ours(kind_of(x.object), || {
-                                grazing(x, ray) || near(&ref_occ, x, ray)
+                                grazing(x, ray) || (near(&ref_occ, x, ray) || sliver(x, ray))
                             })
                         } else {
                             Outcome::Disagree {
@@ -816,7 +883,7 @@ where
                         tol: tolerance(&y, ray),
                     },
                     None => only_ours(kind_of(x.object), || {
-                        grazing(x, ray) || near(&ref_occ, x, ray)
+                        grazing(x, ray) || (near(&ref_occ, x, ray) || sliver(x, ray))
                     }),
                 },
                 (None, Some(y)) => Outcome::Disagree {
@@ -877,6 +944,26 @@ where
                     && ours
                         .closest_hit(&shadow, 0.0, len)
                         .is_some_and(|h| outside_mesh(&h, &shadow));
+                // The blocker is a meshed object and the ray passes within the mesh's tolerance of
+                // it: at that distance the mesh cannot say whether the true surface blocks.
+                let within_mesh_tolerance = !agree
+                    && !outside_mesh
+                    && if ours_occluded {
+                        ours.closest_hit(&shadow, 0.0, len).is_some_and(|x| {
+                            kind_of(x.object) == Kind::MeshedSdf
+                                && (near(&ref_occ, &x, &shadow) || sliver(&x, &shadow))
+                        })
+                    } else {
+                        referee
+                            .closest_hit(&shadow, 0.0, len)
+                            .is_some_and(|y| match y.object {
+                                ObjectId::Sdf(i) if kind_of(y.object) == Kind::MeshedSdf => {
+                                    scene.objects[i].lowered.distance.eval(shadow.at(y.t))
+                                        >= -3.0 * epsilon_at(settings, y.t)
+                                }
+                                _ => false,
+                            })
+                    };
                 Some((
                     pixel,
                     ShadowOutcome {
@@ -884,6 +971,7 @@ where
                         agree,
                         grazing: cos < GRAZING,
                         outside_mesh,
+                        within_mesh_tolerance,
                     },
                 ))
             })
@@ -989,6 +1077,10 @@ where
     for (pixel, s) in &shadows {
         if s.outside_mesh {
             shadow.excluded_outside_mesh += 1;
+            continue;
+        }
+        if s.within_mesh_tolerance {
+            shadow.within_mesh_tolerance += 1;
             continue;
         }
         shadow.rays += 1;
@@ -1174,7 +1266,17 @@ fn failures(
 /// Validates our CPU tracer against Embree 4 on `scene`.
 #[cfg(feature = "embree")]
 pub fn validate_with_embree(scene: &Scene, options: &Options) -> Result<Report, String> {
-    let embree = super::embree::EmbreeScene::build(scene)?;
+    validate_with_embree_options(scene, options, &super::embree::ReferenceOptions::default())
+}
+
+/// Validates our CPU tracer against Embree 4 on `scene`, the referee built with `reference`.
+#[cfg(feature = "embree")]
+pub fn validate_with_embree_options(
+    scene: &Scene,
+    options: &Options,
+    reference: &super::embree::ReferenceOptions,
+) -> Result<Report, String> {
+    let embree = super::embree::EmbreeScene::build_with(scene, reference)?;
     let checks = object_checks(&embree);
     let tracer = crate::trace::SceneTracer::new(scene);
     validate(scene, &tracer, &embree, &checks, options)
