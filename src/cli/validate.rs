@@ -21,8 +21,8 @@ the surface), |dt| <= max(10 eps(t), 2 eps(t)/|n.d|); meshed SDFs |dt| <= max(10
 
 Mismatch image colours: grey = agree (brighter = head-on), dark blue = both miss, yellow =
 hit/miss mismatch at a silhouette, red = hit/miss mismatch elsewhere, magenta = |dt| over
-tolerance, cyan = a shadow ray disagrees, green = an object Embree skipped. The legend is
-drawn below the picture.")]
+tolerance, cyan = a shadow ray disagrees, green = an object Embree skipped, dark purple = our
+hit beyond a clipped unbounded object's mesh (left out). The legend is drawn below the picture.")]
 pub struct ValidateArgs {
     /// Scene file (.ron) or mesh file (.gltf, .glb, .obj, .ply); omit for the built-in
     /// showcase.
