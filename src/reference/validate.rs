@@ -27,13 +27,17 @@
 //! surface that one side hit (|n·d| < 0.05, [`GRAZING`]), or the surface one side hit lies
 //! within the band width (3·ε(t) for analytic SDFs, τ + 3·ε(t) for meshed ones; not for meshes,
 //! which both sides intersect exactly) of the other side's surface — found by a short probe ray
-//! of the other backend along the normal; for meshed SDFs also where our ray only clips a
-//! sliver of the true solid (the object's field, sampled every h/4 past our hit, is positive
-//! again within √3·h, h the cell) or the other side's surface lies within a cell diagonal
-//! √3·h + 3·ε(t) along the three axes or the ray (τ bounds the mesh's distance from the
-//! surface, not the surface's from the mesh: marching cubes cuts sharp edges and thin rims by
-//! up to a cell, and features thinner than a cell can be lost). Every SDF object must be checked by the referee: an object it skipped is a
-//! failure, as are all thresholds above.
+//! of the other backend along the normal (for a meshed hit also along the field's gradient,
+//! the facet's normal being off); for meshed SDFs also where our ray only clips a sliver of
+//! the true solid (the object's field, sampled every h/4 past our hit, is positive again
+//! within √3·h, h the cell) or the other side's surface lies within a cell diagonal
+//! √3·h + 3·ε(t) along the three axes, the four cube diagonals or the ray (τ bounds the
+//! mesh's distance from the surface, not the surface's from the mesh: marching cubes cuts
+//! sharp edges and corners and thin rims by up to a cell, and features thinner than a cell
+//! can be lost). A referee hit on a meshed object before ours, with our tracer's surface
+//! within that band, is such a silhouette disagreement too (the mesh stands proud of a
+//! surface the ray passes). Every SDF object must be checked by the referee: an object it
+//! skipped is a failure, as are all thresholds above.
 //!
 //! **Clipped unbounded objects.** The referee meshes an unbounded object (infinite repetition)
 //! only inside a box; a ray whose hit by our tracer lies outside that box (shrunk by the
@@ -767,20 +771,51 @@ where
         if other(&Ray::new(p + w * n, -n), 2.0 * w) {
             return true;
         }
+        // A meshed hit's facet normal is not the surface's: probe along the field's gradient
+        // at the hit point too (the direction to the nearest true surface).
+        if let ObjectId::Sdf(i) = hit.object
+            && kind_of(hit.object) == Kind::MeshedSdf
+        {
+            let s = settings;
+            let g = crate::trace::normal::estimate(
+                &scene.objects[i].lowered.distance,
+                p,
+                crate::trace::normal::step_for(s, hit.t),
+                s.normals,
+                &mut Registers::new(),
+            )
+            .0
+            .normalize_or_zero();
+            if g != Vec3::ZERO && other(&Ray::new(p + w * g, -g), 2.0 * w) {
+                return true;
+            }
+        }
         // A meshed object's tolerance bounds how far the mesh strays from the surface, not the
         // converse: at a sharp edge or a thin rim marching cubes cuts the corner, and the
         // surface there can lie up to a cell diagonal from the mesh in a direction other than
         // its normal (the mesher's docs: features thinner than a cell can be lost). So a
         // meshed object's band is also probed along the three axes and the ray, a cell
-        // diagonal (+ 3·ε(t)) each way.
+        // diagonal (+ 3·ε(t)) each way, and along the four cube diagonals.
         let cell = meshed_cell(hit.object);
         if cell == 0.0 {
             return false;
         }
         let w = 3f32.sqrt() * cell + 3.0 * epsilon_at(settings, hit.t);
-        [Vec3::X, Vec3::Y, Vec3::Z, ray.direction]
-            .iter()
-            .any(|&a| other(&Ray::new(p - w * a, a), 2.0 * w))
+        // The axes and the cube diagonals: marching cubes cuts an edge of the solid by a
+        // facet facing between two axes, a corner by one facing along a diagonal.
+        let d = 1.0 / 3f32.sqrt();
+        [
+            Vec3::X,
+            Vec3::Y,
+            Vec3::Z,
+            Vec3::new(d, d, d),
+            Vec3::new(d, d, -d),
+            Vec3::new(d, -d, d),
+            Vec3::new(-d, d, d),
+            ray.direction,
+        ]
+        .iter()
+        .any(|&a| other(&Ray::new(p - w * a, a), 2.0 * w))
     };
     // Our hit on a meshed object where the ray only clips a sliver of the true solid (an edge,
     // a rim, a plate thinner than a cell): the object's field, sampled every quarter cell
@@ -854,6 +889,18 @@ where
                         // meets the same or another surface farther on.
                         Outcome::Disagree {
                             kind: kind_of(x.object),
+                            in_band: true,
+                        }
+                    } else if dt > tol
+                        && x.t > y.t
+                        && kind_of(y.object) == Kind::MeshedSdf
+                        && near(&ours_occ, y, ray)
+                    {
+                        // The referee's mesh, standing up to τ proud of the surface, meets a
+                        // ray that passes the true surface within the band: our tracer
+                        // rightly goes on to a farther surface (of the same object or not).
+                        Outcome::Disagree {
+                            kind: kind_of(y.object),
                             in_band: true,
                         }
                     } else if x.object != y.object && dt > tol {
