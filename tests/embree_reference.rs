@@ -174,8 +174,8 @@ struct Report {
     excused_by_mesh: usize,
     /// Hit/miss disagreements elsewhere.
     unexcused: usize,
-    /// Rays left out: the candidate's hit lies on a clipped (unbounded) meshed object outside
-    /// the box its mesh covers.
+    /// Rays left out: the candidate's hit (or, for a shadow ray the two disagree on, its
+    /// blocker) lies on a clipped (unbounded) meshed object outside the box its mesh covers.
     outside_mesh: usize,
     /// |Δt| of rays both hit, with the tolerance that applies.
     dt: Vec<(f32, f32)>,
@@ -479,8 +479,20 @@ fn compare(scene: &Scene, candidate: &dyn RayQuery, referee: &EmbreeScene, seed:
                     _ => false,
                 }
             };
+            let agree =
+                candidate.occluded(&shadow, 0.0, dist) == referee.occluded(&shadow, 0.0, dist);
+            // The candidate's blocker lies where the referee has no mesh of a clipped object:
+            // nothing to compare (counted with the primary rays left out).
+            if !agree
+                && candidate
+                    .closest_hit(&shadow, 0.0, dist)
+                    .is_some_and(|x| outside_mesh(referee, x.object, shadow.at(x.t)))
+            {
+                r.outside_mesh += 1;
+                continue;
+            }
             r.shadow_rays += 1;
-            if candidate.occluded(&shadow, 0.0, dist) == referee.occluded(&shadow, 0.0, dist) {
+            if agree {
                 r.shadow_agree += 1;
             } else if n.dot(shadow.direction).abs() < GRAZING {
                 r.shadow_grazing += 1;

@@ -21,8 +21,8 @@ the surface), |dt| <= max(10 eps(t), 2 eps(t)/|n.d|); meshed SDFs |dt| <= max(10
 
 Mismatch image colours: grey = agree (brighter = head-on), dark blue = both miss, yellow =
 hit/miss mismatch at a silhouette, red = hit/miss mismatch elsewhere, magenta = |dt| over
-tolerance, cyan = a shadow ray disagrees, green = an object Embree skipped. The legend is
-drawn below the picture.")]
+tolerance, cyan = a shadow ray disagrees, green = an object Embree skipped, dark purple = our
+hit beyond a clipped unbounded object's mesh (left out). The legend is drawn below the picture.")]
 pub struct ValidateArgs {
     /// Scene file (.ron) or mesh file (.gltf, .glb, .obj, .ply); omit for the built-in
     /// showcase.
@@ -48,6 +48,10 @@ pub struct ValidateArgs {
     /// Write the mismatch image (PNG) to this file.
     #[arg(long)]
     pub mismatch: Option<PathBuf>,
+    /// Grid cells along the longest side of each meshed SDF object's box (the referee's
+    /// default when omitted); the mesh tolerance is about one cell.
+    #[arg(long)]
+    pub mesh_resolution: Option<u32>,
 }
 
 /// Runs the validation, prints the report, writes the files; an error when a threshold fails.
@@ -55,7 +59,8 @@ pub struct ValidateArgs {
 pub fn run(args: ValidateArgs) -> Result<()> {
     use super::draw;
     use anyhow::{Context, bail};
-    use hytrace::reference::validate::{Options, PixelClass, validate_with_embree};
+    use hytrace::reference::embree::ReferenceOptions;
+    use hytrace::reference::validate::{Options, PixelClass, validate_with_embree_options};
     use hytrace::scene::{MAX_IMAGE_SIDE, MAX_PIXELS};
     use std::time::Instant;
     /// Most random rays accepted.
@@ -93,7 +98,14 @@ pub fn run(args: ValidateArgs) -> Result<()> {
         seed: args.seed,
     };
     let start = Instant::now();
-    let report = validate_with_embree(&scene, &options)
+    let mut reference = ReferenceOptions::default();
+    if let Some(r) = args.mesh_resolution {
+        if !(2..=4096).contains(&r) {
+            bail!("--mesh-resolution {r} is out of range 2..=4096");
+        }
+        reference.mesh_resolution = r;
+    }
+    let report = validate_with_embree_options(&scene, &options, &reference)
         .map_err(|e| anyhow::anyhow!("{}: {e}", scene.source_name))?;
     let elapsed = start.elapsed();
     print!("{}", report.markdown());

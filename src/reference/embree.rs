@@ -45,9 +45,10 @@ use crate::scene::Scene;
 use crate::sdf::SdfNode;
 use crate::sdf::lower::transform_of;
 use embree4_sys::{
-    RTC_INVALID_GEOMETRY_ID, RTCBounds, RTCBoundsFunctionArguments, RTCBufferType, RTCBuildQuality, RTCSceneFlags,
+    RTC_INVALID_GEOMETRY_ID, RTCBounds, RTCBoundsFunctionArguments, RTCBufferType, RTCBuildQuality,
     RTCDevice, RTCError, RTCFormat, RTCGeometry, RTCGeometryType, RTCHit,
     RTCIntersectFunctionNArguments, RTCOccludedFunctionNArguments, RTCRay, RTCRayHit, RTCScene,
+    RTCSceneFlags,
 };
 use glam::{Affine3A, DAffine3, DMat3, DVec3, Mat3A, Vec3};
 use rayon::prelude::*;

@@ -819,6 +819,62 @@ mod tests {
         }
     }
 
+    /// A field with structure at the scale of the cells (a high-frequency gyroid, clipped to
+    /// its box, at 4–8 cells per period) meets many ambiguous faces: the mesh stays closed and
+    /// consistently oriented, which is what the face rule of the table guarantees.
+    #[test]
+    fn ambiguous_faces_do_not_crack_the_mesh() {
+        let (tape, bounds) = tape_of(
+            "Implicit(expr: \"sin(9*x)*cos(9*y) + sin(9*y)*cos(9*z) + sin(9*z)*cos(9*x)\", \
+             lipschitz: 22.1, half_extents: (1, 1, 1))",
+        );
+        let table = case_table();
+        // the cases with an ambiguous face (two diagonal inside corners on one face)
+        let ambiguous = |case: usize| {
+            FACES.iter().any(|f| {
+                let inside = f.map(|c| case & (1 << c) != 0);
+                inside == [true, false, true, false] || inside == [false, true, false, true]
+            })
+        };
+        assert!(
+            (0..256)
+                .filter(|&c| ambiguous(c))
+                .all(|c| !table[c].is_empty())
+        );
+        // The field does have ambiguous cells at these scales: count them on a 16³ lattice.
+        let n = 16;
+        let h = (bounds.max - bounds.min) / n as f32;
+        let mut ambiguous_cells = 0;
+        for i in 0..n * n * n {
+            let cell = Vec3::new((i % n) as f32, ((i / n) % n) as f32, (i / (n * n)) as f32);
+            let case = (0..8).fold(0, |case, k| {
+                let o = corner_offset(k);
+                let p = bounds.min + h * (cell + Vec3::new(o[0] as f32, o[1] as f32, o[2] as f32));
+                case | (((tape.eval(p) < 0.0) as usize) << k)
+            });
+            ambiguous_cells += ambiguous(case) as usize;
+        }
+        println!(
+            "{ambiguous_cells} of {} lattice cells have an ambiguous face",
+            n * n * n
+        );
+        assert!(ambiguous_cells > 50, "{ambiguous_cells}");
+        for resolution in [12, 16, 24, 40] {
+            let m = mesh_sdf(
+                &tape,
+                &bounds,
+                &bounds.expand(0.5),
+                &MeshOptions {
+                    resolution,
+                    ..MeshOptions::default()
+                },
+            )
+            .unwrap();
+            assert!(m.triangles.len() > 1000, "{}", m.triangles.len());
+            assert_closed_and_oriented(&m);
+        }
+    }
+
     /// On a bound field (not an exact distance) linear interpolation misplaces vertices by a
     /// sizeable fraction of a cell; refinement moves them onto the surface. Both meshes share
     /// the grid, so their vertices correspond one to one (sorted by edge key).

@@ -16,6 +16,9 @@
 //!   meshed, our field's gradient at Embree's hit point (the facets are an artefact of the
 //!   referee's representation, not of the surface).
 //! * **SDF materials** are evaluated from our shading tape at Embree's hit point.
+//!
+//! Shadow rays leaving a meshed object skip their first 2τ/|n·d| (τ the mesh's tolerance):
+//! the facets stand up to τ off the true surface and would otherwise shadow the mesh itself.
 
 use super::embree::{EmbreeScene, SdfCheck};
 use super::query::{ObjectId, QueryHit, RayQuery};
@@ -135,6 +138,39 @@ impl<'a> EmbreeTracer<'a> {
     }
 }
 
+impl EmbreeTracer<'_> {
+    /// How far along a ray leaving a meshed SDF object's surface Embree must not look for a
+    /// blocker: the mesh lies up to its tolerance τ off the true surface, so its own facets
+    /// can stand across the first part of the ray (shadow acne on the facets). A ray starting
+    /// within 2τ of meshed object i (|f_i| ≤ 2τ) skips 2τ/|n·d| (n the field's normal there,
+    /// |n·d| at least 0.05) — the same 2τ that `validate` adds to shadow rays from meshed hits.
+    fn mesh_clearance(&self, ray: &Ray) -> f32 {
+        let scene = self.ours.scene();
+        let mut regs = Registers::new();
+        let mut clearance = 0.0f32;
+        for (i, check) in self.embree.checks.iter().enumerate() {
+            let SdfCheck::Meshed { tolerance, .. } = check else {
+                continue;
+            };
+            let field = &scene.objects[i].lowered.distance;
+            if field.eval_in(ray.origin, &mut regs).abs() > 2.0 * tolerance {
+                continue;
+            }
+            let s = &scene.tracer;
+            let (n, _) = normal::estimate(
+                field,
+                ray.origin,
+                normal::step_for(s, 0.0),
+                s.normals,
+                &mut regs,
+            );
+            let cos = n.dot(ray.direction).abs().max(0.05);
+            clearance = clearance.max(2.0 * tolerance / cos);
+        }
+        clearance
+    }
+}
+
 impl ShadingTracer for EmbreeTracer<'_> {
     fn scene(&self) -> &Scene {
         self.ours.scene()
@@ -177,7 +213,8 @@ impl ShadingTracer for EmbreeTracer<'_> {
             return 1.0;
         }
         let limit = tmax.min(self.scene().tracer.max_distance);
-        if self.embree.occluded(ray, tmin, limit) {
+        let tmin = tmin + self.mesh_clearance(ray);
+        if tmin < limit && self.embree.occluded(ray, tmin, limit) {
             return 0.0;
         }
         match shadow {

@@ -26,9 +26,32 @@
 //! ray. "Inside the band" means the disagreement is at a silhouette: the ray grazes the
 //! surface that one side hit (|n·d| < 0.05, [`GRAZING`]), or the surface one side hit lies
 //! within the band width (3·ε(t) for analytic SDFs, τ + 3·ε(t) for meshed ones; not for meshes,
-//! which both sides intersect exactly) of the other side's surface — found by a short probe ray of the other backend along
-//! the normal. Every SDF object must be checked by the referee: an object it skipped is a
-//! failure, as are all thresholds above.
+//! which both sides intersect exactly) of the other side's surface — found by a short probe ray
+//! of the other backend along the normal (for a meshed hit also along the field's gradient,
+//! the facet's normal being off); for meshed SDFs also where our ray only clips a sliver of
+//! the true solid (the object's field, sampled every h/4 past our hit, is positive again
+//! within √3·h, h the cell) or the other side's surface lies within a cell diagonal
+//! √3·h + 3·ε(t) along the three axes, the four cube diagonals or the ray (τ bounds the
+//! mesh's distance from the surface, not the surface's from the mesh: marching cubes cuts
+//! sharp edges and corners and thin rims by up to a cell, and features thinner than a cell
+//! can be lost). A referee hit on a meshed object before ours, with our tracer's surface
+//! within that band, is such a silhouette disagreement too (the mesh stands proud of a
+//! surface the ray passes). Every SDF object must be checked by the referee: an object it
+//! skipped is a failure, as are all thresholds above.
+//!
+//! **Clipped unbounded objects.** The referee meshes an unbounded object (infinite repetition)
+//! only inside a box; a ray whose hit by our tracer lies outside that box (shrunk by the
+//! mesher's tolerance) with no referee surface before it, and a disagreeing shadow ray whose
+//! first occluder for our tracer lies there, have nothing to be compared with: they are left
+//! out of every figure and counted in the report.
+//!
+//! **Shadow rays** start at the referee's camera-ray hit, offset along its normal as the
+//! renderer offsets them, plus 2τ from a meshed SDF's hit (τ its tolerance): the mesh lies up to
+//! τ from the true surface on either side, and a ray starting inside the true solid would see
+//! the surface it leaves as its occluder. A shadow ray on which the two sides disagree about
+//! a meshed blocker the ray passes within the mesh's tolerance of (our blocker within the band
+//! of the referee's mesh; the referee's mesh blocking at a point outside the true solid) is
+//! undecidable at that tolerance: it is left out of the agreement and counted.
 
 use super::query::{ObjectId, QueryHit, RayQuery};
 use crate::geom::{Aabb, Ray};
@@ -70,6 +93,10 @@ pub enum ObjectCheck {
         tolerance: f32,
         /// Triangles of the mesh.
         triangles: usize,
+        /// For an unbounded object meshed only inside a box (infinite repetition, say): that
+        /// box as (min, max). A hit of the true surface outside it has no counterpart in the
+        /// mesh, so rays whose hit lies there are left out of the comparison (and counted).
+        clipped_to: Option<[[f32; 3]; 2]>,
     },
     /// Not represented: the object cannot be validated.
     Skipped {
@@ -88,37 +115,51 @@ impl ObjectCheck {
                 cell,
                 tolerance,
                 triangles,
-            } => format!(
-                "meshed: {resolution} cells along the longest side (cell {cell:.3e}), \
-                 {triangles} triangles, tolerance {tolerance:.3e}"
-            ),
+                clipped_to,
+            } => {
+                let mut s = format!(
+                    "meshed: {resolution} cells along the longest side (cell {cell:.3e}), \
+                     {triangles} triangles, tolerance {tolerance:.3e}"
+                );
+                if let Some([lo, hi]) = clipped_to {
+                    let _ = write!(s, ", unbounded: meshed inside {lo:?}..{hi:?}");
+                }
+                s
+            }
             ObjectCheck::Skipped { why } => format!("SKIPPED: {why}"),
         }
     }
 }
 
+/// How the Embree referee represents each SDF object of its scene, with the box a clipped
+/// unbounded object's mesh stands for it in ([`super::embree::EmbreeScene::mesh_region`]).
 #[cfg(feature = "embree")]
-impl From<&super::embree::SdfCheck> for ObjectCheck {
-    fn from(c: &super::embree::SdfCheck) -> Self {
-        use super::embree::SdfCheck;
-        #[allow(clippy::unneeded_field_pattern)]
-        match c {
+pub fn object_checks(embree: &super::embree::EmbreeScene) -> Vec<ObjectCheck> {
+    use super::embree::SdfCheck;
+    embree
+        .checks
+        .iter()
+        .enumerate()
+        .map(|(i, c)| match c {
             SdfCheck::Analytic => ObjectCheck::Analytic,
             SdfCheck::Meshed {
                 resolution,
                 cell,
                 tolerance,
                 triangles,
-                ..
             } => ObjectCheck::Meshed {
                 resolution: *resolution,
                 cell: *cell,
                 tolerance: *tolerance,
                 triangles: *triangles,
+                clipped_to: embree
+                    .mesh_region(i)
+                    .filter(|r| r.clipped)
+                    .map(|r| [r.bounds.min.to_array(), r.bounds.max.to_array()]),
             },
             SdfCheck::Skipped(why) => ObjectCheck::Skipped { why: why.clone() },
-        }
-    }
+        })
+        .collect()
 }
 
 /// The kind of object a ray is classified by.
@@ -204,23 +245,26 @@ pub enum PixelClass {
     ShadowMismatch,
     /// We hit an object the referee skipped.
     Unchecked,
+    /// We hit a clipped unbounded object where the referee has no mesh for it (left out).
+    OutsideMesh,
 }
 
 impl PixelClass {
     /// Every class that has a fixed colour, in legend order.
-    pub const LEGEND: [PixelClass; 6] = [
+    pub const LEGEND: [PixelClass; 7] = [
         PixelClass::Miss,
         PixelClass::DisagreeInBand,
         PixelClass::DisagreeElsewhere,
         PixelClass::OverTolerance,
         PixelClass::ShadowMismatch,
         PixelClass::Unchecked,
+        PixelClass::OutsideMesh,
     ];
 
     /// Its colour in the mismatch image: agreeing hits in grey (brighter where the ray meets
     /// the surface head-on), misses dark blue, silhouette disagreements yellow, other
     /// disagreements red, |Δt| over tolerance magenta, shadow mismatches cyan, unchecked
-    /// objects green.
+    /// objects green, hits beyond a clipped object's mesh dark purple.
     pub fn colour(self) -> [u8; 3] {
         match self {
             PixelClass::Miss => [20, 24, 48],
@@ -230,6 +274,7 @@ impl PixelClass {
             PixelClass::OverTolerance => [255, 0, 255],
             PixelClass::ShadowMismatch => [0, 200, 255],
             PixelClass::Unchecked => [0, 170, 0],
+            PixelClass::OutsideMesh => [70, 40, 90],
         }
     }
 
@@ -243,6 +288,7 @@ impl PixelClass {
             PixelClass::OverTolerance => "|dt| over tolerance",
             PixelClass::ShadowMismatch => "shadow-ray mismatch",
             PixelClass::Unchecked => "object the referee skipped",
+            PixelClass::OutsideMesh => "beyond a clipped object's mesh (left out)",
         }
     }
 
@@ -294,6 +340,14 @@ pub struct ShadowStats {
     pub disagree_grazing: usize,
     /// Disagreements elsewhere.
     pub disagree_elsewhere: usize,
+    /// Shadow rays left out (not in `rays`): the two sides disagree and the occluder our
+    /// tracer finds first is a clipped unbounded meshed object outside the box its mesh covers.
+    pub excluded_outside_mesh: usize,
+    /// Shadow rays left out (not in `rays`): the two sides disagree on a blocker that is a
+    /// meshed object within the mesh's tolerance of the ray — our blocker lies within the
+    /// band of the referee's mesh, or the referee's mesh blocks at a point outside the true
+    /// solid (field ≥ −3·ε(t)), where the mesh stands proud of the surface by up to τ.
+    pub within_mesh_tolerance: usize,
 }
 
 /// One SDF object and how the referee checked it.
@@ -362,6 +416,10 @@ pub struct Report {
     pub mesh_triangles: usize,
     /// Rays both sides missed.
     pub both_miss: usize,
+    /// Rays left out of every figure: our tracer hit a clipped unbounded meshed object outside
+    /// the box its mesh covers (shrunk by the mesher's tolerance), and the referee has no
+    /// surface before that hit.
+    pub excluded_outside_mesh: usize,
     /// Per kind, the kinds that occurred (every kind in [`Kind::ALL`] order, rows with no ray
     /// left out).
     pub kinds: Vec<KindRow>,
@@ -447,11 +505,25 @@ impl Report {
             );
         }
         let _ = writeln!(s, "| (both miss) | {} | | | | | | | | | |", self.both_miss);
+        if self.excluded_outside_mesh > 0 {
+            let _ = writeln!(
+                s,
+                "| (left out: our hit beyond a clipped object's mesh) | {} | | | | | | | | | |",
+                self.excluded_outside_mesh
+            );
+        }
         let sh = &self.shadow;
         let _ = writeln!(
             s,
-            "\nShadow rays: {} cast, {:.3}% agree ({} disagreements at grazing angles, {} elsewhere).",
-            sh.rays, sh.agreement_percent, sh.disagree_grazing, sh.disagree_elsewhere
+            "\nShadow rays: {} cast, {:.3}% agree ({} disagreements at grazing angles, {} elsewhere); \
+             left out: {} whose occluder (ours) lies beyond a clipped object's mesh, {} whose \
+             meshed blocker lies within the mesh's tolerance of the ray.",
+            sh.rays,
+            sh.agreement_percent,
+            sh.disagree_grazing,
+            sh.disagree_elsewhere,
+            sh.excluded_outside_mesh,
+            sh.within_mesh_tolerance
         );
         s += "\nObjects:\n\n";
         if self.mesh_instances > 0 {
@@ -510,6 +582,7 @@ enum Outcome {
     Agree { kind: Kind, dt: f32, tol: f32 },
     Disagree { kind: Kind, in_band: bool },
     Unchecked,
+    OutsideMesh,
 }
 
 /// A shadow ray's outcome: the kind of the hit it leaves, whether both agree, whether it
@@ -519,6 +592,8 @@ struct ShadowOutcome {
     kind: Kind,
     agree: bool,
     grazing: bool,
+    outside_mesh: bool,
+    within_mesh_tolerance: bool,
 }
 
 /// The finite bounds of the scene (SDF objects and meshes); around the camera when nothing is
@@ -636,6 +711,29 @@ where
         },
         ObjectId::MeshInstance(_) => 0.0,
     };
+    let meshed_cell = |object: ObjectId| match object {
+        ObjectId::Sdf(i) => match checks.get(i) {
+            Some(ObjectCheck::Meshed { cell, .. }) => *cell,
+            _ => 0.0,
+        },
+        ObjectId::MeshInstance(_) => 0.0,
+    };
+    // Where a clipped unbounded meshed object's mesh stands for it: its box, shrunk by the
+    // tolerance (a hit that close to the box's faces may belong to a cut-off triangle).
+    let mesh_box = |object: ObjectId| match object {
+        ObjectId::Sdf(i) => match checks.get(i) {
+            Some(ObjectCheck::Meshed {
+                clipped_to: Some([lo, hi]),
+                tolerance,
+                ..
+            }) => Some((Aabb::new(Vec3::from(*lo), Vec3::from(*hi)), *tolerance)),
+            _ => None,
+        },
+        ObjectId::MeshInstance(_) => None,
+    };
+    let outside_mesh = |hit: &QueryHit, ray: &Ray| {
+        mesh_box(hit.object).is_some_and(|(b, tol)| b.signed_distance(ray.at(hit.t)) > -tol)
+    };
     // The |Δt| tolerance at the referee's hit (see the module documentation).
     let tolerance = |hit: &QueryHit, ray: &Ray| {
         let e = epsilon_at(settings, hit.t);
@@ -670,7 +768,68 @@ where
             return false;
         }
         let p = ray.at(hit.t);
-        other(&Ray::new(p + w * n, -n), 2.0 * w)
+        if other(&Ray::new(p + w * n, -n), 2.0 * w) {
+            return true;
+        }
+        // A meshed hit's facet normal is not the surface's: probe along the field's gradient
+        // at the hit point too (the direction to the nearest true surface).
+        if let ObjectId::Sdf(i) = hit.object
+            && kind_of(hit.object) == Kind::MeshedSdf
+        {
+            let s = settings;
+            let g = crate::trace::normal::estimate(
+                &scene.objects[i].lowered.distance,
+                p,
+                crate::trace::normal::step_for(s, hit.t),
+                s.normals,
+                &mut Registers::new(),
+            )
+            .0
+            .normalize_or_zero();
+            if g != Vec3::ZERO && other(&Ray::new(p + w * g, -g), 2.0 * w) {
+                return true;
+            }
+        }
+        // A meshed object's tolerance bounds how far the mesh strays from the surface, not the
+        // converse: at a sharp edge or a thin rim marching cubes cuts the corner, and the
+        // surface there can lie up to a cell diagonal from the mesh in a direction other than
+        // its normal (the mesher's docs: features thinner than a cell can be lost). So a
+        // meshed object's band is also probed along the three axes and the ray, a cell
+        // diagonal (+ 3·ε(t)) each way, and along the four cube diagonals.
+        let cell = meshed_cell(hit.object);
+        if cell == 0.0 {
+            return false;
+        }
+        let w = 3f32.sqrt() * cell + 3.0 * epsilon_at(settings, hit.t);
+        // The axes and the cube diagonals: marching cubes cuts an edge of the solid by a
+        // facet facing between two axes, a corner by one facing along a diagonal.
+        let d = 1.0 / 3f32.sqrt();
+        [
+            Vec3::X,
+            Vec3::Y,
+            Vec3::Z,
+            Vec3::new(d, d, d),
+            Vec3::new(d, d, -d),
+            Vec3::new(d, -d, d),
+            Vec3::new(-d, d, d),
+            ray.direction,
+        ]
+        .iter()
+        .any(|&a| other(&Ray::new(p - w * a, a), 2.0 * w))
+    };
+    // Our hit on a meshed object where the ray only clips a sliver of the true solid (an edge,
+    // a rim, a plate thinner than a cell): the object's field, sampled every quarter cell
+    // along the ray past the hit, is outside again within a cell diagonal. Marching cubes may
+    // lose such a sliver (the mesher's docs), so the referee's miss is at a silhouette.
+    let sliver = |hit: &QueryHit, ray: &Ray| {
+        let cell = meshed_cell(hit.object);
+        match hit.object {
+            ObjectId::Sdf(i) if cell > 0.0 => {
+                let field = &scene.objects[i].lowered.distance;
+                (1..=7).any(|k| field.eval(ray.at(hit.t + 0.25 * k as f32 * cell)) > 0.0)
+            }
+            _ => false,
+        }
     };
     // A sphere tracer stops up to ε(t)/|n·d| before the surface, so near the end of the ray
     // range it can report a surface that lies just beyond tmax, which the referee (stopping
@@ -698,10 +857,32 @@ where
             let b = referee.closest_hit(ray, 0.0, tmax);
             let outcome = match (&a, &b) {
                 (None, None) => Outcome::BothMiss,
+                // Our hit lies where the referee has no mesh for the surface, and the referee
+                // sees nothing before it: nothing to compare.
+                (Some(x), _)
+                    if outside_mesh(x, ray) && b.is_none_or(|y| y.t > x.t - tolerance(x, ray)) =>
+                {
+                    Outcome::OutsideMesh
+                }
                 (Some(x), Some(y)) => {
-                    let tol = tolerance(y, ray);
+                    // τ bounds the mesh's distance from the surface along the surface's normal,
+                    // so along the ray it is τ/|n·d|. Near a crease the mesh cuts (an edge of a
+                    // twisted box, a rim) the surface has every normal between the two faces',
+                    // ours (from the field, one face) and the facet's (the chamfer, between
+                    // them): the tolerance takes the more grazing of the two.
+                    let tol = if x.object == y.object && kind_of(y.object) == Kind::MeshedSdf {
+                        let facet = y.normal.dot(ray.direction).abs();
+                        let normal = if x.normal.dot(ray.direction).abs() < facet {
+                            x.normal
+                        } else {
+                            y.normal
+                        };
+                        tolerance(&QueryHit { normal, ..*y }, ray)
+                    } else {
+                        tolerance(y, ray)
+                    };
                     let dt = (x.t - y.t).abs();
-                    if dt > tol && x.t < y.t && near(&ref_occ, x, ray) {
+                    if dt > tol && x.t < y.t && (near(&ref_occ, x, ray) || sliver(x, ray)) {
                         // Our hit lies within the band of the referee's surface, which the
                         // ray passes by: a sphere tracer's near miss at a silhouette (it stops
                         // wherever the ray comes within ε(t) of a surface), then the referee
@@ -710,11 +891,23 @@ where
                             kind: kind_of(x.object),
                             in_band: true,
                         }
+                    } else if dt > tol
+                        && x.t > y.t
+                        && kind_of(y.object) == Kind::MeshedSdf
+                        && near(&ours_occ, y, ray)
+                    {
+                        // The referee's mesh, standing up to τ proud of the surface, meets a
+                        // ray that passes the true surface within the band: our tracer
+                        // rightly goes on to a farther surface (of the same object or not).
+                        Outcome::Disagree {
+                            kind: kind_of(y.object),
+                            in_band: true,
+                        }
                     } else if x.object != y.object && dt > tol {
                         // Different surfaces: a hit/miss disagreement on the nearer one.
                         if x.t < y.t {
                             only_ours(kind_of(x.object), || {
-                                grazing(x, ray) || near(&ref_occ, x, ray)
+                                grazing(x, ray) || (near(&ref_occ, x, ray) || sliver(x, ray))
                             })
                         } else {
                             Outcome::Disagree {
@@ -737,7 +930,7 @@ where
                         tol: tolerance(&y, ray),
                     },
                     None => only_ours(kind_of(x.object), || {
-                        grazing(x, ray) || near(&ref_occ, x, ray)
+                        grazing(x, ray) || (near(&ref_occ, x, ray) || sliver(x, ray))
                     }),
                 },
                 (None, Some(y)) => Outcome::Disagree {
@@ -763,7 +956,13 @@ where
             } else {
                 hit.normal
             };
-            let offset = offset_from_surface(settings, hit.t, p);
+            // A meshed hit lies up to the mesher's tolerance τ from the true surface, on either
+            // side: started from the renderer's offset alone, the shadow ray could begin inside
+            // the true solid, where our tracer reports the surface itself as the occluder.
+            // From a meshed hit the ray therefore starts 2τ further out (≥ τ off the true
+            // surface, ≥ τ off the mesh); both sides trace the same ray.
+            let offset =
+                offset_from_surface(settings, hit.t, p) + 2.0 * meshed_tolerance(hit.object);
             let origin = p + n * offset;
             let kind = kind_of(hit.object);
             scene.lights.iter().filter_map(move |light| {
@@ -784,13 +983,42 @@ where
                     return None;
                 }
                 let shadow = Ray::new(origin, l);
-                let agree = ours.occluded(&shadow, 0.0, len) == referee.occluded(&shadow, 0.0, len);
+                let ours_occluded = ours.occluded(&shadow, 0.0, len);
+                let agree = ours_occluded == referee.occluded(&shadow, 0.0, len);
+                // Our occluder is where the referee has no mesh for it: nothing to compare.
+                let outside_mesh = !agree
+                    && ours_occluded
+                    && ours
+                        .closest_hit(&shadow, 0.0, len)
+                        .is_some_and(|h| outside_mesh(&h, &shadow));
+                // The blocker is a meshed object and the ray passes within the mesh's tolerance of
+                // it: at that distance the mesh cannot say whether the true surface blocks.
+                let within_mesh_tolerance = !agree
+                    && !outside_mesh
+                    && if ours_occluded {
+                        ours.closest_hit(&shadow, 0.0, len).is_some_and(|x| {
+                            kind_of(x.object) == Kind::MeshedSdf
+                                && (near(&ref_occ, &x, &shadow) || sliver(&x, &shadow))
+                        })
+                    } else {
+                        referee
+                            .closest_hit(&shadow, 0.0, len)
+                            .is_some_and(|y| match y.object {
+                                ObjectId::Sdf(i) if kind_of(y.object) == Kind::MeshedSdf => {
+                                    scene.objects[i].lowered.distance.eval(shadow.at(y.t))
+                                        >= -3.0 * epsilon_at(settings, y.t)
+                                }
+                                _ => false,
+                            })
+                    };
                 Some((
                     pixel,
                     ShadowOutcome {
                         kind,
                         agree,
                         grazing: cos < GRAZING,
+                        outside_mesh,
+                        within_mesh_tolerance,
                     },
                 ))
             })
@@ -801,6 +1029,7 @@ where
     let mut stats: [KindStats; 4] = Default::default();
     let mut dts: [Vec<f32>; 4] = Default::default();
     let mut both_miss = 0;
+    let mut excluded_outside_mesh = 0;
     let mut pixels = vec![PixelClass::Miss; (options.width * options.height) as usize];
     let describe = |h: &Option<QueryHit>, ray: &Ray| {
         h.map(|h| {
@@ -882,6 +1111,10 @@ where
                 stats[Kind::UncheckedSdf.index()].rays += 1;
                 PixelClass::Unchecked
             }
+            Outcome::OutsideMesh => {
+                excluded_outside_mesh += 1;
+                PixelClass::OutsideMesh
+            }
         };
         if let Some(i) = probe.pixel {
             pixels[i] = class;
@@ -889,6 +1122,14 @@ where
     }
     let mut shadow = ShadowStats::default();
     for (pixel, s) in &shadows {
+        if s.outside_mesh {
+            shadow.excluded_outside_mesh += 1;
+            continue;
+        }
+        if s.within_mesh_tolerance {
+            shadow.within_mesh_tolerance += 1;
+            continue;
+        }
         shadow.rays += 1;
         let k = &mut stats[s.kind.index()];
         k.shadow_rays += 1;
@@ -948,6 +1189,7 @@ where
         mesh_instances: scene.meshes.instances.len(),
         mesh_triangles: scene.meshes.triangle_count(),
         both_miss,
+        excluded_outside_mesh,
         kinds,
         shadow,
         failures,
@@ -1071,8 +1313,18 @@ fn failures(
 /// Validates our CPU tracer against Embree 4 on `scene`.
 #[cfg(feature = "embree")]
 pub fn validate_with_embree(scene: &Scene, options: &Options) -> Result<Report, String> {
-    let embree = super::embree::EmbreeScene::build(scene)?;
-    let checks: Vec<ObjectCheck> = embree.checks.iter().map(ObjectCheck::from).collect();
+    validate_with_embree_options(scene, options, &super::embree::ReferenceOptions::default())
+}
+
+/// Validates our CPU tracer against Embree 4 on `scene`, the referee built with `reference`.
+#[cfg(feature = "embree")]
+pub fn validate_with_embree_options(
+    scene: &Scene,
+    options: &Options,
+    reference: &super::embree::ReferenceOptions,
+) -> Result<Report, String> {
+    let embree = super::embree::EmbreeScene::build_with(scene, reference)?;
+    let checks = object_checks(&embree);
     let tracer = crate::trace::SceneTracer::new(scene);
     validate(scene, &tracer, &embree, &checks, options)
 }
