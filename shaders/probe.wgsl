@@ -1,6 +1,6 @@
 // The probe kernel: the scene queries shading builds on (scene_material, scene_exit,
 // scene_visibility, scene_distance), evaluated per ray so tests can compare them with the CPU.
-// `chunk.mode` carries the penumbra sharpness k as f32 bits.
+// `chunk.mode` carries the penumbra sharpness k as f32 bits, `chunk.part` the query of this pass.
 
 @group(1) @binding(0) var<storage, read> probe_rays: array<QueryRay>;
 @group(1) @binding(1) var<storage, read_write> probe_results: array<ProbeResult>;
@@ -22,18 +22,24 @@ fn probe_main(@builtin(global_invocation_id) id: vec3<u32>) {
     let i = chunk.first + id.x;
     let ray = probe_rays[i];
     let k = bitcast<f32>(chunk.mode);
-    var r: ProbeResult;
-    let hit = scene_closest_hit(ray.origin, ray.direction, ray.tmin, ray.tmax);
-    r.kind = hit.kind;
-    r.exit = vec4<f32>(-1.0, 0.0, 0.0, 0.0);
-    if hit.kind != HIT_MISS {
-        let p = ray.origin + ray.direction * hit.t;
-        r.material = material_lanes(scene_material(hit, p));
-        let inside = p + ray.direction * (4.0 * epsilon_at(hit.t));
-        r.exit = scene_exit(hit, inside, ray.direction, ray.tmax);
+    // One query per pass (chunk.part), each pass its own dispatch: see GpuQuery::probe.
+    var r = probe_results[i];
+    if chunk.part == 0u {
+        let hit = scene_closest_hit(ray.origin, ray.direction, ray.tmin, ray.tmax);
+        r.kind = hit.kind;
+        r.exit = vec4<f32>(-1.0, 0.0, 0.0, 0.0);
+        if hit.kind != HIT_MISS {
+            let p = ray.origin + ray.direction * hit.t;
+            r.material = material_lanes(scene_material(hit, p));
+            let inside = p + ray.direction * (4.0 * epsilon_at(hit.t));
+            r.exit = scene_exit(hit, inside, ray.direction, ray.tmax);
+        }
+    } else if chunk.part == 1u {
+        r.soft = scene_visibility(ray.origin, ray.direction, ray.tmin, ray.tmax, SHADOW_SOFT, k);
+    } else if chunk.part == 2u {
+        r.soft_improved = scene_visibility(ray.origin, ray.direction, ray.tmin, ray.tmax, SHADOW_SOFT_IMPROVED, k);
+    } else {
+        r.distance = scene_distance(ray.origin, 1.0);
     }
-    r.soft = scene_visibility(ray.origin, ray.direction, ray.tmin, ray.tmax, SHADOW_SOFT, k);
-    r.soft_improved = scene_visibility(ray.origin, ray.direction, ray.tmin, ray.tmax, SHADOW_SOFT_IMPROVED, k);
-    r.distance = scene_distance(ray.origin, 1.0);
     probe_results[i] = r;
 }

@@ -28,6 +28,9 @@ pub struct Kernel {
     io_layout: wgpu::BindGroupLayout,
 }
 
+/// Passes of the probe kernel: surface (material, exit), soft, improved soft, distance.
+const PROBE_PASSES: u32 = 4;
+
 impl Kernel {
     /// Compiles `kernel` (appended to the scene library) with entry point `entry`.
     pub fn new(ctx: &GpuContext, name: &str, kernel: &str, entry: &str) -> Result<Self, GpuError> {
@@ -101,6 +104,22 @@ impl Kernel {
         chunk: u32,
         mode: u32,
     ) -> Result<(), GpuError> {
+        self.run_part(ctx, scene, input, output, count, chunk, mode, 0)
+    }
+
+    /// [`Kernel::run`] for one pass (`part`) of a multi-pass kernel.
+    #[allow(clippy::too_many_arguments)]
+    pub fn run_part(
+        &self,
+        ctx: &GpuContext,
+        scene: &GpuScene,
+        input: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+        count: u32,
+        chunk: u32,
+        mode: u32,
+        part: u32,
+    ) -> Result<(), GpuError> {
         let chunk = chunk.clamp(1, 65535 * WORKGROUP_SIZE);
         let mut first = 0;
         while first < count {
@@ -109,7 +128,7 @@ impl Kernel {
                 first,
                 count: n,
                 mode,
-                pad: 0,
+                part,
             };
             let uniform = ctx.uniform_buffer("hytrace chunk", bytemuck::bytes_of(&params));
             let io = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -190,7 +209,35 @@ impl<'a> GpuQuery<'a> {
     /// sharpness `k`, distance) over rays; compiles it on each call.
     pub fn probe(&self, rays: &[QueryRay], k: f32) -> Result<Vec<ProbeResult>, GpuError> {
         let kernel = Kernel::new(self.ctx, "probe.wgsl", PROBE_WGSL, "probe_main")?;
-        self.run_kernel(&kernel, rays, k.to_bits())
+        if rays.is_empty() {
+            return Ok(Vec::new());
+        }
+        let count = u32::try_from(rays.len())
+            .map_err(|_| GpuError::Unsupported(format!("{} rays in one batch", rays.len())))?;
+        let input = self
+            .ctx
+            .storage_buffer("hytrace rays", bytemuck::cast_slice(rays), false);
+        let size = (rays.len() * std::mem::size_of::<ProbeResult>()) as u64;
+        let output = self
+            .ctx
+            .storage_buffer("hytrace results", &vec![0u8; size as usize], true);
+        // One pass per query, each its own dispatch: with all queries in one invocation,
+        // lavapipe (Mesa 22.3) returned wrong values for some lanes on glass.ron — the same
+        // driver trouble the render kernel met with several samples per invocation.
+        for part in 0..PROBE_PASSES {
+            kernel.run_part(
+                self.ctx,
+                &self.scene,
+                &input,
+                &output,
+                count,
+                self.chunk,
+                k.to_bits(),
+                part,
+            )?;
+        }
+        let bytes = self.ctx.read_buffer(&output, size)?;
+        Ok(bytemuck::pod_collect_to_vec(&bytes))
     }
 
     fn run_kernel<T: bytemuck::Pod>(

@@ -244,8 +244,8 @@ gpu_struct! {
         pub count: u32,
         /// What to compute (`QUERY_*` bits) or, for tape evaluation, the object whose tape runs.
         pub mode: u32,
-        /// Unused.
-        pub pad: u32,
+        /// Which pass of a multi-pass kernel runs (the probe kernel); 0 otherwise.
+        pub part: u32,
     }
 }
 

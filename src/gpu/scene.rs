@@ -96,6 +96,14 @@ fn tape_ref(tape: &Tape, instrs: &mut Vec<Instr>, constants: &mut Vec<[f32; 4]>)
 impl SceneData {
     /// Builds the buffers of a scene.
     pub fn from_scene(scene: &Scene) -> Result<Self, GpuError> {
+        // The WGSL tracer implements Hart's stepper only; the over-relaxed ones are a CPU
+        // experiment measured by `hytrace bench`.
+        if scene.tracer.stepper != crate::scene::Stepper::Hart {
+            return Err(GpuError::Unsupported(format!(
+                "tracer.stepper {:?}: the GPU traces with Hart's stepper only (use --backend cpu)",
+                scene.tracer.stepper
+            )));
+        }
         let mut data = SceneData::default();
         data.set_tracer(&scene.tracer);
         let quality = scene.tracer.bvh.params();
