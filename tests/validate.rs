@@ -266,14 +266,14 @@ fn command_line_validate() {
     let img = image::open(&png).unwrap();
     assert!(img.width() >= 96 && img.height() > 72);
 
-    // A hit threshold of 0.05 makes the tracer hit every ray passing within 0.05 of the
-    // spheres: about 4·ε/diameter of their rays disagree at silhouettes, over the 0.1% allowed.
+    // One step cannot reach the spheres from the camera: every ray that Embree sees hit comes
+    // back as a miss, far below the 99.9% agreement required.
     let bad = dir.join("coarse.ron");
     std::fs::write(
         &bad,
         "Scene(camera: Perspective(position: (0, 1, 5), look_at: (0, 0, 0)),
                objects: [(shape: Sphere(radius: 0.3)), (shape: Sphere(radius: 0.5), translate: (2, 0, 0))],
-               tracer: (epsilon: 0.05, epsilon_per_unit: 0))",
+               tracer: (max_steps: 1))",
     )
     .unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_hytrace"))
@@ -488,7 +488,8 @@ fn render_image_matches_the_cpu_renderer() {
     assert_eq!(ours, cpu);
 }
 
-/// `compare` writes every file; PSNR(cpu, embree) ≥ 30 dB on the placed-models scene.
+/// `compare` writes every file; PSNR(cpu, embree) ≥ 30 dB and PSNR(cpu, gpu) ≥ 40 dB on the
+/// placed-models scene.
 ///
 /// Why 30 dB: the two images differ where the hits differ — at most 0.1 % of rays by the
 /// validation thresholds, which may be off by the full range (squared error ≤ 1) — and
@@ -505,7 +506,9 @@ fn compare_writes_images_and_metrics() {
         .arg(&path)
         .arg("-o")
         .arg(&out)
-        .args(["--width", "160", "--height", "120", "--spp", "1"])
+        .args([
+            "--width", "160", "--height", "120", "--spp", "1", "--gpu", "always",
+        ])
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&run.stdout);
@@ -518,8 +521,10 @@ fn compare_writes_images_and_metrics() {
     for f in [
         "cpu.png",
         "embree.png",
+        "gpu.png",
         "sheet.png",
         "diff-cpu-embree.png",
+        "diff-cpu-gpu.png",
         "metrics.txt",
         "metrics.json",
     ] {
@@ -529,6 +534,16 @@ fn compare_writes_images_and_metrics() {
     assert_eq!((cpu_png.width(), cpu_png.height()), (160, 120));
     let sheet = image::open(out.join("sheet.png")).unwrap();
     assert!(sheet.width() > 3 * 160);
+    // CPU and GPU: the same scene description, the same arithmetic: ≥ 40 dB (issue #6), or
+    // identical images (no PSNR).
+    let g = &serde_json::from_str::<serde_json::Value>(
+        &std::fs::read_to_string(out.join("metrics.json")).unwrap(),
+    )
+    .unwrap()["comparisons"][1];
+    assert_eq!(g["other"], "gpu");
+    if let Some(psnr) = g["psnr_db"].as_f64() {
+        assert!(psnr >= 40.0, "CPU vs GPU PSNR {psnr} dB < 40 dB");
+    }
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
     let m = &v["comparisons"][0];

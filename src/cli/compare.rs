@@ -14,7 +14,7 @@ use std::path::PathBuf;
 /// Arguments of `hytrace compare`.
 #[derive(clap::Parser)]
 #[command(after_help = "\
-Writes into DIR: one PNG per backend (cpu.png, embree.png), sheet.png (the images side by
+Writes into DIR: one PNG per backend (cpu.png, embree.png, gpu.png), sheet.png (the images side by
 side with labels, then the difference heatmaps), diff-cpu-embree.png (per pixel the largest
 |difference| of the sRGB channels, Turbo colour map, scale bar below), metrics.txt and
 metrics.json (PSNR in dB over the 8-bit sRGB channels, SSIM on luma with Wang et al.'s 11x11
@@ -47,6 +47,22 @@ pub struct CompareArgs {
     /// A pixel "differs" when an sRGB channel differs by more than this (0..1).
     #[arg(long, default_value_t = 0.05)]
     pub threshold: f32,
+    /// Add the GPU backend's image: `auto` when any adapter exists (a CPU one such as lavapipe
+    /// included: this is a correctness comparison, not a speed one), `always` (no adapter is
+    /// an error), `never`.
+    #[arg(long, value_enum, default_value_t = GpuChoice::Auto)]
+    pub gpu: GpuChoice,
+}
+
+/// Whether `compare` renders with the GPU backend too.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum GpuChoice {
+    /// When an adapter exists.
+    Auto,
+    /// Always; no adapter is an error.
+    Always,
+    /// Never.
+    Never,
 }
 
 /// Differences at or above this (on the 0..1 sRGB scale) saturate the heatmap.
@@ -382,7 +398,43 @@ pub fn run(args: CompareArgs) -> Result<()> {
              1e-4 × the scene diameter (shaded with Embree's geometric normal)"
         ));
     }
-    // (3. The GPU backend adds itself here, as one more entry.)
+    // 3. The GPU backend: the same scene description, uploaded and traced in WGSL.
+    #[cfg(feature = "gpu")]
+    if args.gpu != GpuChoice::Never {
+        match hytrace::gpu::context::GpuContext::new() {
+            Ok(ctx) => {
+                let start = Instant::now();
+                let fb = hytrace::gpu::render::render(
+                    &scene,
+                    &RenderOptions {
+                        width,
+                        height,
+                        samples,
+                        threads: None,
+                        progress: false,
+                    },
+                    &ctx,
+                )?;
+                backends.push(Backend {
+                    name: "gpu",
+                    description: format!(
+                        "our WGSL tracer through wgpu on {} (time includes the kernel compile)",
+                        ctx.adapter_name()
+                    ),
+                    image: shaded(&fb),
+                    seconds: start.elapsed().as_secs_f64(),
+                });
+            }
+            Err(e) if args.gpu == GpuChoice::Auto => {
+                notes.push(format!("no GPU image: {e}"));
+            }
+            Err(e) => bail!("--gpu always: {e}"),
+        }
+    }
+    #[cfg(not(feature = "gpu"))]
+    if args.gpu == GpuChoice::Always {
+        bail!("--gpu always: this hytrace was built without the `gpu` feature");
+    }
 
     // Files.
     for b in &backends {
