@@ -176,8 +176,8 @@ fn push_children(stack: ptr<private, array<u32, STACK_SIZE>>, sp: ptr<function, 
 }
 
 // MeshBvh::closest_hit in object space: the nearest triangle with tmin ≤ t ≤ tmax, ties to
-// the smaller triangle index.
-fn blas_closest(root: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax_in: f32) -> MeshHit {
+// the smaller triangle index; with `any_hit` (MeshBvh::any_hit) the first triangle found.
+fn blas_walk(root: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax_in: f32, any_hit: bool) -> MeshHit {
     let wr = watertight_ray(o, d);
     var best = MeshHit(false, tmax_in, 0u, 0.0, 0.0);
     var tmax = tmax_in;
@@ -198,6 +198,9 @@ fn blas_closest(root: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax_in: f32) 
             let h = intersect_triangle(wr, tri.a, tri.b, tri.c, tmin, tmax);
             if h.hit && (!best.hit || h.t < best.t || (h.t == best.t && tri.id < best.triangle)) {
                 best = MeshHit(true, h.t, tri.id, h.u, h.v);
+                if any_hit {
+                    return best;
+                }
                 tmax = h.t;
             }
         }
@@ -205,29 +208,12 @@ fn blas_closest(root: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax_in: f32) 
     return best;
 }
 
-// MeshBvh::any_hit: whether any triangle lies at tmin ≤ t ≤ tmax.
+fn blas_closest(root: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32) -> MeshHit {
+    return blas_walk(root, o, d, tmin, tmax, false);
+}
+
 fn blas_any(root: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32) -> bool {
-    let wr = watertight_ray(o, d);
-    blas_stack[0] = root;
-    var sp = 1u;
-    while sp > 0u {
-        sp = sp - 1u;
-        let node = nodes[blas_stack[sp]];
-        if !ray_interval(node.lo, node.hi, o, d, tmin, tmax).hit {
-            continue;
-        }
-        if node.count == 0u {
-            push_children(&blas_stack, &sp, node.first, o, d);
-            continue;
-        }
-        for (var j = node.first; j < node.first + node.count; j = j + 1u) {
-            let tri = triangles[j];
-            if intersect_triangle(wr, tri.a, tri.b, tri.c, tmin, tmax).hit {
-                return true;
-            }
-        }
-    }
-    return false;
+    return blas_walk(root, o, d, tmin, tmax, true).hit;
 }
 
 // An affine map stored as three rows (x, y, z, translation) applied to a point, summed in
@@ -258,8 +244,9 @@ struct InstanceHit {
 }
 
 // InstanceBvh::closest_hit: the world ray mapped into each instance's object space (not
-// renormalised, so t stays the world parameter), ties to the smaller instance, then triangle.
-fn tlas_closest(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax_in: f32) -> InstanceHit {
+// renormalised, so t stays the world parameter), ties to the smaller instance, then triangle;
+// with `any_hit` (InstanceBvh::any_hit) the first hit found.
+fn tlas_walk(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax_in: f32, any_hit: bool) -> InstanceHit {
     var best = InstanceHit(false, tmax_in, 0u, 0u, 0.0, 0.0);
     if globals.tlas_root == NONE {
         return best;
@@ -281,10 +268,13 @@ fn tlas_closest(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax_in: f32) -> Instance
             let index = refs[j];
             let inst = instances[index];
             let mesh = meshes[inst.mesh];
-            let h = blas_closest(mesh.root, rows_point(inst.world_to_object, o), rows_vector(inst.world_to_object, d), tmin, tmax);
+            let h = blas_walk(mesh.root, rows_point(inst.world_to_object, o), rows_vector(inst.world_to_object, d), tmin, tmax, any_hit);
             if h.hit && (!best.hit || h.t < best.t
                 || (h.t == best.t && (index < best.instance || (index == best.instance && h.triangle < best.triangle)))) {
                 best = InstanceHit(true, h.t, index, h.triangle, h.u, h.v);
+                if any_hit {
+                    return best;
+                }
                 tmax = h.t;
             }
         }
@@ -292,30 +282,10 @@ fn tlas_closest(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax_in: f32) -> Instance
     return best;
 }
 
-// InstanceBvh::any_hit.
+fn tlas_closest(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32) -> InstanceHit {
+    return tlas_walk(o, d, tmin, tmax, false);
+}
+
 fn tlas_any(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32) -> bool {
-    if globals.tlas_root == NONE {
-        return false;
-    }
-    tlas_stack[0] = globals.tlas_root;
-    var sp = 1u;
-    while sp > 0u {
-        sp = sp - 1u;
-        let node = nodes[tlas_stack[sp]];
-        if !ray_interval(node.lo, node.hi, o, d, tmin, tmax).hit {
-            continue;
-        }
-        if node.count == 0u {
-            push_children(&tlas_stack, &sp, node.first, o, d);
-            continue;
-        }
-        for (var j = node.first; j < node.first + node.count; j = j + 1u) {
-            let inst = instances[refs[j]];
-            let mesh = meshes[inst.mesh];
-            if blas_any(mesh.root, rows_point(inst.world_to_object, o), rows_vector(inst.world_to_object, d), tmin, tmax) {
-                return true;
-            }
-        }
-    }
-    return false;
+    return tlas_walk(o, d, tmin, tmax, true).hit;
 }

@@ -202,49 +202,27 @@ impl<'a> GpuQuery<'a> {
     /// Runs the query kernel over rays with per-ray intervals; `mode` is a set of
     /// `QUERY_*` bits.
     pub fn run(&self, rays: &[QueryRay], mode: u32) -> Result<Vec<QueryResult>, GpuError> {
-        self.run_kernel(&self.kernel, rays, mode)
+        self.run_kernel(&self.kernel, rays, mode, 1)
     }
 
     /// Runs the probe kernel (`shaders/probe.wgsl`: material, exit, soft visibilities with
     /// sharpness `k`, distance) over rays; compiles it on each call.
     pub fn probe(&self, rays: &[QueryRay], k: f32) -> Result<Vec<ProbeResult>, GpuError> {
         let kernel = Kernel::new(self.ctx, "probe.wgsl", PROBE_WGSL, "probe_main")?;
-        if rays.is_empty() {
-            return Ok(Vec::new());
-        }
-        let count = u32::try_from(rays.len())
-            .map_err(|_| GpuError::Unsupported(format!("{} rays in one batch", rays.len())))?;
-        let input = self
-            .ctx
-            .storage_buffer("hytrace rays", bytemuck::cast_slice(rays), false);
-        let size = (rays.len() * std::mem::size_of::<ProbeResult>()) as u64;
-        let output = self
-            .ctx
-            .storage_buffer("hytrace results", &vec![0u8; size as usize], true);
         // One pass per query, each its own dispatch: with all queries in one invocation,
         // lavapipe (Mesa 22.3) returned wrong values for some lanes on glass.ron — the same
         // driver trouble the render kernel met with several samples per invocation.
-        for part in 0..PROBE_PASSES {
-            kernel.run_part(
-                self.ctx,
-                &self.scene,
-                &input,
-                &output,
-                count,
-                self.chunk,
-                k.to_bits(),
-                part,
-            )?;
-        }
-        let bytes = self.ctx.read_buffer(&output, size)?;
-        Ok(bytemuck::pod_collect_to_vec(&bytes))
+        self.run_kernel(&kernel, rays, k.to_bits(), PROBE_PASSES)
     }
 
+    /// Runs `passes` passes of `kernel` (`chunk.part` = 0, 1, …) over the rays into one result
+    /// buffer and reads it back.
     fn run_kernel<T: bytemuck::Pod>(
         &self,
         kernel: &Kernel,
         rays: &[QueryRay],
         mode: u32,
+        passes: u32,
     ) -> Result<Vec<T>, GpuError> {
         if rays.is_empty() {
             return Ok(Vec::new());
@@ -258,15 +236,18 @@ impl<'a> GpuQuery<'a> {
         let output = self
             .ctx
             .storage_buffer("hytrace results", &vec![0u8; size as usize], true);
-        kernel.run(
-            self.ctx,
-            &self.scene,
-            &input,
-            &output,
-            count,
-            self.chunk,
-            mode,
-        )?;
+        for part in 0..passes {
+            kernel.run_part(
+                self.ctx,
+                &self.scene,
+                &input,
+                &output,
+                count,
+                self.chunk,
+                mode,
+                part,
+            )?;
+        }
         let bytes = self.ctx.read_buffer(&output, size)?;
         Ok(bytemuck::pod_collect_to_vec(&bytes))
     }

@@ -67,6 +67,15 @@ pub fn trace_hart(
     TraceResult { t: None, steps }
 }
 
+/// How an over-relaxed march chooses ω.
+#[derive(Debug, Clone, Copy)]
+enum Relaxation {
+    /// A fixed ω, dropped to 1 for the rest of the ray after the first failed step.
+    Fixed(f32),
+    /// ω from the field's slope along the ray; one Hart step after each failed step.
+    Slope,
+}
+
 /// Over-relaxed sphere tracing (Keinert, Schäfer, Korndörfer, Ganse & Stamminger, "Enhanced
 /// Sphere Tracing", STAG 2014, §3.1 and listing 1): step by ω·f(p) with 1 ≤ ω < 2. The step
 /// from p to p' = p + ω·f(p)·d skips no surface when the unbounding spheres of p and p'
@@ -86,46 +95,7 @@ pub fn trace_relaxed(
     omega: f32,
     regs: &mut Registers,
 ) -> TraceResult {
-    let mut omega = omega;
-    let mut t = t0;
-    let mut steps = 0;
-    // The last accepted sample (parameter and field value) and whether the step from it to t
-    // was relaxed (and so must be verified).
-    let (mut prev_t, mut prev_d, mut unverified) = (t0, 0.0f32, false);
-    while steps < s.max_steps {
-        let d = tape.eval_in(ray.at(t), regs);
-        steps += 1;
-        if unverified && prev_d + d.abs() < t - prev_t {
-            omega = 1.0;
-            unverified = false;
-            t = prev_t + prev_d;
-            continue;
-        }
-        if d < epsilon_at(s, t) {
-            // Confirmed as Hart's candidates are; a near miss resumes with Hart's steps.
-            match crossing::confirm(tape, ray, t, d, t1, s, regs, &mut steps) {
-                Candidate::Hit(t) => return TraceResult { t: Some(t), steps },
-                Candidate::Continue(next) => {
-                    omega = 1.0;
-                    unverified = false;
-                    t = next;
-                    if t > t1 {
-                        break;
-                    }
-                    continue;
-                }
-            }
-        }
-        // Hart's step alone leaves the interval: nothing to find before t1.
-        if t + d > t1 {
-            break;
-        }
-        prev_t = t;
-        prev_d = d;
-        unverified = omega > 1.0;
-        t = (t + omega * d).min(t1);
-    }
-    TraceResult { t: None, steps }
+    trace_over_relaxed(tape, ray, t0, t1, s, Relaxation::Fixed(omega), regs)
 }
 
 /// Largest relaxation [`trace_adaptive`] uses: below 2, where the overlap test stops being
@@ -150,6 +120,22 @@ pub fn trace_adaptive(
     s: &TracerSettings,
     regs: &mut Registers,
 ) -> TraceResult {
+    trace_over_relaxed(tape, ray, t0, t1, s, Relaxation::Slope, regs)
+}
+
+/// The march shared by [`trace_relaxed`] and [`trace_adaptive`]: relaxed steps verified by the
+/// overlap test, a failed one replaced by Hart's step from the last verified sample, and
+/// candidates confirmed as Hart's are ([`crossing::confirm`]; a near miss counts as a failure).
+fn trace_over_relaxed(
+    tape: &Tape,
+    ray: &Ray,
+    t0: f32,
+    t1: f32,
+    s: &TracerSettings,
+    relaxation: Relaxation,
+    regs: &mut Registers,
+) -> TraceResult {
+    let mut relaxation = relaxation;
     let mut t = t0;
     let mut steps = 0;
     // The last verified sample, whether the step from it to t is relaxed (unverified), whether
@@ -160,34 +146,41 @@ pub fn trace_adaptive(
     while steps < s.max_steps {
         let d = tape.eval_in(ray.at(t), regs);
         steps += 1;
-        if unverified && prev_d + d.abs() < t - prev_t {
-            unverified = false;
-            fell_back = true;
-            t = prev_t + prev_d;
-            continue;
-        }
-        if d < epsilon_at(s, t) {
-            match crossing::confirm(tape, ray, t, d, t1, s, regs, &mut steps) {
+        let failed = unverified && prev_d + d.abs() < t - prev_t;
+        let near_miss = !failed
+            && d < epsilon_at(s, t)
+            && match crossing::confirm(tape, ray, t, d, t1, s, regs, &mut steps) {
                 Candidate::Hit(t) => return TraceResult { t: Some(t), steps },
                 Candidate::Continue(next) => {
-                    unverified = false;
-                    fell_back = true;
                     t = next;
-                    if t > t1 {
-                        break;
-                    }
-                    continue;
+                    true
                 }
+            };
+        if failed || near_miss {
+            if failed {
+                t = prev_t + prev_d;
             }
+            unverified = false;
+            fell_back = true;
+            if let Relaxation::Fixed(_) = relaxation {
+                relaxation = Relaxation::Fixed(1.0);
+            }
+            if t > t1 {
+                break;
+            }
+            continue;
         }
+        // Hart's step alone leaves the interval: nothing to find before t1.
         if t + d > t1 {
             break;
         }
-        let omega = if have_prev && !fell_back {
-            let slope = ((prev_d - d) / (t - prev_t)).clamp(0.0, 1.0);
-            (2.0 / (1.0 + slope)).min(MAX_ADAPTIVE_OMEGA)
-        } else {
-            1.0
+        let omega = match relaxation {
+            Relaxation::Fixed(omega) => omega,
+            Relaxation::Slope if have_prev && !fell_back => {
+                let slope = ((prev_d - d) / (t - prev_t)).clamp(0.0, 1.0);
+                (2.0 / (1.0 + slope)).min(MAX_ADAPTIVE_OMEGA)
+            }
+            Relaxation::Slope => 1.0,
         };
         prev_t = t;
         prev_d = d;
