@@ -49,68 +49,18 @@ fn temp_dir() -> PathBuf {
 /// A unit icosphere (icosahedron subdivided twice, 320 triangles) as an OBJ file,
 /// counter-clockwise seen from outside.
 fn write_icosphere(dir: &Path) -> PathBuf {
-    let t = (1.0 + 5f32.sqrt()) / 2.0;
-    let mut v: Vec<Vec3> = [
-        (-1.0, t, 0.0),
-        (1.0, t, 0.0),
-        (-1.0, -t, 0.0),
-        (1.0, -t, 0.0),
-        (0.0, -1.0, t),
-        (0.0, 1.0, t),
-        (0.0, -1.0, -t),
-        (0.0, 1.0, -t),
-        (t, 0.0, -1.0),
-        (t, 0.0, 1.0),
-        (-t, 0.0, -1.0),
-        (-t, 0.0, 1.0),
-    ]
-    .iter()
-    .map(|&(x, y, z)| Vec3::new(x, y, z).normalize())
-    .collect();
-    let mut f: Vec<[usize; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..2 {
-        let mut cache = std::collections::HashMap::new();
-        let mut mid = |a: usize, b: usize, v: &mut Vec<Vec3>| {
-            *cache.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                v.push((v[a] + v[b]).normalize());
-                v.len() - 1
-            })
-        };
-        let mut g = Vec::new();
-        for [a, b, c] in f {
-            let (ab, bc, ca) = (mid(a, b, &mut v), mid(b, c, &mut v), mid(c, a, &mut v));
-            g.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        f = g;
-    }
+    let (v, f) = hytrace::bench::mesh::icosphere(2);
     let mut s = String::new();
     for p in &v {
         s += &format!("v {} {} {}\n", p.x, p.y, p.z);
     }
-    for [a, b, c] in &f {
-        let n = (v[*b] - v[*a]).cross(v[*c] - v[*a]);
-        let (b, c) = if n.dot(v[*a]) > 0.0 { (b, c) } else { (c, b) };
+    for &[a, b, c] in &f {
+        let [pa, pb, pc] = [a, b, c].map(|i| v[i as usize]);
+        let (b, c) = if (pb - pa).cross(pc - pa).dot(pa) > 0.0 {
+            (b, c)
+        } else {
+            (c, b)
+        };
         s += &format!("f {} {} {}\n", a + 1, b + 1, c + 1);
     }
     let path = dir.join("icosphere.obj");
