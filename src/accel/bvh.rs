@@ -30,6 +30,7 @@
 //! **Determinism.** obvhs's `parallel` feature (rayon in PLOC) is off, which this crate relies
 //! on: every build is single-threaded and a function of its input.
 
+mod leaf;
 mod wide;
 
 use std::ops::ControlFlow;
@@ -167,15 +168,15 @@ pub struct MeshHit {
 /// A bottom-level BVH over one triangle mesh.
 ///
 /// Built once from positions and index triples; it keeps its own copy of the triangles'
-/// vertices in leaf order (36 bytes per triangle reference) and the map back to the original
-/// triangle indices, so the caller's buffers can be dropped. Triangles with non-finite
+/// vertices, eight to a block per node (see `leaf.rs`: about 40 bytes per triangle reference),
+/// and the map back to the original triangle indices, so the caller's buffers can be dropped. Triangles with non-finite
 /// coordinates, out-of-range indices or zero area are left out and counted in
 /// [`MeshBvh::stats`]; none of them could be hit.
 #[derive(Debug, Clone)]
 pub struct MeshBvh {
+    /// Leaf children point at blocks of `leaves` (see [`leaf::group`]).
     nodes: Vec<WideNode>,
-    tris: Vec<[Vec3; 3]>,
-    ids: Vec<u32>,
+    leaves: leaf::Leaves,
     bounds: Aabb,
     stats: BuildStats,
 }
@@ -216,7 +217,7 @@ impl MeshBvh {
                 .collect();
             (boxes, (0..kept.len() as u32).collect())
         };
-        let tree = wide::build(&boxes, &params);
+        let mut tree = wide::build(&boxes, &params);
         let tris: Vec<[Vec3; 3]> = tree
             .order
             .iter()
@@ -227,6 +228,7 @@ impl MeshBvh {
             .iter()
             .map(|&b| kept_ids[owner[b as usize] as usize])
             .collect();
+        let leaves = leaf::group(&mut tree.nodes, &tris, &ids);
         stats.kept = kept.len();
         stats.references = tris.len();
         stats.nodes = tree.nodes.len();
@@ -234,8 +236,7 @@ impl MeshBvh {
         stats.build_time = start.elapsed();
         MeshBvh {
             nodes: tree.nodes,
-            tris,
-            ids,
+            leaves,
             bounds: geom_bounds(tree.bounds),
             stats,
         }
@@ -269,61 +270,50 @@ impl MeshBvh {
         mut tmax: f32,
     ) -> Option<MeshHit> {
         let mut best: Option<MeshHit> = None;
-        wide::traverse::<false>(
-            &self.nodes,
-            nr,
-            tmin,
-            &mut tmax,
-            0.0,
-            |first, count, tmax| {
-                for j in first as usize..(first + count) as usize {
-                    let [a, b, c] = self.tris[j];
-                    if let Some(h) = wr.intersect_nondegenerate(a, b, c, tmin, *tmax) {
-                        let id = self.ids[j];
-                        // h.t <= *tmax = best.t: ties go to the smaller triangle index, which
-                        // makes the answer independent of the traversal order.
-                        let better = match &best {
-                            None => true,
-                            Some(b) => h.t < b.t || (h.t == b.t && id < b.triangle),
-                        };
-                        if better {
-                            best = Some(MeshHit {
-                                t: h.t,
-                                triangle: id,
-                                u: h.u,
-                                v: h.v,
-                            });
-                            *tmax = h.t;
-                        }
+        wide::traverse_grouped::<true>(&self.nodes, nr, tmin, &mut tmax, |meta, slots, tmax| {
+            let first = wide::leaf_first(meta) as usize;
+            for k in first..first + wide::leaf_count(meta) as usize {
+                let hits = leaf::block_hits(&self.leaves.blocks[k], wr, slots, tmin, *tmax);
+                let mut mask = hits.mask;
+                while mask != 0 {
+                    let lane = mask.trailing_zeros() as usize;
+                    mask &= mask - 1;
+                    let h = hits.hit(lane);
+                    let id = self.leaves.ids[k][lane];
+                    // h.t <= *tmax = best.t: ties go to the smaller triangle index, which
+                    // makes the answer independent of the traversal order.
+                    let better = match &best {
+                        None => true,
+                        Some(b) => h.t < b.t || (h.t == b.t && id < b.triangle),
+                    };
+                    if better {
+                        best = Some(MeshHit {
+                            t: h.t,
+                            triangle: id,
+                            u: h.u,
+                            v: h.v,
+                        });
+                        *tmax = h.t;
                     }
                 }
-                ControlFlow::Continue(())
-            },
-        );
+            }
+            ControlFlow::Continue(())
+        });
         best
     }
 
     fn any_in(&self, wr: &WatertightRay, nr: &NodeRay, tmin: f32, mut tmax: f32) -> bool {
         let mut found = false;
-        wide::traverse_any::<false>(
-            &self.nodes,
-            nr,
-            tmin,
-            &mut tmax,
-            0.0,
-            |first, count, tmax| {
-                for [a, b, c] in &self.tris[first as usize..(first + count) as usize] {
-                    if wr
-                        .intersect_nondegenerate(*a, *b, *c, tmin, *tmax)
-                        .is_some()
-                    {
-                        found = true;
-                        return ControlFlow::Break(());
-                    }
+        wide::traverse_grouped::<false>(&self.nodes, nr, tmin, &mut tmax, |meta, slots, tmax| {
+            let first = wide::leaf_first(meta) as usize;
+            for block in &self.leaves.blocks[first..first + wide::leaf_count(meta) as usize] {
+                if leaf::block_hits(block, wr, slots, tmin, *tmax).mask != 0 {
+                    found = true;
+                    return ControlFlow::Break(());
                 }
-                ControlFlow::Continue(())
-            },
-        );
+            }
+            ControlFlow::Continue(())
+        });
         found
     }
 

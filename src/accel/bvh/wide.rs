@@ -73,7 +73,7 @@ pub(crate) struct WideNode {
 }
 
 impl WideNode {
-    const EMPTY: WideNode = WideNode {
+    pub(crate) const EMPTY: WideNode = WideNode {
         bounds: [
             [f32::INFINITY; 8],
             [f32::NEG_INFINITY; 8],
@@ -571,9 +571,11 @@ pub(crate) fn traverse<const MARGIN: bool>(
     tmin: f32,
     tmax: &mut f32,
     margin: f32,
-    leaf: impl FnMut(u32, u32, &mut f32) -> ControlFlow<()>,
+    mut leaf: impl FnMut(u32, u32, &mut f32) -> ControlFlow<()>,
 ) {
-    dispatch::<MARGIN, true>(nodes, r, tmin, tmax, margin, leaf)
+    dispatch::<MARGIN, true, false>(nodes, r, tmin, tmax, margin, |meta, _, tmax| {
+        leaf(meta & FIRST_MASK, leaf_count(meta), tmax)
+    })
 }
 
 /// [`traverse`] for any-hit queries: the hit children are not sorted by distance (the first
@@ -586,13 +588,54 @@ pub(crate) fn traverse_any<const MARGIN: bool>(
     tmin: f32,
     tmax: &mut f32,
     margin: f32,
+    mut leaf: impl FnMut(u32, u32, &mut f32) -> ControlFlow<()>,
+) {
+    dispatch::<MARGIN, false, false>(nodes, r, tmin, tmax, margin, |meta, _, tmax| {
+        leaf(meta & FIRST_MASK, leaf_count(meta), tmax)
+    })
+}
+
+/// The walk for trees whose leaves are grouped per node (the mesh trees, see `super::leaf`):
+/// when a node is visited, `leaf(meta, mask, tmax)` is called once for all of its leaf children
+/// that the ray meets, `mask` holding their slots and `meta` the [`WideNode::meta`] of the first
+/// of them, before the node's inner children are ordered and pushed (those the shrunk `tmax`
+/// now excludes are dropped). `ORDERED` sorts the inner children nearest first (closest hit);
+/// without it they are taken in slot order (any hit).
+#[inline(always)]
+pub(crate) fn traverse_grouped<const ORDERED: bool>(
+    nodes: &[WideNode],
+    r: &NodeRay,
+    tmin: f32,
+    tmax: &mut f32,
     leaf: impl FnMut(u32, u32, &mut f32) -> ControlFlow<()>,
 ) {
-    dispatch::<MARGIN, false>(nodes, r, tmin, tmax, margin, leaf)
+    dispatch::<false, ORDERED, true>(nodes, r, tmin, tmax, 0.0, leaf)
+}
+
+/// Number of primitives (or, in a grouped tree, of blocks) of a leaf child's `meta`.
+#[inline(always)]
+pub(crate) fn leaf_count(meta: u32) -> u32 {
+    ((meta >> 29) & 3) + 1
+}
+
+/// First primitive (or, in a grouped tree, first block) of a leaf child's `meta`.
+#[inline(always)]
+pub(crate) fn leaf_first(meta: u32) -> u32 {
+    meta & FIRST_MASK
+}
+
+/// The slots of `node` that hold leaves (bit i for child i).
+#[inline(always)]
+fn leaf_slots(node: &WideNode) -> u32 {
+    let mut m = 0;
+    for (i, meta) in node.meta.iter().enumerate() {
+        m |= (meta >> 31) << i;
+    }
+    m
 }
 
 #[inline(always)]
-fn dispatch<const MARGIN: bool, const ORDERED: bool>(
+fn dispatch<const MARGIN: bool, const ORDERED: bool, const GROUPED: bool>(
     nodes: &[WideNode],
     r: &NodeRay,
     tmin: f32,
@@ -603,10 +646,10 @@ fn dispatch<const MARGIN: bool, const ORDERED: bool>(
     #[cfg(target_arch = "x86_64")]
     if has_avx2() {
         // SAFETY: the CPU supports AVX2 (just checked).
-        unsafe { traverse_avx2::<MARGIN, ORDERED>(nodes, r, tmin, tmax, margin, leaf) };
+        unsafe { traverse_avx2::<MARGIN, ORDERED, GROUPED>(nodes, r, tmin, tmax, margin, leaf) };
         return;
     }
-    traverse_impl::<MARGIN, false, ORDERED>(nodes, r, tmin, tmax, margin, leaf)
+    traverse_impl::<MARGIN, false, ORDERED, GROUPED>(nodes, r, tmin, tmax, margin, leaf)
 }
 
 /// [`traverse_impl`] compiled with AVX2.
@@ -615,7 +658,7 @@ fn dispatch<const MARGIN: bool, const ORDERED: bool>(
 /// The CPU must support AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn traverse_avx2<const MARGIN: bool, const ORDERED: bool>(
+unsafe fn traverse_avx2<const MARGIN: bool, const ORDERED: bool, const GROUPED: bool>(
     nodes: &[WideNode],
     r: &NodeRay,
     tmin: f32,
@@ -623,13 +666,16 @@ unsafe fn traverse_avx2<const MARGIN: bool, const ORDERED: bool>(
     margin: f32,
     leaf: impl FnMut(u32, u32, &mut f32) -> ControlFlow<()>,
 ) {
-    traverse_impl::<MARGIN, true, ORDERED>(nodes, r, tmin, tmax, margin, leaf)
+    traverse_impl::<MARGIN, true, ORDERED, GROUPED>(nodes, r, tmin, tmax, margin, leaf)
 }
 
 /// The walk; `AVX2` selects [`child_hits_avx2`] (only reached through [`traverse_avx2`]);
-/// `ORDERED` sorts the hit children nearest first.
+/// `ORDERED` sorts the hit children nearest first; `GROUPED` hands a node's hit leaf children
+/// to `leaf(meta, mask, tmax)` together when the node is visited (see [`traverse_grouped`]),
+/// otherwise each leaf child is stacked like a node and handed over alone as `leaf(meta, 0,
+/// tmax)` when its turn comes.
 #[inline(always)]
-fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool>(
+fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, const GROUPED: bool>(
     nodes: &[WideNode],
     r: &NodeRay,
     tmin: f32,
@@ -647,10 +693,8 @@ fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool>(
         if e.t > *tmax {
             continue;
         }
-        if e.meta & LEAF_BIT != 0 {
-            let first = e.meta & FIRST_MASK;
-            let count = ((e.meta >> 29) & 3) + 1;
-            if leaf(first, count, tmax).is_break() {
+        if !GROUPED && e.meta & LEAF_BIT != 0 {
+            if leaf(e.meta, 0, tmax).is_break() {
                 return;
             }
             continue;
@@ -665,6 +709,16 @@ fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool>(
         };
         #[cfg(not(target_arch = "x86_64"))]
         let (t, mut mask) = child_hits::<MARGIN>(node, r, tmin, *tmax, margin);
+        if GROUPED {
+            let leaves = mask & leaf_slots(node);
+            if leaves != 0 {
+                let meta = node.meta[leaves.trailing_zeros() as usize];
+                if leaf(meta, leaves, tmax).is_break() {
+                    return;
+                }
+                mask &= !leaves;
+            }
+        }
         if mask == 0 {
             continue;
         }
@@ -691,6 +745,10 @@ fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool>(
                 t: t[i],
                 meta: node.meta[i],
             };
+            // In a grouped walk the leaves may just have shrunk tmax.
+            if GROUPED && e.t > *tmax {
+                continue;
+            }
             if e.meta & LEAF_BIT == 0 {
                 prefetch_node(nodes, e.meta);
             }
@@ -701,6 +759,9 @@ fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool>(
             }
             hits[j] = e;
             n += 1;
+        }
+        if n == 0 {
+            continue;
         }
         // Farthest first onto the stack; the nearest is handled next without a round trip.
         for h in hits[1..n].iter().rev() {
@@ -858,23 +919,68 @@ mod tests {
             let o = rng.vec3_in(-2.0, 12.0);
             let d = rng.direction();
             let r = NodeRay::new(o, d);
-            let walk = |avx: bool| {
+            let walk = |avx: bool, grouped: bool| {
                 let mut seen = Vec::new();
                 let mut tmax = 30.0;
-                let leaf = |f: u32, c: u32, tmax: &mut f32| {
-                    seen.push((f, c));
+                let leaf = |meta: u32, mask: u32, tmax: &mut f32| {
+                    seen.push((meta, mask));
                     // Shrink like a closest-hit query so the pruning is exercised.
                     *tmax = (*tmax * 0.9).max(5.0);
                     ControlFlow::Continue(())
                 };
-                if avx {
-                    traverse::<false>(&bvh.nodes, &r, 0.0, &mut tmax, 0.0, leaf);
-                } else {
-                    traverse_impl::<false, false, true>(&bvh.nodes, &r, 0.0, &mut tmax, 0.0, leaf);
+                match (avx, grouped) {
+                    (true, false) => {
+                        dispatch::<false, true, false>(&bvh.nodes, &r, 0.0, &mut tmax, 0.0, leaf)
+                    }
+                    (false, false) => traverse_impl::<false, false, true, false>(
+                        &bvh.nodes, &r, 0.0, &mut tmax, 0.0, leaf,
+                    ),
+                    (true, true) => traverse_grouped::<true>(&bvh.nodes, &r, 0.0, &mut tmax, leaf),
+                    (false, true) => traverse_impl::<false, false, true, true>(
+                        &bvh.nodes, &r, 0.0, &mut tmax, 0.0, leaf,
+                    ),
                 }
                 seen
             };
-            assert_eq!(walk(true), walk(false));
+            assert_eq!(walk(true, false), walk(false, false));
+            assert_eq!(walk(true, true), walk(false, true));
+        }
+    }
+
+    /// A grouped walk hands over every leaf that the one-leaf-at-a-time walk visits (with the
+    /// same shrinking of tmax the set can only differ by the order the leaves come in, which
+    /// changes what is pruned; without shrinking it is the same set).
+    #[test]
+    fn grouped_walk_reaches_the_same_leaves() {
+        let (_, bvh) = grid();
+        let mut rng = crate::rng::Rng::new(9);
+        for _ in 0..2000 {
+            let o = rng.vec3_in(-2.0, 12.0);
+            let d = rng.direction();
+            let r = NodeRay::new(o, d);
+            let mut single = Vec::new();
+            traverse::<false>(&bvh.nodes, &r, 0.0, &mut 30.0, 0.0, |f, c, _| {
+                single.push((f, c));
+                ControlFlow::Continue(())
+            });
+            let mut grouped = Vec::new();
+            traverse_grouped::<true>(&bvh.nodes, &r, 0.0, &mut 30.0, |meta, mask, _| {
+                let node = bvh
+                    .nodes
+                    .iter()
+                    .find(|n| n.meta.contains(&meta))
+                    .expect("the meta of a node's leaf");
+                for slot in 0..8 {
+                    if mask & (1 << slot) != 0 {
+                        let m = node.meta[slot];
+                        grouped.push((leaf_first(m), leaf_count(m)));
+                    }
+                }
+                ControlFlow::Continue(())
+            });
+            single.sort_unstable();
+            grouped.sort_unstable();
+            assert_eq!(single, grouped);
         }
     }
 
