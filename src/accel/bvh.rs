@@ -57,6 +57,10 @@ pub enum BuildQuality {
     /// and spatial pre-splits of large triangles (so a triangle may sit in several leaves;
     /// the split boxes are padded to stay conservative, see `split_boxes`).
     High,
+    /// `BvhBuildParams::very_slow_build()`: as `High`, with reinsertion over every node
+    /// (batch ratio 1) instead of a fifth of them. Several times `Medium`'s build time for
+    /// the fastest traversal; what `hytrace bench` compares with Embree's HIGH quality.
+    Highest,
 }
 
 impl BuildQuality {
@@ -66,6 +70,7 @@ impl BuildQuality {
             BuildQuality::Fast => BvhBuildParams::fast_build(),
             BuildQuality::Medium => BvhBuildParams::medium_build(),
             BuildQuality::High => BvhBuildParams::slow_build(),
+            BuildQuality::Highest => BvhBuildParams::very_slow_build(),
         }
     }
 }
