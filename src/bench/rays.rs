@@ -71,23 +71,28 @@ pub fn framing_camera(scene: &Scene, aspect: f32) -> Camera {
 }
 
 /// Primary rays of the scene's pinhole camera through the centres of a `width`×`height` image,
-/// row by row.
+/// in the order the CPU renderer traces them (see [`primary_from`]).
 pub fn primary(scene: &Scene, width: u32, height: u32) -> Vec<QueryRay> {
     primary_from(&scene.camera, width, height)
 }
 
-/// Primary rays of `camera` through the centres of a `width`×`height` image, row by row.
+/// Primary rays of `camera` through the centres of a `width`×`height` image, in the order the
+/// CPU renderer traces them: tile by tile ([`crate::render::tiles`], 32×32 pixels), row by row
+/// inside a tile. Neighbouring rays then walk mostly the same nodes, as they do in a render;
+/// both backends get the same array in the same order.
 pub fn primary_from(camera: &Camera, width: u32, height: u32) -> Vec<QueryRay> {
     let aspect = width as f32 / height as f32;
     let mut rays = Vec::with_capacity((width * height) as usize);
-    for y in 0..height {
-        for x in 0..width {
-            let u = (x as f32 + 0.5) / width as f32;
-            let v = (y as f32 + 0.5) / height as f32;
-            rays.push(QueryRay {
-                ray: camera.ray(u, v, aspect),
-                tmax: f32::INFINITY,
-            });
+    for tile in crate::render::tiles(width, height) {
+        for y in tile.y0..tile.y0 + tile.h {
+            for x in tile.x0..tile.x0 + tile.w {
+                let u = (x as f32 + 0.5) / width as f32;
+                let v = (y as f32 + 0.5) / height as f32;
+                rays.push(QueryRay {
+                    ray: camera.ray(u, v, aspect),
+                    tmax: f32::INFINITY,
+                });
+            }
         }
     }
     rays
