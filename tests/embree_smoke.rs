@@ -2,17 +2,16 @@
 //!
 //! It proves end to end that `scripts/setup.sh` + `build.rs` give a binary that links and loads
 //! `libembree4` (and its TBB), so that CI fails here, plainly, when Embree is not there.
-//! Intersection goes through `embree4-rs`; occlusion goes through `embree4_sys::rtcOccluded1`,
-//! which `embree4-rs` does not wrap. `embree4-rs` keeps its device and scene handles private, so
-//! the occlusion test builds its scene with raw `embree4_sys` calls.
+//! Everything goes through raw `embree4_sys` calls. (The `embree4-rs` wrapper was used for
+//! `rtcIntersect1` until we found that it hands Embree a 4.2-sized `RTCRayHit`, which the 4.4
+//! library overruns by four bytes on every hit: see `RayHit` in `src/reference/embree.rs`.)
 #![cfg(feature = "embree")]
 
 use std::ptr;
 
-use embree4_rs::geometry::TriangleMeshGeometry;
-use embree4_rs::{CommittedScene, Device, Scene, SceneOptions};
 use embree4_sys::{
-    RTCBufferType, RTCDevice, RTCError, RTCFormat, RTCGeometryType, RTCRay, RTCScene,
+    RTCBufferType, RTCDevice, RTCError, RTCFormat, RTCGeometryType, RTCHit, RTCRay, RTCRayHit,
+    RTCScene,
 };
 
 const VERTICES: [(f32, f32, f32); 3] = [(-1.0, -1.0, 0.0), (1.0, -1.0, 0.0), (0.0, 1.0, 0.0)];
@@ -33,25 +32,11 @@ fn ray(org: [f32; 3], dir: [f32; 3], tfar: f32) -> RTCRay {
     }
 }
 
-fn triangle_scene() -> CommittedScene {
-    // embree4-rs passes the config string to rtcNewDevice as is, without adding a NUL.
-    let device = Device::try_new(Some("verbose=0\0")).expect("rtcNewDevice failed");
-    let scene = Scene::try_new(device, SceneOptions::default()).expect("rtcNewScene failed");
-    let mesh = TriangleMeshGeometry::try_new(&scene.device, &VERTICES, &INDICES)
-        .expect("triangle geometry");
-    let geom_id = scene.attach_geometry(&mesh).expect("rtcAttachGeometry");
-    assert_eq!(geom_id, 0);
-    // The scene holds its own reference to the geometry, so `mesh` may go before the commit.
-    drop(mesh);
-    scene.commit().expect("rtcCommitScene")
-}
-
 #[test]
 fn ray_hits_the_triangle_at_t_3() {
-    let scene = triangle_scene();
+    let scene = RawScene::new();
     let hit = scene
-        .intersect_1(ray([0.0, 0.0, -3.0], [0.0, 0.0, 1.0], f32::INFINITY), None)
-        .expect("rtcIntersect1")
+        .intersect(ray([0.0, 0.0, -3.0], [0.0, 0.0, 1.0], f32::INFINITY))
         .expect("the ray should hit the triangle");
     assert!((hit.ray.tfar - 3.0).abs() < 1e-5, "t = {}", hit.ray.tfar);
     assert_eq!(hit.hit.geomID, 0);
@@ -62,19 +47,23 @@ fn ray_hits_the_triangle_at_t_3() {
 
 #[test]
 fn ray_beside_the_triangle_misses() {
-    let scene = triangle_scene();
-    let beside = scene
-        .intersect_1(ray([2.0, 2.0, -3.0], [0.0, 0.0, 1.0], f32::INFINITY), None)
-        .expect("rtcIntersect1");
+    let scene = RawScene::new();
+    let beside = scene.intersect(ray([2.0, 2.0, -3.0], [0.0, 0.0, 1.0], f32::INFINITY));
     assert!(
         beside.is_none(),
         "unexpected hit: geomID {:?}",
         beside.map(|h| h.hit.geomID)
     );
-    let away = scene
-        .intersect_1(ray([0.0, 0.0, -3.0], [0.0, 0.0, -1.0], f32::INFINITY), None)
-        .expect("rtcIntersect1");
+    let away = scene.intersect(ray([0.0, 0.0, -3.0], [0.0, 0.0, -1.0], f32::INFINITY));
     assert!(away.is_none(), "a ray pointing away should miss");
+}
+
+/// An `RTCRayHit` with room behind it for the `instPrimID` field that Embree 4.3+ libraries
+/// built with instance arrays add to `RTCHit` (the 4.2 bindings do not have it).
+#[repr(C, align(16))]
+struct PaddedRayHit {
+    ray_hit: RTCRayHit,
+    _tail: [u32; 4],
 }
 
 /// A device and a committed one-triangle scene made with raw `embree4_sys` calls.
@@ -126,6 +115,24 @@ impl RawScene {
             assert_eq!(embree4_sys::rtcGetDeviceError(device), RTCError::NONE);
             Self { device, scene }
         }
+    }
+
+    /// The closest hit on the ray between `tnear` and `tfar`.
+    fn intersect(&self, ray: RTCRay) -> Option<RTCRayHit> {
+        let mut slot = PaddedRayHit {
+            ray_hit: RTCRayHit {
+                ray,
+                hit: RTCHit::default(),
+            },
+            _tail: [0; 4],
+        };
+        // SAFETY: the scene is committed; a null argument pointer means default arguments;
+        // `slot` has room for a 4.3+ library's larger hit record.
+        unsafe { embree4_sys::rtcIntersect1(self.scene, &mut slot.ray_hit, ptr::null_mut()) };
+        // SAFETY: the device is alive.
+        let error = unsafe { embree4_sys::rtcGetDeviceError(self.device) };
+        assert_eq!(error, RTCError::NONE);
+        (slot.ray_hit.hit.geomID != embree4_sys::RTC_INVALID_GEOMETRY_ID).then_some(slot.ray_hit)
     }
 
     /// Whether anything lies on the ray between `tnear` and `tfar`.

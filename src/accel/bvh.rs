@@ -276,8 +276,7 @@ impl MeshBvh {
     ) -> Option<MeshHit> {
         let mut best: Option<MeshHit> = None;
         wide::traverse_grouped::<true>(&self.nodes, nr, tmin, &mut tmax, |meta, slots, tmax| {
-            let first = wide::leaf_first(meta) as usize;
-            for k in first..first + wide::leaf_count(meta) as usize {
+            for k in self.leaves.blocks_for(meta, slots) {
                 let hits = leaf::block_hits(&self.leaves.blocks[k], wr, slots, tmin, *tmax);
                 let mut mask = hits.mask;
                 while mask != 0 {
@@ -310,9 +309,8 @@ impl MeshBvh {
     fn any_in(&self, wr: &WatertightRay, nr: &NodeRay, tmin: f32, mut tmax: f32) -> bool {
         let mut found = false;
         wide::traverse_grouped::<false>(&self.nodes, nr, tmin, &mut tmax, |meta, slots, tmax| {
-            let first = wide::leaf_first(meta) as usize;
-            for block in &self.leaves.blocks[first..first + wide::leaf_count(meta) as usize] {
-                if leaf::block_hits(block, wr, slots, tmin, *tmax).mask != 0 {
+            for k in self.leaves.blocks_for(meta, slots) {
+                if leaf::block_hits(&self.leaves.blocks[k], wr, slots, tmin, *tmax).mask != 0 {
                     found = true;
                     return ControlFlow::Break(());
                 }

@@ -539,7 +539,8 @@ pub fn icosphere(level: u32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
 }
 
 /// A scene holding one icosphere, seen by a camera at distance 3.
-fn icosphere_scene(level: u32) -> anyhow::Result<Scene> {
+/// A scene holding one icosphere mesh instance (see [`icosphere`]) and no SDF objects.
+pub(crate) fn icosphere_scene(level: u32) -> anyhow::Result<Scene> {
     let mut scene = Scene::from_source(
         "Scene(camera: Perspective(position: (0.4, 0.3, 3), look_at: (0, 0, 0), fov: 45), objects: [])",
         Path::new("<bench icosphere>"),

@@ -1,9 +1,9 @@
 //! Intel Embree 4 as the referee: a scene's meshes and analytic SDF primitives as an Embree
 //! scene, answering the same [`RayQuery`] as our CPU tracer.
 //!
-//! Built through raw `embree4_sys` calls (`embree4-rs` keeps its handles private and wraps
-//! neither instances, user-geometry occlusion nor `rtcOccluded1`), with small RAII wrappers
-//! that release the device, the scenes and the geometries.
+//! Built through raw `embree4_sys` calls, with small RAII wrappers that release the device, the
+//! scenes and the geometries, and a ray-hit record sized for the library we actually link
+//! (`RayHit`: the 4.4 library writes a field the 4.2 bindings do not have).
 //!
 //! * **Meshes**: each mesh of [`SceneMeshes::meshes`](crate::scene::SceneMeshes) becomes one
 //!   Embree scene holding a triangle geometry, built once; each instance is an
@@ -300,6 +300,26 @@ unsafe extern "C" fn user_bounds(args: *const RTCBoundsFunctionArguments) {
     }
 }
 
+/// `RTCRayHit` as the Embree library we link lays it out. Embree 4.3 added
+/// `RTCHit::instPrimID[RTC_MAX_INSTANCE_LEVEL_COUNT]` after `instID`, present when the library
+/// is built with instance arrays (`RTC_GEOMETRY_INSTANCE_ARRAY`, on in the embreex wheel's
+/// Embree 4.4). embree4-sys's bindings come from the 4.2 headers, whose `RTCHit` ends at
+/// `instID`: on every hit inside an instance the library writes `instPrimID[0]` four bytes
+/// past the end of a 4.2 `RTCRayHit`, over whatever the caller keeps there (found as a
+/// corrupted stack pointer in a benchmark probe). The tail gives that write a place of its
+/// own; a 4.2 library never touches it.
+#[repr(C, align(16))]
+struct RayHit {
+    ray_hit: RTCRayHit,
+    /// `instPrimID[0]` of a 4.3+ `RTCHit`, then the padding to its 16-byte alignment.
+    inst_prim_id: [u32; 4],
+}
+
+// The layout the comment above relies on: the 4.2 hit is exactly 32 bytes and the ray hit 80,
+// so `inst_prim_id` starts where a 4.3+ library puts `instPrimID[0]`.
+const _: () = assert!(size_of::<RTCHit>() == 32 && size_of::<RTCRayHit>() == 80);
+const _: () = assert!(std::mem::offset_of!(RayHit, inst_prim_id) == 80);
+
 unsafe extern "C" fn user_intersect(args: *const RTCIntersectFunctionNArguments) {
     // SAFETY: as for `user_bounds`; we only trace with rtcIntersect1, so N == 1 and `rayhit`
     // points at one RTCRayHit (checked, not assumed).
@@ -322,6 +342,8 @@ unsafe extern "C" fn user_intersect(args: *const RTCIntersectFunctionNArguments)
                 geomID: args.geomID,
                 instID: [(*args.context).instID[0]],
             };
+            // A 4.3+ library's record also has `instPrimID` (see `RayHit`); it is left as the
+            // caller set it (invalid: this crate makes no instance arrays) and never read.
         }
     }
 }
@@ -828,13 +850,18 @@ impl RayQuery for EmbreeScene {
         if tmax.is_nan() || tmin.max(0.0) > tmax {
             return None;
         }
-        let mut rh = RTCRayHit {
-            ray: Self::rtc_ray(ray, tmin, tmax),
-            hit: RTCHit::default(),
+        let mut slot = RayHit {
+            ray_hit: RTCRayHit {
+                ray: Self::rtc_ray(ray, tmin, tmax),
+                hit: RTCHit::default(),
+            },
+            inst_prim_id: [RTC_INVALID_GEOMETRY_ID; 4],
         };
-        // SAFETY: the scene is committed; null arguments mean the defaults.
-        unsafe { embree4_sys::rtcIntersect1(self.top.0, &mut rh, ptr::null_mut()) };
+        // SAFETY: the scene is committed; null arguments mean the defaults; `slot` has room
+        // for the larger hit record of a 4.3+ library (see `RayHit`).
+        unsafe { embree4_sys::rtcIntersect1(self.top.0, &mut slot.ray_hit, ptr::null_mut()) };
         debug_assert!(self.device.check("rtcIntersect1").is_ok());
+        let rh = slot.ray_hit;
         let hit = rh.hit;
         if hit.geomID == RTC_INVALID_GEOMETRY_ID {
             return None;
@@ -870,5 +897,54 @@ impl RayQuery for EmbreeScene {
         // SAFETY: the scene is committed; null arguments mean the defaults.
         unsafe { embree4_sys::rtcOccluded1(self.top.0, &mut r, ptr::null_mut()) };
         r.tfar == f32::NEG_INFINITY
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The linked library writes `instPrimID` just past a 4.2 `RTCRayHit` on a hit inside an
+    /// instance (see [`RayHit`]): the write lands in the tail, and the hit itself is intact.
+    /// With a library that has no such field the tail keeps its marker; either way nothing
+    /// outside `RayHit` is touched.
+    #[test]
+    fn a_hit_record_of_a_newer_library_fits_in_ray_hit() {
+        let scene = crate::bench::mesh::icosphere_scene(1).expect("icosphere scene");
+        let embree = EmbreeScene::build(&scene).expect("Embree scene");
+        let marker = 0xdead_beef;
+        let mut slot = RayHit {
+            ray_hit: RTCRayHit {
+                ray: EmbreeScene::rtc_ray(
+                    &Ray::new(Vec3::new(0.0, 0.0, 5.0), Vec3::NEG_Z),
+                    0.0,
+                    100.0,
+                ),
+                hit: RTCHit::default(),
+            },
+            inst_prim_id: [marker; 4],
+        };
+        // SAFETY: as in `closest_hit`.
+        unsafe { embree4_sys::rtcIntersect1(embree.top.0, &mut slot.ray_hit, ptr::null_mut()) };
+        assert_ne!(
+            slot.ray_hit.hit.geomID, RTC_INVALID_GEOMETRY_ID,
+            "the ray hits the sphere"
+        );
+        assert_ne!(
+            slot.ray_hit.hit.instID[0], RTC_INVALID_GEOMETRY_ID,
+            "inside an instance"
+        );
+        assert!(
+            (slot.ray_hit.ray.tfar - 4.0).abs() < 0.1,
+            "{}",
+            slot.ray_hit.ray.tfar
+        );
+        // Only the first tail word may change (to the library's instPrimID, 0 for a plain
+        // instance); the padding after it stays.
+        assert_eq!(slot.inst_prim_id[1..], [marker; 3]);
+        eprintln!(
+            "library writes instPrimID past a 4.2 RTCRayHit: {}",
+            slot.inst_prim_id[0] != marker
+        );
     }
 }

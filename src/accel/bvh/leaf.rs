@@ -58,6 +58,19 @@ impl LaneHits {
 pub(crate) struct Leaves {
     pub blocks: Vec<TriBlock>,
     pub ids: Vec<[u32; 8]>,
+    /// Per block, the leaf slots its lanes belong to (bit i for child i): a block none of
+    /// whose slots the ray met is skipped without loading it.
+    pub slots: Vec<u8>,
+}
+
+impl Leaves {
+    /// The blocks of a grouped leaf `meta` that hold triangles of the leaf slots in `slots`.
+    #[inline(always)]
+    pub fn blocks_for(&self, meta: u32, slots: u32) -> impl Iterator<Item = usize> + '_ {
+        let first = super::wide::leaf_first(meta) as usize;
+        let count = super::wide::leaf_count(meta) as usize;
+        (first..first + count).filter(move |&k| u32::from(self.slots[k]) & slots != 0)
+    }
 }
 
 /// Moves the triangles of every node's leaf children into blocks and rewrites each leaf
@@ -94,7 +107,9 @@ pub(crate) fn group(nodes: &mut [WideNode], tris: &[[Vec3; 3]], ids: &[u32]) -> 
                 slot: [0; 8],
             };
             let mut block_ids = [u32::MAX; 8];
+            let mut block_slots = 0u8;
             for (lane, &(slot, j)) in chunk.iter().enumerate() {
+                block_slots |= 1 << slot;
                 for (k, vertex) in tris[j].iter().enumerate() {
                     for axis in 0..3 {
                         block.v[3 * k + axis][lane] = vertex[axis];
@@ -105,6 +120,7 @@ pub(crate) fn group(nodes: &mut [WideNode], tris: &[[Vec3; 3]], ids: &[u32]) -> 
             }
             out.blocks.push(block);
             out.ids.push(block_ids);
+            out.slots.push(block_slots);
         }
         let meta = LEAF_BIT | ((count as u32 - 1) << 29) | first_block as u32;
         for slot in leaf_slots {

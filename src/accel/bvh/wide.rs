@@ -282,18 +282,22 @@ pub(crate) struct NodeRay {
     inv: [f32; 3],
     /// Index into [`WideNode::bounds`] of the entry plane per axis (max plane when d < 0).
     near: [usize; 3],
-    /// Axes where 1/d is not finite (d = ±0, subnormal, or NaN): containment test.
-    parallel: [bool; 3],
+    /// Bit `axis` set where 1/d is not finite (d = ±0, subnormal, or NaN): a containment
+    /// test on that axis. One word, written once, so that the walk's first load of it is
+    /// served from the store buffer (three separate byte stores read back as one word stalled
+    /// every walk's entry).
+    parallel: u32,
 }
 
 impl NodeRay {
     /// For a ray `origin + t·direction` (any length).
     pub fn new(origin: Vec3, direction: Vec3) -> Self {
+        let mut parallel = 0;
         let mut r = NodeRay {
             o: origin.to_array(),
             inv: [0.0; 3],
             near: [0, 2, 4],
-            parallel: [false; 3],
+            parallel: 0,
         };
         for axis in 0..3 {
             let inv = 1.0 / direction[axis];
@@ -305,10 +309,10 @@ impl NodeRay {
             } else {
                 // |d| < 2^-128: treated as exactly parallel. The real ray drifts by |d|·t on
                 // this axis, under 3e-39·t: far below any f32 box tolerance.
-                r.parallel[axis] = true;
+                parallel |= 1 << axis;
             }
         }
-        r
+        NodeRay { parallel, ..r }
     }
 }
 
@@ -336,7 +340,7 @@ fn child_hits<const MARGIN: bool>(
         let mut inside = BVec4A::splat(true);
         for axis in 0..3 {
             let o = Vec4::splat(r.o[axis]);
-            if r.parallel[axis] {
+            if r.parallel & (1 << axis) != 0 {
                 let mut lo = lanes(&node.bounds[2 * axis], group);
                 let mut hi = lanes(&node.bounds[2 * axis + 1], group);
                 if MARGIN {
@@ -438,7 +442,7 @@ unsafe fn child_hits_avx2<const MARGIN: bool>(
         let mut inside = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
         for axis in 0..3 {
             let o = _mm256_set1_ps(r.o[axis]);
-            if r.parallel[axis] {
+            if r.parallel & (1 << axis) != 0 {
                 let mut lo = load(&node.bounds[2 * axis]);
                 let mut hi = load(&node.bounds[2 * axis + 1]);
                 if MARGIN {
