@@ -379,14 +379,8 @@ mod tests {
             let lanes = block_hits(&block, &wr, 0xff, tmin, tmax);
             let reference = block_hits_scalar(&block, &wr, 0xff, tmin, tmax);
             assert_eq!(lanes.mask, reference.mask, "round {round}");
-            for lane in 0..8 {
-                let scalar = wr.intersect_nondegenerate(
-                    tris[lane][0],
-                    tris[lane][1],
-                    tris[lane][2],
-                    tmin,
-                    tmax,
-                );
+            for (lane, tri) in tris.iter().enumerate() {
+                let scalar = wr.intersect_nondegenerate(tri[0], tri[1], tri[2], tmin, tmax);
                 compared += 1;
                 match scalar {
                     Some(h) => {
