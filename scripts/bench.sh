@@ -14,4 +14,5 @@ args=("$@")
 if [[ " ${args[*]-} " != *" --json "* ]]; then
     args+=(--json bench.json)
 fi
-exec cargo run --release --features embree -- bench "${args[@]}"
+# The `benchmark` profile: release with fat LTO and one codegen unit (Cargo.toml).
+exec cargo run --profile benchmark --features embree -- bench "${args[@]}"

@@ -333,12 +333,19 @@ pub fn run(opts: &BenchOptions) -> anyhow::Result<MeshReport> {
                             w,
                             &set.rays,
                             opts.runs,
+                            opts.min_seconds,
                             &mut [(&ours, &mut out_ours), (&emb, &mut out_emb)],
                         );
                         (t[0].clone(), t[1].clone())
                     }
                     None => {
-                        let t = alternate(w, &set.rays, opts.runs, &mut [(&ours, &mut out_ours)]);
+                        let t = alternate(
+                            w,
+                            &set.rays,
+                            opts.runs,
+                            opts.min_seconds,
+                            &mut [(&ours, &mut out_ours)],
+                        );
                         (t[0].clone(), Vec::new())
                     }
                 };
@@ -594,12 +601,19 @@ pub fn scaling(opts: &BenchOptions) -> anyhow::Result<Vec<MeshScalingRow>> {
                     &workers,
                     &rays,
                     opts.runs,
+                    opts.min_seconds,
                     &mut [(&ours, &mut out_ours), (&emb, &mut out_emb)],
                 );
                 (t[0].clone(), Some(t[1].clone()))
             }
             None => {
-                let t = alternate(&workers, &rays, opts.runs, &mut [(&ours, &mut out_ours)]);
+                let t = alternate(
+                    &workers,
+                    &rays,
+                    opts.runs,
+                    opts.min_seconds,
+                    &mut [(&ours, &mut out_ours)],
+                );
                 (t[0].clone(), None)
             }
         };

@@ -2,9 +2,11 @@
 //! steppers against plain sphere tracing, and how frame times scale with scene size.
 //!
 //! Method, shared by every section: inputs (rays, scenes) are built once before any timing;
-//! each measurement runs once untimed (warm-up), then `runs` times, the backends alternating
-//! (ours, Embree, ours, Embree, …) so that a slow spell of a shared machine hits both; the
-//! figure reported is the median. Results are checked beside the speed (hit/miss agreement
+//! each measurement runs once untimed (warm-up), then at least `runs` times and until every
+//! backend has been timed for `min_seconds` in all (short ray sets, such as the shadow rays of
+//! a small model, take a few milliseconds a run, and three of those are at the mercy of one
+//! scheduler hiccup), the backends alternating (ours, Embree, ours, Embree, …) so that a slow
+//! spell of a shared machine hits both; the figure reported is the median. Results are checked beside the speed (hit/miss agreement
 //! with Embree, hit sets of the steppers against Hart's), since a fast wrong answer is no
 //! answer. Nothing here asserts a speed.
 
@@ -25,8 +27,11 @@ use rays::QueryRay;
 pub struct BenchOptions {
     /// Tiny sizes and one timed run: checks that everything runs (CI smoke test).
     pub quick: bool,
-    /// Timed runs per measurement (after one warm-up).
+    /// Timed runs per measurement (after one warm-up), at least.
     pub runs: usize,
+    /// More rounds are timed until each backend's timed runs add up to this many seconds (at
+    /// most [`MAX_ROUNDS`] rounds).
+    pub min_seconds: f64,
     /// Thread counts to measure with (each a rayon pool of that size).
     pub threads: Vec<usize>,
     /// Folder of the shared assets (the mesh scenes).
@@ -140,8 +145,10 @@ pub struct Report {
     pub machine: Machine,
     /// Whether this was a `--quick` smoke run (sizes too small to mean anything).
     pub quick: bool,
-    /// Timed runs per figure.
+    /// Timed runs per figure, at least.
     pub runs: usize,
+    /// Seconds each backend is timed per figure, at least (see [`BenchOptions::min_seconds`]).
+    pub min_seconds: f64,
     /// Mesh section.
     pub mesh: Option<mesh::MeshReport>,
     /// SDF section.
@@ -197,6 +204,7 @@ pub fn run(
         machine,
         quick: opts.quick,
         runs: opts.runs,
+        min_seconds: opts.min_seconds,
         mesh,
         sdf,
         scaling,
@@ -283,21 +291,31 @@ pub fn geomean(v: &[f64]) -> f64 {
 /// A backend's answer to one ray (t of the closest hit, ∞ for a miss; or 1/0 for occlusion).
 pub(crate) type QueryFn<'a> = dyn Fn(&QueryRay) -> f32 + Sync + 'a;
 
+/// Most rounds [`alternate`] times, however short a run.
+pub const MAX_ROUNDS: usize = 200;
+
 /// Times `backends` (each writes its answers into its own buffer) alternately: one untimed
-/// warm-up each, then `runs` rounds of one run each. Returns the seconds of every timed run,
-/// per backend.
+/// warm-up each, then rounds of one run each, at least `runs` of them and more until every
+/// backend has been timed for `min_seconds` in all (at most [`MAX_ROUNDS`]). Returns the
+/// seconds of every timed run, per backend.
 pub(crate) fn alternate(
     workers: &Workers,
     rays: &[QueryRay],
     runs: usize,
+    min_seconds: f64,
     backends: &mut [(&QueryFn, &mut Vec<f32>)],
 ) -> Vec<Vec<f64>> {
     for (f, out) in backends.iter_mut() {
         out.resize(rays.len(), 0.0);
         workers.map(rays, out, *f);
     }
-    let mut times = vec![Vec::with_capacity(runs); backends.len()];
-    for _ in 0..runs.max(1) {
+    let mut times: Vec<Vec<f64>> = vec![Vec::with_capacity(runs); backends.len()];
+    let timed_enough = |times: &[Vec<f64>]| {
+        times
+            .iter()
+            .all(|t| t.len() >= runs.max(1) && t.iter().sum::<f64>() >= min_seconds)
+    };
+    while !timed_enough(&times) && times[0].len() < MAX_ROUNDS {
         for (k, (f, out)) in backends.iter_mut().enumerate() {
             times[k].push(workers.map(rays, out, *f));
         }
@@ -330,14 +348,15 @@ impl Report {
         let _ = writeln!(s, "- commit: {}", m.commit);
         let _ = writeln!(
             s,
-            "- Embree: {}; load average at start: {}; timed runs per figure: {} (median, after a warm-up)\n",
+            "- Embree: {}; load average at start: {}; timed runs per figure: at least {}, and at least {} s per backend (median, after a warm-up)\n",
             if m.embree {
                 "Embree 4 (`embree` feature)"
             } else {
                 "not built in (build with `--features embree`)"
             },
             fmt_opt(m.load_average, 2),
-            self.runs
+            self.runs,
+            self.min_seconds
         );
         if let Some(mesh) = &self.mesh {
             mesh.markdown(&mut s);

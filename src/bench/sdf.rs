@@ -273,6 +273,7 @@ pub fn scaling(opts: &BenchOptions) -> anyhow::Result<Vec<SdfScalingRow>> {
             &workers,
             &rays,
             opts.runs,
+            opts.min_seconds,
             &mut [(&f_with, &mut a), (&f_without, &mut b)],
         );
         let hits = a.iter().filter(|t| t.is_finite()).count() as f64 / rays.len() as f64;

@@ -12,9 +12,13 @@ pub struct BenchArgs {
     /// that the bench runs; its figures mean nothing.
     #[arg(long)]
     pub quick: bool,
-    /// Timed runs per figure (after a warm-up); the median is reported.
+    /// Timed runs per figure (after a warm-up), at least; the median is reported.
     #[arg(long)]
     pub runs: Option<usize>,
+    /// Keep timing rounds beyond --runs until each backend has been timed this many seconds
+    /// per figure (default 1; 0 with --quick).
+    #[arg(long)]
+    pub min_seconds: Option<f64>,
     /// Thread counts to measure with, comma-separated (default: 1 and all cores).
     #[arg(long, value_delimiter = ',')]
     pub threads: Vec<usize>,
@@ -109,9 +113,16 @@ pub fn run(args: BenchArgs) -> Result<()> {
     } else {
         args.mesh_scenes.clone()
     };
+    let min_seconds = args
+        .min_seconds
+        .unwrap_or(if args.quick { 0.0 } else { 1.0 });
+    if !(0.0..=600.0).contains(&min_seconds) {
+        anyhow::bail!("--min-seconds {min_seconds}: expected a number of seconds in 0..=600");
+    }
     let opts = BenchOptions {
         quick: args.quick,
         runs: args.runs.unwrap_or(if args.quick { 1 } else { 5 }).max(1),
+        min_seconds,
         threads,
         assets,
         mesh_scenes,
