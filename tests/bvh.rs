@@ -745,6 +745,31 @@ fn tmin_and_short_rays() {
     println!("origin on a tilted triangle, tmin = 0: {self_hits} report it, {skipped} do not");
     assert!(self_hits > 100, "{self_hits}");
 
+    // A negative tmin is taken as 0: triangle 0, half a unit behind the origin, is not
+    // reported, for the mesh tree and through an instance.
+    let above = Ray::new(Vec3::new(0.1, 0.2, 0.5), Vec3::Z);
+    assert_eq!(
+        bvh.closest_hit(&above, -10.0, f32::INFINITY)
+            .map(|h| h.triangle),
+        Some(1)
+    );
+    assert!(!bvh.any_hit(&above, -10.0, 0.25));
+    let meshes = [bvh.clone()];
+    let tlas = InstanceBvh::build(
+        &meshes,
+        &[Instance::from((
+            0,
+            Affine3A::from_translation(Vec3::new(0.0, 0.0, 0.25)),
+        ))],
+        BuildQuality::Medium,
+    );
+    assert_eq!(
+        tlas.closest_hit(&meshes, &above, -10.0, f32::INFINITY)
+            .map(|h| h.triangle),
+        Some(1)
+    );
+    assert!(!tlas.any_hit(&meshes, &above, -10.0, 0.5));
+
     // Short rays: a surface at t = 3e-5 is hit with tmax = 5e-5 (obvhs's node test would clamp
     // the entry distance to 1e-4 and cull it), not with tmax = 2e-5.
     let short = Ray::new(Vec3::new(0.1, 0.2, -3e-5), Vec3::Z);

@@ -247,7 +247,8 @@ impl MeshBvh {
         }
     }
 
-    /// The nearest hit with `tmin <= t <= tmax` (see the module's query contract).
+    /// The nearest hit with `tmin <= t <= tmax` (see the module's query contract); a negative
+    /// `tmin` is taken as 0: nothing behind the origin is reported.
     pub fn closest_hit(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<MeshHit> {
         self.closest_in(
             &WatertightRay::new(ray.origin, ray.direction),
@@ -257,7 +258,8 @@ impl MeshBvh {
         )
     }
 
-    /// Whether any triangle is hit with `tmin <= t <= tmax` (shadow rays); stops at the first.
+    /// Whether any triangle is hit with `max(tmin, 0) <= t <= tmax` (shadow rays); stops at the
+    /// first.
     pub fn any_hit(&self, ray: &Ray, tmin: f32, tmax: f32) -> bool {
         self.any_in(
             &WatertightRay::new(ray.origin, ray.direction),
@@ -274,6 +276,8 @@ impl MeshBvh {
         tmin: f32,
         mut tmax: f32,
     ) -> Option<MeshHit> {
+        // The walk takes tmin < 0 as 0 (see `wide::dispatch`); the leaves must agree.
+        let tmin = if tmin < 0.0 { 0.0 } else { tmin };
         let mut best: Option<MeshHit> = None;
         wide::traverse_grouped::<true>(&self.nodes, nr, tmin, &mut tmax, |meta, slots, tmax| {
             for k in self.leaves.blocks_for(meta, slots) {
@@ -307,6 +311,7 @@ impl MeshBvh {
     }
 
     fn any_in(&self, wr: &WatertightRay, nr: &NodeRay, tmin: f32, mut tmax: f32) -> bool {
+        let tmin = if tmin < 0.0 { 0.0 } else { tmin };
         let mut found = false;
         wide::traverse_grouped::<false>(&self.nodes, nr, tmin, &mut tmax, |meta, slots, tmax| {
             for k in self.leaves.blocks_for(meta, slots) {

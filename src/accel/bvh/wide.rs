@@ -370,21 +370,12 @@ fn child_hits<const MARGIN: bool>(
                 tf = tf.min((pf - o) * inv);
             }
         }
-        // Conservative comparison (Ize 2013): entry scaled towards −∞, exit towards +∞.
-        // Multiplicative, so ±∞ stay ±∞.
-        let zero = Vec4::ZERO;
-        let tn = tn
-            * Vec4::select(
-                tn.cmpge(zero),
-                Vec4::splat(1.0 - WIDEN),
-                Vec4::splat(1.0 + WIDEN),
-            );
-        let tf = tf
-            * Vec4::select(
-                tf.cmpge(zero),
-                Vec4::splat(1.0 + WIDEN),
-                Vec4::splat(1.0 - WIDEN),
-            );
+        // Conservative comparison (Ize 2013): entry scaled towards 0, exit away from it.
+        // Multiplicative, so ±∞ stay ±∞. tn ≥ tmin ≥ 0 (see `dispatch`), so no sign test is
+        // needed for it; a negative tf means a box behind the ray, a miss however it is
+        // scaled, so tf needs none either.
+        let tn = tn * Vec4::splat(1.0 - WIDEN);
+        let tf = tf * Vec4::splat(1.0 + WIDEN);
         let hit = tn.cmple(tf) & inside;
         mask |= hit.bitmask() << (4 * group);
         tn.write_to_slice(&mut t_out[4 * group..4 * group + 4]);
@@ -472,18 +463,9 @@ unsafe fn child_hits_avx2<const MARGIN: bool>(
                 tf = _mm256_min_ps(tf, _mm256_mul_ps(_mm256_sub_ps(pf, o), inv));
             }
         }
-        let zero = _mm256_setzero_ps();
-        let down = _mm256_set1_ps(1.0 - WIDEN);
-        let up = _mm256_set1_ps(1.0 + WIDEN);
-        // blendv picks its second operand where the mask is set.
-        let tn = _mm256_mul_ps(
-            tn,
-            _mm256_blendv_ps(up, down, _mm256_cmp_ps::<_CMP_GE_OQ>(tn, zero)),
-        );
-        let tf = _mm256_mul_ps(
-            tf,
-            _mm256_blendv_ps(down, up, _mm256_cmp_ps::<_CMP_GE_OQ>(tf, zero)),
-        );
+        // As in `child_hits`: tn ≥ tmin ≥ 0, and a negative tf is a miss either way.
+        let tn = _mm256_mul_ps(tn, _mm256_set1_ps(1.0 - WIDEN));
+        let tf = _mm256_mul_ps(tf, _mm256_set1_ps(1.0 + WIDEN));
         let hit = _mm256_and_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(tn, tf), inside);
         let mut t_out = [0.0f32; 8];
         _mm256_storeu_ps(t_out.as_mut_ptr(), tn);
@@ -638,6 +620,23 @@ fn leaf_slots(node: &WideNode) -> u32 {
     m
 }
 
+/// [`leaf_slots`] in one instruction: [`LEAF_BIT`] is the sign bit of each `meta`.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn leaf_slots_avx2(node: &WideNode) -> u32 {
+    use std::arch::x86_64::*;
+    const _: () = assert!(LEAF_BIT == 1 << 31);
+    // SAFETY: an unaligned load of the eight u32 of `meta`.
+    unsafe {
+        let meta = _mm256_loadu_si256(node.meta.as_ptr() as *const __m256i);
+        _mm256_movemask_ps(_mm256_castsi256_ps(meta)) as u32
+    }
+}
+
 #[inline(always)]
 fn dispatch<const MARGIN: bool, const ORDERED: bool, const GROUPED: bool>(
     nodes: &[WideNode],
@@ -647,6 +646,10 @@ fn dispatch<const MARGIN: bool, const ORDERED: bool, const GROUPED: bool>(
     margin: f32,
     leaf: impl FnMut(u32, u32, &mut f32) -> ControlFlow<()>,
 ) {
+    // Nothing behind the origin is reported (Embree likewise requires tnear ≥ 0): with
+    // tmin ≥ 0 every entry distance is ≥ 0, which the node tests' widening relies on. NaN
+    // stays NaN (and is turned away by the walk).
+    let tmin = if tmin < 0.0 { 0.0 } else { tmin };
     #[cfg(target_arch = "x86_64")]
     if has_avx2() {
         // SAFETY: the CPU supports AVX2 (just checked).
@@ -714,7 +717,16 @@ fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, cons
         #[cfg(not(target_arch = "x86_64"))]
         let (t, mut mask) = child_hits::<MARGIN>(node, r, tmin, *tmax, margin);
         if GROUPED {
-            let leaves = mask & leaf_slots(node);
+            #[cfg(target_arch = "x86_64")]
+            let slots = if AVX2 {
+                // SAFETY: as for the node test above.
+                unsafe { leaf_slots_avx2(node) }
+            } else {
+                leaf_slots(node)
+            };
+            #[cfg(not(target_arch = "x86_64"))]
+            let slots = leaf_slots(node);
+            let leaves = mask & slots;
             if leaves != 0 {
                 let meta = node.meta[leaves.trailing_zeros() as usize];
                 if leaf(meta, leaves, tmax).is_break() {
@@ -883,7 +895,8 @@ mod tests {
                 _ => {}
             }
             let r = NodeRay::new(o, d);
-            let (tmin, tmax) = (rng.range_f32(-1.0, 1.0), rng.range_f32(0.0, 20.0));
+            // tmin ≥ 0, as `dispatch` makes it (0 half of the time).
+            let (tmin, tmax) = (rng.range_f32(-1.0, 1.0).max(0.0), rng.range_f32(0.0, 20.0));
             let margin = if i % 3 == 0 {
                 rng.range_f32(0.0, 0.5)
             } else {
