@@ -1,4 +1,4 @@
-//! Interval arithmetic over the tape: enclosures of a field, and of its slope along a ray, over a box.
+//! Interval arithmetic over the tape: enclosures of a field and of its slope along a ray.
 //!
 //! Every [`Op`] is evaluated on intervals, lane by lane, for a sample point known only to lie in
 //! an axis-aligned box (Moore, "Interval Analysis", 1966; the inclusion property of natural
@@ -802,13 +802,18 @@ fn run<T: Domain>(tape: &Tape, p: [T; 4], scratch: &mut IntervalRegisters<T>) ->
         if m == 0 {
             continue;
         }
-        let a = regs[reg(ins.a)];
+        // Operands by reference: a register is four (value, slope) pairs, 64 bytes, and most
+        // ops read one or two of its lanes.
+        let r = &*regs;
+        let imm;
+        let a = &r[reg(ins.a)];
         let b = if ins.b == IMM {
-            ins.imm.map(T::constant)
+            imm = ins.imm.map(T::constant);
+            &imm
         } else {
-            regs[reg(ins.b)]
+            &r[reg(ins.b)]
         };
-        let c = regs[reg(ins.c)];
+        let c = &r[reg(ins.c)];
         // a·a is tighter as a² (an interval straddling 0 times itself looks negative).
         let same = ins.b != IMM && reg(ins.a) == reg(ins.b);
         // Componentwise ops compute the live lanes only; the others hold zero, never read.
