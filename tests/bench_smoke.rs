@@ -76,6 +76,7 @@ fn quick_bench_writes_tables_and_json() {
     }
     let sdf_rows = v["sdf"]["rows"].as_array().expect("SDF rows");
     assert!(sdf_rows.iter().any(|r| r["stepper"] == "Hart"));
+    assert!(sdf_rows.iter().any(|r| r["stepper"] == "Segment"));
     assert!(
         sdf_rows
             .iter()
@@ -84,7 +85,12 @@ fn quick_bench_writes_tables_and_json() {
     for r in sdf_rows {
         let same = r["same_hits"].as_f64().unwrap();
         assert!((0.0..=1.0).contains(&same), "{r}");
-        assert!(r["evals_per_pixel"].as_f64().unwrap() > 0.0, "{r}");
+        let evals = r["evals_per_pixel"].as_f64().unwrap();
+        assert!(evals > 0.0, "{r}");
+        // Interval evaluations are counted among the evaluations, and only Segment makes any.
+        let intervals = r["interval_evals_per_pixel"].as_f64().unwrap();
+        assert!((0.0..=evals).contains(&intervals), "{r}");
+        assert_eq!(intervals > 0.0, r["stepper"] == "Segment", "{r}");
     }
     let scaling = &v["scaling"];
     assert_eq!(

@@ -96,8 +96,9 @@ fn tape_ref(tape: &Tape, instrs: &mut Vec<Instr>, constants: &mut Vec<[f32; 4]>)
 impl SceneData {
     /// Builds the buffers of a scene.
     pub fn from_scene(scene: &Scene) -> Result<Self, GpuError> {
-        // The WGSL tracer implements Hart's stepper only; the over-relaxed ones are a CPU
-        // experiment measured by `hytrace bench`.
+        // The WGSL tracer implements Hart's stepper only; the over-relaxed ones and segment
+        // tracing (which needs the interval evaluator of `sdf::interval`) are CPU steppers
+        // measured by `hytrace bench`.
         if scene.tracer.stepper != crate::scene::Stepper::Hart {
             return Err(GpuError::Unsupported(format!(
                 "tracer.stepper {:?}: the GPU traces with Hart's stepper only (use --backend cpu)",

@@ -329,6 +329,11 @@ pub enum Stepper {
     /// on a plane; after Bálint & Valasek, "Accelerating Sphere Tracing", Eurographics 2018
     /// short papers), with Keinert's fallback.
     Adaptive,
+    /// Segment tracing (Galin et al., "Segment Tracing Using Local Lipschitz Bounds",
+    /// Eurographics 2020): interval enclosures of the field and of its slope along the ray over
+    /// candidate segments skip empty stretches whole and step by f/λ with a local bound λ; the
+    /// final approach and the hit test are Hart's.
+    Segment,
 }
 
 /// Sphere-tracing parameters (Hart 1996).

@@ -594,3 +594,26 @@ fn defined(names: &[String]) -> String {
         names[1..].join(", ")
     }
 }
+
+/// Every scene file shipped in `assets/scenes`, loaded, with its file stem (for tests that run
+/// over all of them; `hybrid.ron` needs the shared models through `HYTRACE_ASSETS`, which
+/// `scripts/test.sh` sets). Panics on a file that does not load.
+#[cfg(test)]
+pub(crate) fn shipped_scenes() -> Vec<(String, Scene)> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/scenes");
+    let mut files: Vec<_> = std::fs::read_dir(&dir)
+        .expect("assets/scenes")
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "ron"))
+        .collect();
+    files.sort();
+    assert!(!files.is_empty(), "no scenes in {}", dir.display());
+    files
+        .iter()
+        .map(|p| {
+            let scene = Scene::load(p)
+                .unwrap_or_else(|e| panic!("{e} (set HYTRACE_ASSETS to the shared assets folder)"));
+            (p.file_stem().unwrap().to_string_lossy().into_owned(), scene)
+        })
+        .collect()
+}

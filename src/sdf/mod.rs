@@ -4,6 +4,7 @@
 //! [`tape::Tape`] (evaluated by the CPU interpreter here and by the WGSL interpreter on the GPU).
 pub mod conformance;
 pub mod expr;
+pub mod interval;
 pub mod lower;
 pub mod node;
 pub mod tape;

@@ -3,6 +3,7 @@
 
 pub mod crossing;
 pub mod normal;
+pub mod segment;
 pub mod sphere;
 
 use crate::accel::bvh::BuildQuality;

@@ -13,12 +13,15 @@ use crate::sdf::tape::{Registers, Tape};
 pub struct TraceResult {
     /// Hit distance, if the ray came within ε(t) of the surface inside the interval.
     pub t: Option<f32>,
-    /// Distance evaluations spent.
+    /// Distance evaluations spent, point and interval ones alike.
     pub steps: u32,
+    /// Of `steps`, the interval (segment) evaluations of [`super::segment::trace_segment`].
+    pub intervals: u32,
 }
 
 /// Marches from t0 towards t1 with the scene's stepper (`tracer.stepper`): [`trace_hart`] by
-/// default, [`trace_relaxed`] when asked for.
+/// default, [`trace_relaxed`], [`trace_adaptive`] or [`super::segment::trace_segment`] when
+/// asked for.
 pub fn trace(
     tape: &Tape,
     ray: &Ray,
@@ -31,6 +34,7 @@ pub fn trace(
         Stepper::Hart => trace_hart(tape, ray, t0, t1, s, regs),
         Stepper::Relaxed(omega) => trace_relaxed(tape, ray, t0, t1, s, omega, regs),
         Stepper::Adaptive => trace_adaptive(tape, ray, t0, t1, s, regs),
+        Stepper::Segment => super::segment::trace_segment(tape, ray, t0, t1, s, regs),
     }
 }
 
@@ -54,7 +58,13 @@ pub fn trace_hart(
         steps += 1;
         if d < epsilon_at(s, t) {
             match crossing::confirm(tape, ray, t, d, t1, s, regs, &mut steps) {
-                Candidate::Hit(t) => return TraceResult { t: Some(t), steps },
+                Candidate::Hit(t) => {
+                    return TraceResult {
+                        t: Some(t),
+                        steps,
+                        intervals: 0,
+                    };
+                }
                 Candidate::Continue(next) => t = next,
             }
         } else {
@@ -64,7 +74,11 @@ pub fn trace_hart(
             break;
         }
     }
-    TraceResult { t: None, steps }
+    TraceResult {
+        t: None,
+        steps,
+        intervals: 0,
+    }
 }
 
 /// How an over-relaxed march chooses ω.
@@ -150,7 +164,13 @@ fn trace_over_relaxed(
         let near_miss = !failed
             && d < epsilon_at(s, t)
             && match crossing::confirm(tape, ray, t, d, t1, s, regs, &mut steps) {
-                Candidate::Hit(t) => return TraceResult { t: Some(t), steps },
+                Candidate::Hit(t) => {
+                    return TraceResult {
+                        t: Some(t),
+                        steps,
+                        intervals: 0,
+                    };
+                }
                 Candidate::Continue(next) => {
                     t = next;
                     true
@@ -189,7 +209,11 @@ fn trace_over_relaxed(
         unverified = omega > 1.0;
         t = (t + omega * d).min(t1);
     }
-    TraceResult { t: None, steps }
+    TraceResult {
+        t: None,
+        steps,
+        intervals: 0,
+    }
 }
 
 /// Light visibility along a shadow ray through one tape, from Quilez's penumbra estimate
@@ -296,6 +320,7 @@ mod tests {
             Stepper::Relaxed(1.2),
             Stepper::Relaxed(1.9),
             Stepper::Adaptive,
+            Stepper::Segment,
         ];
         let mut hits = 0;
         for i in 0..3000 {
@@ -363,6 +388,7 @@ mod tests {
             Stepper::Relaxed(1.5)
         );
         assert_eq!(load("Adaptive").unwrap().tracer.stepper, Stepper::Adaptive);
+        assert_eq!(load("Segment").unwrap().tracer.stepper, Stepper::Segment);
         let default = Scene::from_source(
             "Scene(camera: Perspective(position: (0, 0, 5), look_at: (0, 0, 0), fov: 40), objects: [])",
             Path::new("default.ron"),
@@ -391,7 +417,7 @@ mod tests {
         let ray = Ray::new(Vec3::new(0.0, 1.3, 6.0), -Vec3::Z);
         let hart = trace_hart(tape, &ray, 0.0, 5.96, &scene.tracer, &mut regs);
         assert!(hart.t.is_some());
-        for st in [Stepper::Relaxed(1.9), Stepper::Adaptive] {
+        for st in [Stepper::Relaxed(1.9), Stepper::Adaptive, Stepper::Segment] {
             let s = TracerSettings {
                 stepper: st,
                 ..scene.tracer
