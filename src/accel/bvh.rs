@@ -251,7 +251,7 @@ impl MeshBvh {
     /// `tmin` is taken as 0: nothing behind the origin is reported.
     pub fn closest_hit(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<MeshHit> {
         self.closest_in(
-            &WatertightRay::new(ray.origin, ray.direction),
+            &mut Shear::new(ray.origin, ray.direction),
             &NodeRay::new(ray.origin, ray.direction),
             tmin,
             tmax,
@@ -262,7 +262,7 @@ impl MeshBvh {
     /// first.
     pub fn any_hit(&self, ray: &Ray, tmin: f32, tmax: f32) -> bool {
         self.any_in(
-            &WatertightRay::new(ray.origin, ray.direction),
+            &mut Shear::new(ray.origin, ray.direction),
             &NodeRay::new(ray.origin, ray.direction),
             tmin,
             tmax,
@@ -271,7 +271,7 @@ impl MeshBvh {
 
     fn closest_in(
         &self,
-        wr: &WatertightRay,
+        shear: &mut Shear,
         nr: &NodeRay,
         tmin: f32,
         mut tmax: f32,
@@ -280,6 +280,7 @@ impl MeshBvh {
         let tmin = if tmin < 0.0 { 0.0 } else { tmin };
         let mut best: Option<MeshHit> = None;
         wide::traverse_grouped::<true>(&self.nodes, nr, tmin, &mut tmax, |meta, slots, tmax| {
+            let wr = shear.get();
             for k in self.leaves.blocks_for(meta, slots) {
                 let hits = leaf::block_hits(&self.leaves.blocks[k], wr, slots, tmin, *tmax);
                 let mut mask = hits.mask;
@@ -310,10 +311,11 @@ impl MeshBvh {
         best
     }
 
-    fn any_in(&self, wr: &WatertightRay, nr: &NodeRay, tmin: f32, mut tmax: f32) -> bool {
+    fn any_in(&self, shear: &mut Shear, nr: &NodeRay, tmin: f32, mut tmax: f32) -> bool {
         let tmin = if tmin < 0.0 { 0.0 } else { tmin };
         let mut found = false;
         wide::traverse_grouped::<false>(&self.nodes, nr, tmin, &mut tmax, |meta, slots, tmax| {
+            let wr = shear.get();
             for k in self.leaves.blocks_for(meta, slots) {
                 if leaf::block_hits(&self.leaves.blocks[k], wr, slots, tmin, *tmax).mask != 0 {
                     found = true;
@@ -389,6 +391,32 @@ struct PlacedInstance {
     world_to_object: Affine3A,
     /// The transform is exactly the identity: the world ray is the object ray.
     identity: bool,
+}
+
+/// A ray's watertight shear ([`WatertightRay`]), computed when a leaf first needs it: a mesh
+/// walk that reaches no leaf — most instance visits of a ray that only crosses an instance's
+/// box — never pays for its divisions.
+struct Shear {
+    origin: Vec3,
+    direction: Vec3,
+    ray: Option<WatertightRay>,
+}
+
+impl Shear {
+    #[inline(always)]
+    fn new(origin: Vec3, direction: Vec3) -> Self {
+        Shear {
+            origin,
+            direction,
+            ray: None,
+        }
+    }
+
+    #[inline(always)]
+    fn get(&mut self) -> &WatertightRay {
+        let (o, d) = (self.origin, self.direction);
+        self.ray.get_or_insert_with(|| WatertightRay::new(o, d))
+    }
 }
 
 /// A top-level BVH over instances of [`MeshBvh`]es (a two-level BVH: instances of one mesh
@@ -469,6 +497,14 @@ impl InstanceBvh {
                 identity: inv == Affine3A::IDENTITY,
             });
         }
+        // The per-ray margin covers the rounding of mapping the ray into object space; where
+        // no instance maps it (all untransformed: the world ray is walked as it is), there is
+        // none, and the walk takes the cheaper node test without margins.
+        let origin_margin = if placed.iter().all(|p| p.identity) {
+            0.0
+        } else {
+            64.0 * f32::EPSILON * max_cond
+        };
         let tree = wide::build(&boxes, &quality.params());
         let placed: Vec<PlacedInstance> = tree.order.iter().map(|&k| placed[k as usize]).collect();
         stats.kept = placed.len();
@@ -480,7 +516,7 @@ impl InstanceBvh {
             nodes: tree.nodes,
             placed,
             bounds: geom_bounds(tree.bounds),
-            origin_margin: 64.0 * f32::EPSILON * max_cond,
+            origin_margin,
             mesh_count: meshes.len(),
             stats,
         }
@@ -493,13 +529,7 @@ impl InstanceBvh {
         ray: &Ray,
         tmin: f32,
         mut tmax: f32,
-        mut f: impl FnMut(
-            &PlacedInstance,
-            &MeshBvh,
-            &WatertightRay,
-            &NodeRay,
-            &mut f32,
-        ) -> ControlFlow<()>,
+        mut f: impl FnMut(&PlacedInstance, &MeshBvh, &mut Shear, &NodeRay, &mut f32) -> ControlFlow<()>,
     ) {
         debug_assert_eq!(
             meshes.len(),
@@ -508,8 +538,9 @@ impl InstanceBvh {
         );
         let nr = NodeRay::new(ray.origin, ray.direction);
         let margin = self.origin_margin * ray.origin.abs().max_element();
-        // The world ray's shear, computed the first time an untransformed instance needs it.
-        let mut world: Option<WatertightRay> = None;
+        // The world ray's shear, computed the first time a leaf of an untransformed instance
+        // needs it, and then shared by all of them.
+        let mut world = Shear::new(ray.origin, ray.direction);
         let visit = |first: u32, count: u32, tmax: &mut f32| {
             for p in &self.placed[first as usize..(first + count) as usize] {
                 let Some(mesh) = meshes.get(p.mesh as usize) else {
@@ -518,17 +549,14 @@ impl InstanceBvh {
                 if p.identity {
                     // Mapping by the identity would only turn −0 components into +0, which
                     // neither test tells apart from −0 in what it reports.
-                    let wr =
-                        *world.get_or_insert_with(|| WatertightRay::new(ray.origin, ray.direction));
-                    f(p, mesh, &wr, &nr, tmax)?;
+                    f(p, mesh, &mut world, &nr, tmax)?;
                     continue;
                 }
                 let o = p.world_to_object.transform_point3(ray.origin);
                 let d = p.world_to_object.transform_vector3(ray.direction);
-                // The shear depends on the direction: recomputed per instance.
-                let wr = WatertightRay::new(o, d);
+                // The shear depends on the direction: one per instance (when a leaf needs it).
                 let onr = NodeRay::new(o, d);
-                f(p, mesh, &wr, &onr, tmax)?;
+                f(p, mesh, &mut Shear::new(o, d), &onr, tmax)?;
             }
             ControlFlow::Continue(())
         };
@@ -557,8 +585,8 @@ impl InstanceBvh {
         tmax: f32,
     ) -> Option<InstanceHit> {
         let mut best: Option<InstanceHit> = None;
-        self.walk::<true>(meshes, ray, tmin, tmax, |p, mesh, wr, nr, tmax| {
-            if let Some(h) = mesh.closest_in(wr, nr, tmin, *tmax) {
+        self.walk::<true>(meshes, ray, tmin, tmax, |p, mesh, shear, nr, tmax| {
+            if let Some(h) = mesh.closest_in(shear, nr, tmin, *tmax) {
                 let better = match &best {
                     None => true,
                     Some(b) => {
@@ -587,8 +615,8 @@ impl InstanceBvh {
     /// Whether any instance is hit with `tmin <= t <= tmax`; stops at the first.
     pub fn any_hit(&self, meshes: &[MeshBvh], ray: &Ray, tmin: f32, tmax: f32) -> bool {
         let mut found = false;
-        self.walk::<false>(meshes, ray, tmin, tmax, |_, mesh, wr, nr, tmax| {
-            if mesh.any_in(wr, nr, tmin, *tmax) {
+        self.walk::<false>(meshes, ray, tmin, tmax, |_, mesh, shear, nr, tmax| {
+            if mesh.any_in(shear, nr, tmin, *tmax) {
                 found = true;
                 return ControlFlow::Break(());
             }
