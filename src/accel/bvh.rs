@@ -276,8 +276,8 @@ impl MeshBvh {
         tmin: f32,
         mut tmax: f32,
     ) -> Option<MeshHit> {
-        // The walk takes tmin < 0 as 0 (see `wide::dispatch`); the leaves must agree.
-        let tmin = if tmin < 0.0 { 0.0 } else { tmin };
+        // The leaves use the walk's tmin.
+        let tmin = wide::query_tmin(tmin);
         let mut best: Option<MeshHit> = None;
         wide::traverse_grouped::<true>(&self.nodes, nr, tmin, &mut tmax, |meta, slots, tmax| {
             let wr = shear.get();
@@ -312,7 +312,7 @@ impl MeshBvh {
     }
 
     fn any_in(&self, shear: &mut Shear, nr: &NodeRay, tmin: f32, mut tmax: f32) -> bool {
-        let tmin = if tmin < 0.0 { 0.0 } else { tmin };
+        let tmin = wide::query_tmin(tmin);
         let mut found = false;
         wide::traverse_grouped::<false>(&self.nodes, nr, tmin, &mut tmax, |meta, slots, tmax| {
             let wr = shear.get();

@@ -132,6 +132,108 @@ impl Interval {
         if lo <= hi { Interval { lo, hi } } else { self }
     }
 
+    /// sin(x + phase), with the phase only moving where the extremes lie (not added to x,
+    /// which would round).
+    fn periodic(self, phase: f32) -> Self {
+        // Extremes of sin(x + phase) at x = π/2 − phase + kπ; tested with a small slack, so
+        // that rounding in locating them can only widen the result.
+        let slack = 1e-6 * (1.0 + self.lo.abs().max(self.hi.abs()));
+        if !self.is_finite() || self.hi - self.lo + 2.0 * slack >= TAU {
+            return Interval { lo: -1.0, hi: 1.0 };
+        }
+        let f = |x: f32| if phase == 0.0 { x.sin() } else { x.cos() };
+        let (a, b) = (f(self.lo), f(self.hi));
+        let (mut lo, mut hi) = (a.min(b), a.max(b));
+        let first = FRAC_PI_2 - phase;
+        let k0 = ((self.lo - slack - first) / PI).ceil();
+        let mut k = k0;
+        while first + k * PI <= self.hi + slack {
+            // even k: a peak of the sine; odd k: a trough
+            if (k as i64).rem_euclid(2) == 0 {
+                hi = 1.0;
+            } else {
+                lo = -1.0;
+            }
+            k += 1.0;
+            if k - k0 > 2.0 {
+                break;
+            }
+        }
+        let w = Self::out4(lo, hi);
+        Interval {
+            lo: w.lo.max(-1.0),
+            hi: w.hi.min(1.0),
+        }
+    }
+}
+
+/// A value enclosure with an enclosure of its derivative along one direction (forward-mode
+/// differentiation on intervals).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Slope {
+    /// Enclosure of the value over the box.
+    pub v: Interval,
+    /// Enclosure of the directional derivative over the box; the whole line where the value
+    /// may jump inside the box.
+    pub d: Interval,
+}
+
+/// The elementary operations of the tape on one lane, for the interval evaluators.
+pub trait Domain: Copy {
+    /// A constant.
+    fn constant(x: f32) -> Self;
+    /// a + b
+    fn add(self, o: Self) -> Self;
+    /// a − b
+    fn sub(self, o: Self) -> Self;
+    /// a · b
+    fn mul(self, o: Self) -> Self;
+    /// a · k for a constant k
+    fn scale(self, k: f32) -> Self;
+    /// a²
+    fn sqr(self) -> Self;
+    /// a / b
+    fn div(self, o: Self) -> Self;
+    /// min(a, b)
+    fn min(self, o: Self) -> Self;
+    /// max(a, b)
+    fn max(self, o: Self) -> Self;
+    /// a^b
+    fn pow(self, e: Self) -> Self;
+    /// −a
+    fn neg(self) -> Self;
+    /// |a|
+    fn abs(self) -> Self;
+    /// √a
+    fn sqrt(self) -> Self;
+    /// sin a
+    fn sin(self) -> Self;
+    /// cos a
+    fn cos(self) -> Self;
+    /// tan a
+    fn tan(self) -> Self;
+    /// eᵃ
+    fn exp(self) -> Self;
+    /// ln a
+    fn ln(self) -> Self;
+    /// ⌊a⌋
+    fn floor(self) -> Self;
+    /// (c > 0) ? a : b
+    fn select(c: Self, a: Self, b: Self) -> Self;
+    /// Euclidean length of the lanes.
+    fn length(lanes: &[Self]) -> Self {
+        lanes
+            .iter()
+            .fold(Self::constant(0.0), |s, x| s.add(x.sqr()))
+            .sqrt()
+    }
+}
+
+impl Domain for Interval {
+    fn constant(x: f32) -> Self {
+        Interval::point(x)
+    }
+
     #[inline]
     fn add(self, o: Self) -> Self {
         Self::out(self.lo + o.lo, self.hi + o.hi)
@@ -274,40 +376,6 @@ impl Interval {
         self.periodic(FRAC_PI_2)
     }
 
-    /// sin(x + phase), with the phase only moving where the extremes lie (not added to x,
-    /// which would round).
-    fn periodic(self, phase: f32) -> Self {
-        // Extremes of sin(x + phase) at x = π/2 − phase + kπ; tested with a small slack, so
-        // that rounding in locating them can only widen the result.
-        let slack = 1e-6 * (1.0 + self.lo.abs().max(self.hi.abs()));
-        if !self.is_finite() || self.hi - self.lo + 2.0 * slack >= TAU {
-            return Interval { lo: -1.0, hi: 1.0 };
-        }
-        let f = |x: f32| if phase == 0.0 { x.sin() } else { x.cos() };
-        let (a, b) = (f(self.lo), f(self.hi));
-        let (mut lo, mut hi) = (a.min(b), a.max(b));
-        let first = FRAC_PI_2 - phase;
-        let k0 = ((self.lo - slack - first) / PI).ceil();
-        let mut k = k0;
-        while first + k * PI <= self.hi + slack {
-            // even k: a peak of the sine; odd k: a trough
-            if (k as i64).rem_euclid(2) == 0 {
-                hi = 1.0;
-            } else {
-                lo = -1.0;
-            }
-            k += 1.0;
-            if k - k0 > 2.0 {
-                break;
-            }
-        }
-        let w = Self::out4(lo, hi);
-        Interval {
-            lo: w.lo.max(-1.0),
-            hi: w.hi.min(1.0),
-        }
-    }
-
     /// tan: increasing between its poles at π/2 + kπ; the whole line if one may lie inside.
     fn tan(self) -> Self {
         let slack = 1e-6 * (1.0 + self.lo.abs().max(self.hi.abs()));
@@ -335,128 +403,7 @@ impl Interval {
     fn floor(self) -> Self {
         Self::exact(self.lo.floor(), self.hi.floor())
     }
-}
 
-/// A value enclosure with an enclosure of its derivative along one direction (forward-mode
-/// differentiation on intervals).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Slope {
-    /// Enclosure of the value over the box.
-    pub v: Interval,
-    /// Enclosure of the directional derivative over the box; the whole line where the value
-    /// may jump inside the box.
-    pub d: Interval,
-}
-
-/// The elementary operations of the tape on one lane, for the interval evaluators.
-pub trait Domain: Copy {
-    /// A constant.
-    fn constant(x: f32) -> Self;
-    /// a + b
-    fn add(self, o: Self) -> Self;
-    /// a − b
-    fn sub(self, o: Self) -> Self;
-    /// a · b
-    fn mul(self, o: Self) -> Self;
-    /// a · k for a constant k
-    fn scale(self, k: f32) -> Self;
-    /// a²
-    fn sqr(self) -> Self;
-    /// a / b
-    fn div(self, o: Self) -> Self;
-    /// min(a, b)
-    fn min(self, o: Self) -> Self;
-    /// max(a, b)
-    fn max(self, o: Self) -> Self;
-    /// a^b
-    fn pow(self, e: Self) -> Self;
-    /// −a
-    fn neg(self) -> Self;
-    /// |a|
-    fn abs(self) -> Self;
-    /// √a
-    fn sqrt(self) -> Self;
-    /// sin a
-    fn sin(self) -> Self;
-    /// cos a
-    fn cos(self) -> Self;
-    /// tan a
-    fn tan(self) -> Self;
-    /// eᵃ
-    fn exp(self) -> Self;
-    /// ln a
-    fn ln(self) -> Self;
-    /// ⌊a⌋
-    fn floor(self) -> Self;
-    /// (c > 0) ? a : b
-    fn select(c: Self, a: Self, b: Self) -> Self;
-    /// Euclidean length of the lanes.
-    fn length(lanes: &[Self]) -> Self {
-        lanes
-            .iter()
-            .fold(Self::constant(0.0), |s, x| s.add(x.sqr()))
-            .sqrt()
-    }
-}
-
-impl Domain for Interval {
-    fn constant(x: f32) -> Self {
-        Interval::point(x)
-    }
-    fn add(self, o: Self) -> Self {
-        Interval::add(self, o)
-    }
-    fn sub(self, o: Self) -> Self {
-        Interval::sub(self, o)
-    }
-    fn mul(self, o: Self) -> Self {
-        Interval::mul(self, o)
-    }
-    fn scale(self, k: f32) -> Self {
-        Interval::scale(self, k)
-    }
-    fn sqr(self) -> Self {
-        Interval::sqr(self)
-    }
-    fn div(self, o: Self) -> Self {
-        Interval::div(self, o)
-    }
-    fn min(self, o: Self) -> Self {
-        Interval::min(self, o)
-    }
-    fn max(self, o: Self) -> Self {
-        Interval::max(self, o)
-    }
-    fn pow(self, e: Self) -> Self {
-        Interval::pow(self, e)
-    }
-    fn neg(self) -> Self {
-        Interval::neg(self)
-    }
-    fn abs(self) -> Self {
-        Interval::abs(self)
-    }
-    fn sqrt(self) -> Self {
-        Interval::sqrt(self)
-    }
-    fn sin(self) -> Self {
-        Interval::sin(self)
-    }
-    fn cos(self) -> Self {
-        Interval::cos(self)
-    }
-    fn tan(self) -> Self {
-        Interval::tan(self)
-    }
-    fn exp(self) -> Self {
-        Interval::exp(self)
-    }
-    fn ln(self) -> Self {
-        Interval::ln(self)
-    }
-    fn floor(self) -> Self {
-        Interval::floor(self)
-    }
     fn select(c: Self, a: Self, b: Self) -> Self {
         if c.lo > 0.0 {
             a

@@ -19,6 +19,17 @@ pub struct TraceResult {
     pub intervals: u32,
 }
 
+impl TraceResult {
+    /// The outcome of a stepper that evaluates the field at points only.
+    fn of_points(t: Option<f32>, steps: u32) -> Self {
+        TraceResult {
+            t,
+            steps,
+            intervals: 0,
+        }
+    }
+}
+
 /// Marches from t0 towards t1 with the scene's stepper (`tracer.stepper`): [`trace_hart`] by
 /// default, [`trace_relaxed`], [`trace_adaptive`] or [`super::segment::trace_segment`] when
 /// asked for.
@@ -58,13 +69,7 @@ pub fn trace_hart(
         steps += 1;
         if d < epsilon_at(s, t) {
             match crossing::confirm(tape, ray, t, d, t1, s, regs, &mut steps) {
-                Candidate::Hit(t) => {
-                    return TraceResult {
-                        t: Some(t),
-                        steps,
-                        intervals: 0,
-                    };
-                }
+                Candidate::Hit(t) => return TraceResult::of_points(Some(t), steps),
                 Candidate::Continue(next) => t = next,
             }
         } else {
@@ -74,11 +79,7 @@ pub fn trace_hart(
             break;
         }
     }
-    TraceResult {
-        t: None,
-        steps,
-        intervals: 0,
-    }
+    TraceResult::of_points(None, steps)
 }
 
 /// How an over-relaxed march chooses ω.
@@ -164,13 +165,7 @@ fn trace_over_relaxed(
         let near_miss = !failed
             && d < epsilon_at(s, t)
             && match crossing::confirm(tape, ray, t, d, t1, s, regs, &mut steps) {
-                Candidate::Hit(t) => {
-                    return TraceResult {
-                        t: Some(t),
-                        steps,
-                        intervals: 0,
-                    };
-                }
+                Candidate::Hit(t) => return TraceResult::of_points(Some(t), steps),
                 Candidate::Continue(next) => {
                     t = next;
                     true
@@ -209,11 +204,7 @@ fn trace_over_relaxed(
         unverified = omega > 1.0;
         t = (t + omega * d).min(t1);
     }
-    TraceResult {
-        t: None,
-        steps,
-        intervals: 0,
-    }
+    TraceResult::of_points(None, steps)
 }
 
 /// Light visibility along a shadow ray through one tape, from Quilez's penumbra estimate

@@ -637,6 +637,26 @@ unsafe fn leaf_slots_avx2(node: &WideNode) -> u32 {
     }
 }
 
+/// The `tmin` every walk (and the leaf tests under it) uses: a negative one is taken as 0, so
+/// nothing behind the origin is reported (Embree likewise requires tnear ≥ 0). With tmin ≥ 0
+/// every entry distance is ≥ 0, which the node tests' widening relies on. NaN stays NaN (and is
+/// turned away by the walk).
+#[inline(always)]
+pub(crate) fn query_tmin(tmin: f32) -> f32 {
+    if tmin < 0.0 { 0.0 } else { tmin }
+}
+
+/// [`leaf_slots`], by one `movemask` when `AVX2` (only true inside [`traverse_avx2`]).
+#[inline(always)]
+fn leaf_slots_with<const AVX2: bool>(node: &WideNode) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    if AVX2 {
+        // SAFETY: `AVX2` is only true inside `traverse_avx2`, which runs on AVX2 CPUs.
+        return unsafe { leaf_slots_avx2(node) };
+    }
+    leaf_slots(node)
+}
+
 #[inline(always)]
 fn dispatch<const MARGIN: bool, const ORDERED: bool, const GROUPED: bool>(
     nodes: &[WideNode],
@@ -646,10 +666,7 @@ fn dispatch<const MARGIN: bool, const ORDERED: bool, const GROUPED: bool>(
     margin: f32,
     leaf: impl FnMut(u32, u32, &mut f32) -> ControlFlow<()>,
 ) {
-    // Nothing behind the origin is reported (Embree likewise requires tnear ≥ 0): with
-    // tmin ≥ 0 every entry distance is ≥ 0, which the node tests' widening relies on. NaN
-    // stays NaN (and is turned away by the walk).
-    let tmin = if tmin < 0.0 { 0.0 } else { tmin };
+    let tmin = query_tmin(tmin);
     #[cfg(target_arch = "x86_64")]
     if has_avx2() {
         // SAFETY: the CPU supports AVX2 (just checked).
@@ -717,16 +734,7 @@ fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, cons
         #[cfg(not(target_arch = "x86_64"))]
         let (t, mut mask) = child_hits::<MARGIN>(node, r, tmin, *tmax, margin);
         if GROUPED {
-            #[cfg(target_arch = "x86_64")]
-            let slots = if AVX2 {
-                // SAFETY: as for the node test above.
-                unsafe { leaf_slots_avx2(node) }
-            } else {
-                leaf_slots(node)
-            };
-            #[cfg(not(target_arch = "x86_64"))]
-            let slots = leaf_slots(node);
-            let leaves = mask & slots;
+            let leaves = mask & leaf_slots_with::<AVX2>(node);
             if leaves != 0 {
                 let meta = node.meta[leaves.trailing_zeros() as usize];
                 if leaf(meta, leaves, tmax).is_break() {
