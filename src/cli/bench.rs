@@ -152,12 +152,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
 /// The showcase first, then the other scene files of the folder in name order (only the
 /// showcase with `quick`).
 fn load_scenes(dir: &std::path::Path, quick: bool) -> Result<Vec<(String, hytrace::scene::Scene)>> {
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .with_context(|| format!("{}: cannot read the scene folder (--scenes)", dir.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "ron"))
-        .collect();
-    files.sort_by_key(|p| (p.file_stem().is_none_or(|s| s != "showcase"), p.clone()));
+    let mut files = hytrace::scene::scene_files(dir)
+        .with_context(|| format!("{}: cannot read the scene folder (--scenes)", dir.display()))?;
     if quick {
         files.truncate(1);
     }

@@ -595,18 +595,23 @@ fn defined(names: &[String]) -> String {
     }
 }
 
+/// The `.ron` scene files of a folder: the showcase first, then the others by name.
+pub fn scene_files(dir: &Path) -> std::io::Result<Vec<PathBuf>> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "ron"))
+        .collect();
+    files.sort_by_key(|p| (p.file_stem().is_none_or(|s| s != "showcase"), p.clone()));
+    Ok(files)
+}
+
 /// Every scene file shipped in `assets/scenes`, loaded, with its file stem (for tests that run
 /// over all of them; `hybrid.ron` needs the shared models through `HYTRACE_ASSETS`, which
 /// `scripts/test.sh` sets). Panics on a file that does not load.
 #[cfg(test)]
 pub(crate) fn shipped_scenes() -> Vec<(String, Scene)> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/scenes");
-    let mut files: Vec<_> = std::fs::read_dir(&dir)
-        .expect("assets/scenes")
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "ron"))
-        .collect();
-    files.sort();
+    let files = scene_files(&dir).expect("assets/scenes");
     assert!(!files.is_empty(), "no scenes in {}", dir.display());
     files
         .iter()
