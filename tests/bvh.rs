@@ -1105,3 +1105,197 @@ fn degenerate_input_does_not_panic() {
     });
     assert_eq!(n, 3000, "a ray through a point box meets every copy");
 }
+
+// ---------------------------------------------------------------------------------------------
+// Packets: `InstanceBvh::closest_hits` against one `closest_hit` per ray, bit for bit.
+
+/// Asserts that the batch query answers each ray exactly as the single-ray query does.
+fn assert_batch_matches_single(
+    what: &str,
+    tlas: &InstanceBvh,
+    meshes: &[MeshBvh],
+    rays: &[Ray],
+    tmin: f32,
+    tmax: &[f32],
+) -> usize {
+    let mut batch = vec![None; rays.len()];
+    tlas.closest_hits(meshes, rays, tmin, tmax, &mut batch);
+    let mut hits = 0;
+    for (i, ((r, &t), b)) in rays.iter().zip(tmax).zip(&batch).enumerate() {
+        let single = tlas.closest_hit(meshes, r, tmin, t);
+        let bits = |h: &Option<hytrace::accel::bvh::InstanceHit>| {
+            h.map(|h| {
+                (
+                    h.t.to_bits(),
+                    h.instance,
+                    h.triangle,
+                    h.u.to_bits(),
+                    h.v.to_bits(),
+                )
+            })
+        };
+        assert_eq!(
+            bits(b),
+            bits(&single),
+            "{what}: ray {i} ({r:?}, tmin {tmin}, tmax {t}): packet {b:?} vs single {single:?}"
+        );
+        hits += usize::from(single.is_some());
+    }
+    hits
+}
+
+/// Pinhole rays through a `w`×`h` image, 32-pixel rows of 32×32 tiles (the bench's and the
+/// renderer's order), looking from `eye` at `target`.
+fn pinhole_rays(eye: Vec3, target: Vec3, w: u32, h: u32, fov_scale: f32) -> Vec<Ray> {
+    let f = (target - eye).normalize();
+    let right = f.cross(Vec3::Y).normalize();
+    let up = right.cross(f);
+    let mut rays = Vec::new();
+    for ty in (0..h).step_by(32) {
+        for tx in (0..w).step_by(32) {
+            for y in ty..(ty + 32).min(h) {
+                for x in tx..(tx + 32).min(w) {
+                    let u = ((x as f32 + 0.5) / w as f32 - 0.5) * fov_scale;
+                    let v = ((y as f32 + 0.5) / h as f32 - 0.5) * fov_scale;
+                    rays.push(Ray::new(eye, f + u * right - v * up));
+                }
+            }
+        }
+    }
+    rays
+}
+
+#[test]
+fn packets_give_the_single_ray_answers() {
+    let (pos, tris) = bumpy_sphere(48, 80);
+    let (pos2, tris2) = bumpy_sphere(6, 9);
+    let meshes = vec![
+        MeshBvh::build(&pos, &tris, BuildQuality::Medium),
+        MeshBvh::build(&pos2, &tris2, BuildQuality::Medium),
+    ];
+    let mut rng = Rng::new(2024);
+    // Untransformed (world rays walk the mesh as they are), rotated and scaled (object-space
+    // packets, some of whose rays change octant), and a grid of small ones (many instances
+    // per packet, which the packet must split between).
+    let mut instances = vec![
+        Instance::from((0, Affine3A::IDENTITY)),
+        Instance::from((
+            0,
+            Affine3A::from_scale_rotation_translation(
+                Vec3::new(0.7, 1.4, 0.9),
+                Quat::from_axis_angle(Vec3::new(1.0, 2.0, 0.5).normalize(), 0.7),
+                Vec3::new(2.5, 0.2, -0.5),
+            ),
+        )),
+    ];
+    for i in 0..64 {
+        let c = Vec3::new((i % 8) as f32 * 0.5 - 2.0, (i / 8) as f32 * 0.5 - 2.0, -3.0);
+        let rot = Quat::from_rotation_y(rng.next_f32() * 6.0);
+        instances.push(Instance::from((
+            1,
+            Affine3A::from_scale_rotation_translation(Vec3::splat(0.2), rot, c),
+        )));
+    }
+    let tlas = InstanceBvh::build(&meshes, &instances, BuildQuality::Medium);
+
+    let mut total_hits = 0;
+    for (k, eye) in [
+        Vec3::new(0.3, 0.8, 6.0),
+        Vec3::new(-5.0, 2.0, 4.0),
+        // On an octant boundary of the image centre: packets straddling it fall back.
+        Vec3::new(0.0, 0.0, 7.0),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let rays = pinhole_rays(eye, Vec3::new(0.2, -0.3, -1.0), 160, 96, 1.2);
+        let inf = vec![f32::INFINITY; rays.len()];
+        total_hits += assert_batch_matches_single("pinhole", &tlas, &meshes, &rays, 0.0, &inf);
+        // Per-ray limits: short, NaN, below tmin, and a tmin that cuts into the scene.
+        let odd: Vec<f32> = (0..rays.len())
+            .map(|i| match (i + k) % 7 {
+                0 => 5.5,
+                1 => f32::NAN,
+                2 => -1.0,
+                3 => 6.3,
+                _ => f32::INFINITY,
+            })
+            .collect();
+        assert_batch_matches_single("pinhole, odd tmax", &tlas, &meshes, &rays, 0.0, &odd);
+        assert_batch_matches_single("pinhole, tmin 6", &tlas, &meshes, &rays, 6.0, &inf);
+        assert_batch_matches_single("pinhole, tmin −1", &tlas, &meshes, &rays, -1.0, &inf);
+    }
+    assert!(
+        total_hits > 5000,
+        "the views should see the spheres: {total_hits}"
+    );
+
+    // Shadow-like packets (spread origins, one target), origins on an axis-parallel line,
+    // axis-parallel directions inside a packet, and plain random rays.
+    let light = Vec3::new(1.0, 6.0, 2.0);
+    let mut rays = Vec::new();
+    for _ in 0..4000 {
+        let o = rng.vec3_in(-3.0, 3.0);
+        rays.push(Ray::new(o, light - o));
+    }
+    for i in 0..640 {
+        let o = Vec3::new(-4.0 + 0.0125 * i as f32, 0.1, 5.0);
+        let d = if i % 5 == 0 {
+            -Vec3::Z
+        } else {
+            Vec3::new(0.01, 0.02, -1.0)
+        };
+        rays.push(Ray::new(o, d));
+    }
+    for _ in 0..4000 {
+        rays.push(Ray::new(rng.vec3_in(-4.0, 4.0), rng.direction()));
+    }
+    let inf = vec![f32::INFINITY; rays.len()];
+    assert_batch_matches_single("mixed", &tlas, &meshes, &rays, 0.0, &inf);
+    // Lengths that are not a multiple of the packet.
+    for n in [0, 1, 31, 33, 97] {
+        assert_batch_matches_single("short batch", &tlas, &meshes, &rays[..n], 0.0, &inf[..n]);
+    }
+}
+
+#[test]
+fn packets_give_the_single_ray_answers_on_the_bench_models() {
+    use hytrace::accel::MeshAccel;
+    use hytrace::bench::{mesh::MESH_SCENES, rays};
+    use hytrace::scene::Scene;
+    let assets = assets_dir().expect("an assets folder");
+    for (name, rel) in MESH_SCENES {
+        let path = assets.join(rel);
+        if !path.is_file() {
+            eprintln!("\n!!! {name} is missing at {}: SKIPPED\n", path.display());
+            assert!(
+                !std::env::var("CI").is_ok_and(|v| v == "true"),
+                "CI=true and {} is missing",
+                path.display()
+            );
+            continue;
+        }
+        let scene = Scene::from_model(&path, None).expect("bench model loads");
+        let accel = MeshAccel::new(&scene.meshes, BuildQuality::Medium);
+        let camera = rays::framing_camera(&scene, 16.0 / 9.0);
+        let primary = rays::primary_from(&camera, 384, 216);
+        let (ao, shadow) = rays::secondary(&scene, &accel, &primary);
+        for (kind, set) in [("primary", &primary), ("ao", &ao), ("shadow", &shadow)] {
+            let r: Vec<Ray> = set.iter().map(|q| q.ray).collect();
+            let t: Vec<f32> = set.iter().map(|q| q.tmax).collect();
+            let hits = assert_batch_matches_single(
+                &format!("{name} {kind}"),
+                &accel.tlas,
+                &accel.blas,
+                &r,
+                0.0,
+                &t,
+            );
+            println!(
+                "{name} {kind}: {} rays, {hits} hits, packet = single",
+                r.len()
+            );
+            assert!(kind != "primary" || hits > 1000, "{name}: {hits} hits");
+        }
+    }
+}

@@ -42,7 +42,8 @@ use obvhs::aabb::Aabb as OAabb;
 
 use super::triangle::{self, WatertightRay};
 use crate::geom::{Aabb, Ray};
-use wide::{NodeRay, WideNode};
+use arrayvec::ArrayVec;
+use wide::{Frustum, NodeRay, PACKET, PacketLeaf, WideNode};
 
 /// How much time the builder spends on the tree, mapped to obvhs's presets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, serde::Deserialize, clap::ValueEnum)]
@@ -280,35 +281,81 @@ impl MeshBvh {
         let tmin = wide::query_tmin(tmin);
         let mut best: Option<MeshHit> = None;
         wide::traverse_grouped::<true>(&self.nodes, nr, tmin, &mut tmax, |meta, slots, tmax| {
-            let wr = shear.get();
-            for k in self.leaves.blocks_for(meta, slots) {
-                let hits = leaf::block_hits(&self.leaves.blocks[k], wr, slots, tmin, *tmax);
-                let mut mask = hits.mask;
-                while mask != 0 {
-                    let lane = mask.trailing_zeros() as usize;
-                    mask &= mask - 1;
-                    let h = hits.hit(lane);
-                    let id = self.leaves.ids[k][lane];
-                    // h.t <= *tmax = best.t: ties go to the smaller triangle index, which
-                    // makes the answer independent of the traversal order.
-                    let better = match &best {
-                        None => true,
-                        Some(b) => h.t < b.t || (h.t == b.t && id < b.triangle),
-                    };
-                    if better {
-                        best = Some(MeshHit {
-                            t: h.t,
-                            triangle: id,
-                            u: h.u,
-                            v: h.v,
-                        });
-                        *tmax = h.t;
-                    }
-                }
-            }
+            self.closest_in_leaves(shear.get(), meta, slots, tmin, tmax, &mut best);
             ControlFlow::Continue(())
         });
         best
+    }
+
+    /// [`Self::closest_in`] for a packet of rays that share one walk (see `wide::packet`):
+    /// `best[i]` and `tmax[i]` are updated for ray i as `closest_in` would.
+    #[allow(clippy::too_many_arguments)]
+    fn closest_in_packet(
+        &self,
+        shears: &mut PacketShears<'_>,
+        rays: &[NodeRay],
+        active: u32,
+        frustum: &Frustum,
+        tmin: f32,
+        tmax: &mut [f32],
+        best: &mut [Option<MeshHit>],
+    ) {
+        let tmin = wide::query_tmin(tmin);
+        wide::traverse_packet::<false, true, true>(
+            &self.nodes,
+            rays,
+            active,
+            frustum,
+            tmin,
+            tmax,
+            0.0,
+            |what, tmax| {
+                if let PacketLeaf::Ray { ray, meta, slots } = what {
+                    let wr = shears.get(ray);
+                    self.closest_in_leaves(wr, meta, slots, tmin, &mut tmax[ray], &mut best[ray]);
+                }
+                ControlFlow::Continue(())
+            },
+        );
+    }
+
+    /// The closest-hit leaf test: the triangles of the leaf slots `slots` of a node (`meta` as
+    /// the walk hands it over) against one ray, keeping the nearest in `best` and `tmax`.
+    #[inline(always)]
+    fn closest_in_leaves(
+        &self,
+        wr: &WatertightRay,
+        meta: u32,
+        slots: u32,
+        tmin: f32,
+        tmax: &mut f32,
+        best: &mut Option<MeshHit>,
+    ) {
+        for k in self.leaves.blocks_for(meta, slots) {
+            let hits = leaf::block_hits(&self.leaves.blocks[k], wr, slots, tmin, *tmax);
+            let mut mask = hits.mask;
+            while mask != 0 {
+                let lane = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                let h = hits.hit(lane);
+                let id = self.leaves.ids[k][lane];
+                // h.t <= *tmax = best.t: ties go to the smaller triangle index, which makes
+                // the answer independent of the traversal order.
+                let better = match best {
+                    None => true,
+                    Some(b) => h.t < b.t || (h.t == b.t && id < b.triangle),
+                };
+                if better {
+                    *best = Some(MeshHit {
+                        t: h.t,
+                        triangle: id,
+                        u: h.u,
+                        v: h.v,
+                    });
+                    *tmax = h.t;
+                }
+            }
+        }
     }
 
     fn any_in(&self, shear: &mut Shear, nr: &NodeRay, tmin: f32, mut tmax: f32) -> bool {
@@ -416,6 +463,53 @@ impl Shear {
     fn get(&mut self) -> &WatertightRay {
         let (o, d) = (self.origin, self.direction);
         self.ray.get_or_insert_with(|| WatertightRay::new(o, d))
+    }
+}
+
+/// The watertight shears of a packet's rays, each computed when a leaf first needs it (as
+/// [`Shear`] does for one ray).
+struct PacketShears<'a> {
+    rays: &'a [Ray],
+    shears: [std::mem::MaybeUninit<WatertightRay>; PACKET],
+    /// Bit i set when `shears[i]` has been computed.
+    ready: u32,
+}
+
+impl<'a> PacketShears<'a> {
+    #[inline(always)]
+    fn new(rays: &'a [Ray]) -> Self {
+        PacketShears {
+            rays,
+            shears: [const { std::mem::MaybeUninit::uninit() }; PACKET],
+            ready: 0,
+        }
+    }
+
+    #[inline(always)]
+    fn get(&mut self, i: usize) -> &WatertightRay {
+        if self.ready & (1 << i) == 0 {
+            let r = &self.rays[i];
+            self.shears[i].write(WatertightRay::new(r.origin, r.direction));
+            self.ready |= 1 << i;
+        }
+        // SAFETY: bit i of `ready` is set only once `shears[i]` has been written.
+        unsafe { self.shears[i].assume_init_ref() }
+    }
+}
+
+const _: () = assert!(PACKET <= 32, "PacketShears::ready is a u32");
+
+/// Whether a hit `(t, instance, triangle)` beats `best`: nearer, or as near with a smaller
+/// instance and then triangle index (the order-independent tie rule of the module contract).
+#[inline(always)]
+fn beats(best: &Option<InstanceHit>, t: f32, instance: u32, triangle: u32) -> bool {
+    match best {
+        None => true,
+        Some(b) => {
+            t < b.t
+                || (t == b.t
+                    && (instance < b.instance || (instance == b.instance && triangle < b.triangle)))
+        }
     }
 }
 
@@ -587,16 +681,7 @@ impl InstanceBvh {
         let mut best: Option<InstanceHit> = None;
         self.walk::<true>(meshes, ray, tmin, tmax, |p, mesh, shear, nr, tmax| {
             if let Some(h) = mesh.closest_in(shear, nr, tmin, *tmax) {
-                let better = match &best {
-                    None => true,
-                    Some(b) => {
-                        h.t < b.t
-                            || (h.t == b.t
-                                && (p.index < b.instance
-                                    || (p.index == b.instance && h.triangle < b.triangle)))
-                    }
-                };
-                if better {
+                if beats(&best, h.t, p.index, h.triangle) {
                     best = Some(InstanceHit {
                         t: h.t,
                         instance: p.index,
@@ -610,6 +695,189 @@ impl InstanceBvh {
             ControlFlow::Continue(())
         });
         best
+    }
+
+    /// [`Self::closest_hit`] of every ray `rays[i]` over `[tmin, tmax[i]]`, into `out[i]`: the
+    /// same answers, bit for bit. Consecutive rays are traced together, [`PACKET`] at a time,
+    /// when they are coherent (same octant, none parallel to an axis: neighbouring primary rays
+    /// of a camera, shadow rays towards one light); the rest one by one.
+    ///
+    /// # Panics
+    /// When the three slices differ in length.
+    pub fn closest_hits(
+        &self,
+        meshes: &[MeshBvh],
+        rays: &[Ray],
+        tmin: f32,
+        tmax: &[f32],
+        out: &mut [Option<InstanceHit>],
+    ) {
+        assert!(rays.len() == tmax.len() && rays.len() == out.len());
+        for ((rays, tmax), out) in rays
+            .chunks(PACKET)
+            .zip(tmax.chunks(PACKET))
+            .zip(out.chunks_mut(PACKET))
+        {
+            self.closest_packet(meshes, rays, tmin, tmax, out);
+        }
+    }
+
+    /// [`Self::closest_hits`] of at most [`PACKET`] rays.
+    fn closest_packet(
+        &self,
+        meshes: &[MeshBvh],
+        rays: &[Ray],
+        tmin: f32,
+        tmax_in: &[f32],
+        out: &mut [Option<InstanceHit>],
+    ) {
+        let Some((frustum, world)) = Frustum::new(rays.iter().map(|r| (r.origin, r.direction)))
+        else {
+            for ((r, &tmax), out) in rays.iter().zip(tmax_in).zip(out.iter_mut()) {
+                *out = self.closest_hit(meshes, r, tmin, tmax);
+            }
+            return;
+        };
+        let qtmin = wide::query_tmin(tmin);
+        // Rays with nothing to find (NaN or empty interval) are retired from the start.
+        let mut tmax: ArrayVec<f32, PACKET> = tmax_in
+            .iter()
+            .map(|&t| if t >= qtmin { t } else { f32::NEG_INFINITY })
+            .collect();
+        out.fill(None);
+        let mut world_shears = PacketShears::new(rays);
+        let margin = if self.origin_margin > 0.0 {
+            self.origin_margin
+                * rays
+                    .iter()
+                    .fold(0.0f32, |m, r| m.max(r.origin.abs().max_element()))
+        } else {
+            0.0
+        };
+        let mut mesh_hits = [None; PACKET];
+        let n = rays.len();
+        // Keeps, per ray of `active`, the better of its hit so far and this instance's.
+        let merge = |p: &PlacedInstance,
+                     active: u32,
+                     hits: &[Option<MeshHit>],
+                     tmax: &mut [f32],
+                     out: &mut [Option<InstanceHit>]| {
+            let mut m = active;
+            while m != 0 {
+                let i = m.trailing_zeros() as usize;
+                m &= m - 1;
+                let Some(h) = hits[i] else { continue };
+                if beats(&out[i], h.t, p.index, h.triangle) {
+                    out[i] = Some(InstanceHit {
+                        t: h.t,
+                        instance: p.index,
+                        triangle: h.triangle,
+                        u: h.u,
+                        v: h.v,
+                    });
+                    tmax[i] = h.t;
+                }
+            }
+        };
+        let visit = |what: PacketLeaf, tmax: &mut [f32]| {
+            let PacketLeaf::Packet { meta, rays: active } = what else {
+                return ControlFlow::Continue(());
+            };
+            let (first, count) = (wide::leaf_first(meta), wide::leaf_count(meta));
+            for p in &self.placed[first as usize..(first + count) as usize] {
+                let Some(mesh) = meshes.get(p.mesh as usize) else {
+                    continue;
+                };
+                let hits = &mut mesh_hits[..n];
+                if p.identity {
+                    // The world rays themselves, bounded afresh when only some of them
+                    // may meet this instance.
+                    let sub;
+                    let f = if active == wide::all_rays(n) {
+                        &frustum
+                    } else {
+                        sub = Frustum::of(&world, active);
+                        &sub
+                    };
+                    hits.fill(None);
+                    mesh.closest_in_packet(&mut world_shears, &world, active, f, tmin, tmax, hits);
+                    merge(p, active, hits, tmax, out);
+                    continue;
+                }
+                // The rays that may meet the instance, mapped into its object space (not
+                // renormalised: t stays the world ray's parameter) and packed together.
+                let mut index: ArrayVec<u8, PACKET> = ArrayVec::new();
+                let mut object: ArrayVec<Ray, PACKET> = ArrayVec::new();
+                let mut sub_tmax: ArrayVec<f32, PACKET> = ArrayVec::new();
+                let mut m = active;
+                while m != 0 {
+                    let i = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    index.push(i as u8);
+                    sub_tmax.push(tmax[i]);
+                    object.push(Ray {
+                        origin: p.world_to_object.transform_point3(rays[i].origin),
+                        direction: p.world_to_object.transform_vector3(rays[i].direction),
+                    });
+                }
+                let k = object.len();
+                let sub_hits = &mut hits[..k];
+                sub_hits.fill(None);
+                let mut shears = PacketShears::new(&object);
+                match Frustum::new(object.iter().map(|r| (r.origin, r.direction))) {
+                    Some((f, nodes)) => mesh.closest_in_packet(
+                        &mut shears,
+                        &nodes,
+                        wide::all_rays(k),
+                        &f,
+                        tmin,
+                        &mut sub_tmax,
+                        sub_hits,
+                    ),
+                    None => {
+                        for (j, r) in object.iter().enumerate() {
+                            let mut shear = Shear::new(r.origin, r.direction);
+                            let nr = NodeRay::new(r.origin, r.direction);
+                            sub_hits[j] = mesh.closest_in(&mut shear, &nr, tmin, sub_tmax[j]);
+                        }
+                    }
+                }
+                // Back to packet order.
+                for j in (0..k).rev() {
+                    let i = index[j] as usize;
+                    hits[i] = hits[j];
+                    if i != j {
+                        hits[j] = None;
+                    }
+                }
+                merge(p, active, hits, tmax, out);
+            }
+            ControlFlow::Continue(())
+        };
+        let all = wide::all_rays(n);
+        if margin > 0.0 {
+            wide::traverse_packet::<true, true, false>(
+                &self.nodes,
+                &world,
+                all,
+                &frustum,
+                tmin,
+                &mut tmax,
+                margin,
+                visit,
+            );
+        } else {
+            wide::traverse_packet::<false, true, false>(
+                &self.nodes,
+                &world,
+                all,
+                &frustum,
+                tmin,
+                &mut tmax,
+                0.0,
+                visit,
+            );
+        }
     }
 
     /// Whether any instance is hit with `tmin <= t <= tmax`; stops at the first.

@@ -236,9 +236,24 @@ impl Workers {
     }
 
     /// Applies `f` to every item, writing `out[i] = f(&items[i])`; returns the wall time in
-    /// seconds. Items are handed out in chunks of 64 so that neighbouring (coherent) rays stay
-    /// on one thread.
+    /// seconds. See [`Self::map_chunks`].
     pub fn map<T: Sync, R: Send, F: Fn(&T) -> R + Sync>(
+        &self,
+        items: &[T],
+        out: &mut [R],
+        f: F,
+    ) -> f64 {
+        self.map_chunks(items, out, |items, out| {
+            for (o, i) in out.iter_mut().zip(items) {
+                *o = f(i);
+            }
+        })
+    }
+
+    /// Applies `f` to chunks of [`CHUNK`] consecutive items and the matching chunks of `out`;
+    /// returns the wall time in seconds. Chunks keep neighbouring (coherent) rays together on
+    /// one thread, and let a backend trace them together.
+    pub fn map_chunks<T: Sync, R: Send, F: Fn(&[T], &mut [R]) + Sync>(
         &self,
         items: &[T],
         out: &mut [R],
@@ -248,23 +263,22 @@ impl Workers {
         let start = Instant::now();
         match &self.pool {
             None => {
-                for (o, i) in out.iter_mut().zip(items) {
-                    *o = f(i);
+                for (o, i) in out.chunks_mut(CHUNK).zip(items.chunks(CHUNK)) {
+                    f(i, o);
                 }
             }
             Some(pool) => pool.install(|| {
-                out.par_chunks_mut(64)
-                    .zip(items.par_chunks(64))
-                    .for_each(|(o, i)| {
-                        for (o, i) in o.iter_mut().zip(i) {
-                            *o = f(i);
-                        }
-                    })
+                out.par_chunks_mut(CHUNK)
+                    .zip(items.par_chunks(CHUNK))
+                    .for_each(|(o, i)| f(i, o))
             }),
         }
         start.elapsed().as_secs_f64()
     }
 }
+
+/// Rays handed out together by [`Workers::map_chunks`].
+pub const CHUNK: usize = 64;
 
 /// The median of a non-empty list.
 pub fn median(v: &[f64]) -> f64 {
@@ -288,8 +302,20 @@ pub fn geomean(v: &[f64]) -> f64 {
     (v.iter().map(|x| x.ln()).sum::<f64>() / v.len() as f64).exp()
 }
 
-/// A backend's answer to one ray (t of the closest hit, ∞ for a miss; or 1/0 for occlusion).
-pub(crate) type QueryFn<'a> = dyn Fn(&QueryRay) -> f32 + Sync + 'a;
+/// A backend's answers to a chunk of rays (per ray: t of the closest hit, ∞ for a miss; or 1/0
+/// for occlusion).
+pub(crate) type QueryFn<'a> = dyn Fn(&[QueryRay], &mut [f32]) + Sync + 'a;
+
+/// A backend that answers one ray at a time, as a [`QueryFn`].
+pub(crate) fn per_ray<'a>(
+    f: impl Fn(&QueryRay) -> f32 + Sync + 'a,
+) -> impl Fn(&[QueryRay], &mut [f32]) + Sync + 'a {
+    move |rays: &[QueryRay], out: &mut [f32]| {
+        for (q, o) in rays.iter().zip(out) {
+            *o = f(q);
+        }
+    }
+}
 
 /// Most rounds [`alternate`] times, however short a run.
 pub const MAX_ROUNDS: usize = 200;
@@ -307,7 +333,7 @@ pub(crate) fn alternate(
 ) -> Vec<Vec<f64>> {
     for (f, out) in backends.iter_mut() {
         out.resize(rays.len(), 0.0);
-        workers.map(rays, out, *f);
+        workers.map_chunks(rays, out, *f);
     }
     let mut times: Vec<Vec<f64>> = vec![Vec::with_capacity(runs); backends.len()];
     let timed_enough = |times: &[Vec<f64>]| {
@@ -317,7 +343,7 @@ pub(crate) fn alternate(
     };
     while !timed_enough(&times) && times[0].len() < MAX_ROUNDS {
         for (k, (f, out)) in backends.iter_mut().enumerate() {
-            times[k].push(workers.map(rays, out, *f));
+            times[k].push(workers.map_chunks(rays, out, *f));
         }
     }
     times

@@ -3,7 +3,7 @@
 //! objects with and without the SDF BVH.
 
 use super::rays::{self, QueryRay};
-use super::{BenchOptions, Workers, alternate, median};
+use super::{BenchOptions, Workers, alternate, median, per_ray};
 use crate::scene::{Scene, Stepper, TracerSettings};
 use crate::sdf::tape::Registers;
 use crate::trace::{AccelOptions, SceneTracer, epsilon_at, normal, sphere};
@@ -268,15 +268,15 @@ pub fn scaling(opts: &BenchOptions) -> anyhow::Result<Vec<SdfScalingRow>> {
                 ..Default::default()
             },
         );
-        let f_with = |q: &QueryRay| {
+        let f_with = per_ray(|q: &QueryRay| {
             with.closest_hit(&q.ray, 0.0, q.tmax)
                 .map_or(f32::INFINITY, |h| h.t)
-        };
-        let f_without = |q: &QueryRay| {
+        });
+        let f_without = per_ray(|q: &QueryRay| {
             without
                 .closest_hit(&q.ray, 0.0, q.tmax)
                 .map_or(f32::INFINITY, |h| h.t)
-        };
+        });
         let (mut a, mut b) = (Vec::new(), Vec::new());
         let t = alternate(
             &workers,

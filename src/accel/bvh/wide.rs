@@ -48,6 +48,9 @@ use obvhs::bvh2::reinsertion::ReinsertionOptimizer;
 use obvhs::cwbvh::bvh2_to_cwbvh::bvh2_to_cwbvh;
 use obvhs::ploc::PlocBuilder;
 
+mod packet;
+pub(crate) use packet::{Frustum, PACKET, PacketLeaf, all_rays, traverse_packet};
+
 /// Marks a leaf child in [`WideNode::meta`]; the other bits of a leaf are `(count − 1) << 29 |
 /// first`, where `first` indexes the primitive order and `count` is 1..=3 (CWBVH leaves hold at
 /// most three primitives). An internal child's meta is its node index.
@@ -504,13 +507,13 @@ struct Entry {
 /// about five levels whose children are nearly all hit (each level leaves at most seven
 /// entries). The array is left uninitialised: zeroing its 256 bytes on every walk (one per
 /// instance a ray visits) cost more than the rest of a short walk.
-struct Stack {
-    arr: [MaybeUninit<Entry>; 32],
+struct Stack<E = Entry> {
+    arr: [MaybeUninit<E>; 32],
     len: usize,
-    spill: Vec<Entry>,
+    spill: Vec<E>,
 }
 
-impl Stack {
+impl<E: Copy> Stack<E> {
     #[inline(always)]
     fn new() -> Self {
         Stack {
@@ -520,7 +523,7 @@ impl Stack {
         }
     }
     #[inline(always)]
-    fn push(&mut self, e: Entry) {
+    fn push(&mut self, e: E) {
         if self.len < self.arr.len() {
             self.arr[self.len] = MaybeUninit::new(e);
             self.len += 1;
@@ -529,7 +532,7 @@ impl Stack {
         }
     }
     #[inline(always)]
-    fn pop(&mut self) -> Option<Entry> {
+    fn pop(&mut self) -> Option<E> {
         // Spilled entries are the newest.
         if let Some(e) = self.spill.pop() {
             return Some(e);
@@ -673,7 +676,7 @@ fn dispatch<const MARGIN: bool, const ORDERED: bool, const GROUPED: bool>(
         unsafe { traverse_avx2::<MARGIN, ORDERED, GROUPED>(nodes, r, tmin, tmax, margin, leaf) };
         return;
     }
-    traverse_impl::<MARGIN, false, ORDERED, GROUPED>(nodes, r, tmin, tmax, margin, leaf)
+    traverse_impl::<MARGIN, false, ORDERED, GROUPED>(nodes, 0, r, tmin, tmax, margin, leaf)
 }
 
 /// [`traverse_impl`] compiled with AVX2.
@@ -690,7 +693,7 @@ unsafe fn traverse_avx2<const MARGIN: bool, const ORDERED: bool, const GROUPED: 
     margin: f32,
     leaf: impl FnMut(u32, u32, &mut f32) -> ControlFlow<()>,
 ) {
-    traverse_impl::<MARGIN, true, ORDERED, GROUPED>(nodes, r, tmin, tmax, margin, leaf)
+    traverse_impl::<MARGIN, true, ORDERED, GROUPED>(nodes, 0, r, tmin, tmax, margin, leaf)
 }
 
 /// The walk; `AVX2` selects [`child_hits_avx2`] (only reached through [`traverse_avx2`]);
@@ -701,6 +704,7 @@ unsafe fn traverse_avx2<const MARGIN: bool, const ORDERED: bool, const GROUPED: 
 #[inline(always)]
 fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, const GROUPED: bool>(
     nodes: &[WideNode],
+    root: u32,
     r: &NodeRay,
     tmin: f32,
     tmax: &mut f32,
@@ -712,7 +716,10 @@ fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, cons
         return;
     }
     let mut stack = Stack::new();
-    let mut next = Some(Entry { t: tmin, meta: 0 });
+    let mut next = Some(Entry {
+        t: tmin,
+        meta: root,
+    });
     while let Some(e) = next.take().or_else(|| stack.pop()) {
         if e.t > *tmax {
             continue;
@@ -817,7 +824,7 @@ mod tests {
         out
     }
 
-    fn grid() -> (Vec<OAabb>, WideBvh) {
+    pub(super) fn grid() -> (Vec<OAabb>, WideBvh) {
         let boxes: Vec<OAabb> = (0..200)
             .map(|i| {
                 let c = Vec3A::new((i % 10) as f32, ((i / 10) % 5) as f32, (i / 50) as f32);
@@ -958,11 +965,11 @@ mod tests {
                         dispatch::<false, true, false>(&bvh.nodes, &r, 0.0, &mut tmax, 0.0, leaf)
                     }
                     (false, false) => traverse_impl::<false, false, true, false>(
-                        &bvh.nodes, &r, 0.0, &mut tmax, 0.0, leaf,
+                        &bvh.nodes, 0, &r, 0.0, &mut tmax, 0.0, leaf,
                     ),
                     (true, true) => traverse_grouped::<true>(&bvh.nodes, &r, 0.0, &mut tmax, leaf),
                     (false, true) => traverse_impl::<false, false, true, true>(
-                        &bvh.nodes, &r, 0.0, &mut tmax, 0.0, leaf,
+                        &bvh.nodes, 0, &r, 0.0, &mut tmax, 0.0, leaf,
                     ),
                 }
                 seen

@@ -1,0 +1,650 @@
+//! Packet traversal: one walk of the tree for up to [`PACKET`] coherent rays (neighbouring
+//! primary rays of a camera), each node tested once for all of them against the packet's
+//! interval bounds, each leaf tested ray by ray.
+//!
+//! The node test bounds every ray of the packet at once with interval arithmetic (Wald,
+//! Boulos & Shirley, "Ray Tracing Deformable Scenes Using Dynamic Bounding Volume
+//! Hierarchies", ACM TOG 26(1), 2007, §4.2): with the origins in `[o_lo, o_hi]` and the
+//! inverse directions in `[inv_lo, inv_hi]` per axis, all of one sign, a slab distance
+//! `(plane − o)·inv` is bilinear in `(o, inv)`, so its smallest and largest value over the
+//! packet are among the four corner products. The test is conservative *in floating point*,
+//! not only in exact arithmetic: rounding is monotonic, so `fl(plane − o_hi) <= fl(plane − o)
+//! <= fl(plane − o_lo)` for every ray's `o`, and a rounded product is monotonic in each factor
+//! when the other is fixed; the smallest rounded corner product is therefore ≤ the value the
+//! single-ray test ([`super::child_hits`]) computes for each ray of the packet, and the largest
+//! is ≥ it. The entry and exit bounds are then widened exactly as in the single-ray test. A box
+//! that any ray's own test hits within its `[tmin, tmax]` is hit by the packet test within
+//! `[tmin, max tmax]` — so a packet walk reaches every leaf that any of its rays' walks reaches.
+//!
+//! At a node with leaf children, each ray still runs its own exact 8-wide test against the node
+//! (with its own `tmax`) before its leaf test, so the rays meet exactly the leaves, in the same
+//! per-node grouping, that their single-ray walks would: only the inner nodes are shared. With
+//! closest-hit ties broken by index (see the module contract of `super::super`), the answers are
+//! bit for bit the single-ray ones (`packet_walks_give_the_single_ray_answers` and the
+//! integration tests check that on real models).
+
+use std::ops::ControlFlow;
+
+use arrayvec::ArrayVec;
+use glam::{BVec4A, Vec3, Vec3A, Vec4};
+
+use super::{
+    LEAF_BIT, NodeRay, Stack, WIDEN, WideNode, child_hits, has_avx2, lanes, leaf_slots_with,
+    prefetch_node, query_tmin,
+};
+
+/// Most rays in a packet. 32 is one row of a 32×32 render tile; with the bench's and the
+/// renderer's tile order, 32 consecutive primary rays span 32 neighbouring pixels.
+pub(crate) const PACKET: usize = 32;
+
+/// The mask of the first `n` rays of a packet.
+#[inline(always)]
+pub(crate) fn all_rays(n: usize) -> u32 {
+    if n == 0 {
+        0
+    } else {
+        u32::MAX >> (32 - n.min(32))
+    }
+}
+
+/// Interval bounds of a packet's rays, per axis, for [`frustum_hits`].
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Frustum {
+    o_lo: [f32; 3],
+    o_hi: [f32; 3],
+    inv_lo: [f32; 3],
+    inv_hi: [f32; 3],
+    /// Shared by every ray of the packet (see [`NodeRay`]).
+    near: [usize; 3],
+    /// All rays start at one point (`o_lo == o_hi`: a pinhole camera's rays): two corner
+    /// products per plane instead of four, with the same result.
+    one_origin: bool,
+}
+
+impl Frustum {
+    /// The node rays of `rays` (each `(origin, direction)`) and their bounds, or `None` when
+    /// they cannot share one walk: no rays, a ray parallel to an axis, rays in different
+    /// octants (the slab planes they enter first differ), or a non-finite origin.
+    #[inline(always)]
+    pub fn new(
+        rays: impl ExactSizeIterator<Item = (Vec3, Vec3)>,
+    ) -> Option<(Frustum, ArrayVec<NodeRay, PACKET>)> {
+        assert!(rays.len() <= PACKET, "a packet holds at most {PACKET} rays");
+        let mut out: ArrayVec<NodeRay, PACKET> = ArrayVec::new();
+        let (mut o_lo, mut o_hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
+        let (mut inv_lo, mut inv_hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
+        // Branch-free accumulation: one test at the end.
+        let (mut parallel, mut octants, mut finite) = (0u32, 0u32, true);
+        for (o, d) in rays {
+            let r = NodeRay::new(o, d);
+            parallel |= r.parallel;
+            octants |= 1 << (r.near[0] & 1 | (r.near[1] & 1) << 1 | (r.near[2] & 1) << 2);
+            finite &= o.is_finite();
+            let (o, inv) = (Vec3A::from(o), Vec3A::from_array(r.inv));
+            o_lo = o_lo.min(o);
+            o_hi = o_hi.max(o);
+            inv_lo = inv_lo.min(inv);
+            inv_hi = inv_hi.max(inv);
+            out.push(r);
+        }
+        let first = out.first()?;
+        if parallel != 0 || octants.count_ones() != 1 || !finite {
+            return None;
+        }
+        let f = Frustum {
+            o_lo: o_lo.to_array(),
+            o_hi: o_hi.to_array(),
+            inv_lo: inv_lo.to_array(),
+            inv_hi: inv_hi.to_array(),
+            near: first.near,
+            one_origin: o_lo == o_hi,
+        };
+        Some((f, out))
+    }
+}
+
+impl Frustum {
+    /// The bounds of the rays of `mask` (bit i for `rays[i]`, not empty), which a frustum
+    /// has already been made of (so they share one octant and are finite).
+    #[inline(always)]
+    pub fn of(rays: &[NodeRay], mask: u32) -> Frustum {
+        let (mut o_lo, mut o_hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
+        let (mut inv_lo, mut inv_hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
+        let mut m = mask;
+        while m != 0 {
+            let r = &rays[m.trailing_zeros() as usize];
+            m &= m - 1;
+            let (o, inv) = (Vec3A::from_array(r.o), Vec3A::from_array(r.inv));
+            o_lo = o_lo.min(o);
+            o_hi = o_hi.max(o);
+            inv_lo = inv_lo.min(inv);
+            inv_hi = inv_hi.max(inv);
+        }
+        Frustum {
+            o_lo: o_lo.to_array(),
+            o_hi: o_hi.to_array(),
+            inv_lo: inv_lo.to_array(),
+            inv_hi: inv_hi.to_array(),
+            near: rays[mask.trailing_zeros() as usize].near,
+            one_origin: o_lo == o_hi,
+        }
+    }
+}
+
+/// Entry distances (widened lower bounds over the packet) and the mask of the children that
+/// some ray of the packet may meet within `[tmin, tmax]`, boxes grown by `margin` when
+/// `MARGIN` (as in [`child_hits`]).
+#[inline(always)]
+fn frustum_hits<const MARGIN: bool>(
+    node: &WideNode,
+    f: &Frustum,
+    tmin: f32,
+    tmax: f32,
+    margin: f32,
+) -> ([f32; 8], u32) {
+    let mut t_out = [0.0f32; 8];
+    let mut mask = 0u32;
+    for group in 0..2 {
+        let mut tn = Vec4::splat(tmin);
+        let mut tf = Vec4::splat(tmax);
+        for axis in 0..3 {
+            let near = f.near[axis];
+            let mut pn = lanes(&node.bounds[near], group);
+            let mut pf = lanes(&node.bounds[near ^ 1], group);
+            if MARGIN {
+                if near & 1 == 0 {
+                    pn -= margin;
+                    pf += margin;
+                } else {
+                    pn += margin;
+                    pf -= margin;
+                }
+            }
+            let (olo, ohi) = (Vec4::splat(f.o_lo[axis]), Vec4::splat(f.o_hi[axis]));
+            let (ilo, ihi) = (Vec4::splat(f.inv_lo[axis]), Vec4::splat(f.inv_hi[axis]));
+            let (a0, b0) = (pn - ohi, pf - ohi);
+            let mut entry = (a0 * ilo).min(a0 * ihi);
+            let mut exit = (b0 * ilo).max(b0 * ihi);
+            if !f.one_origin {
+                let (a1, b1) = (pn - olo, pf - olo);
+                entry = entry.min((a1 * ilo).min(a1 * ihi));
+                exit = exit.max((b1 * ilo).max(b1 * ihi));
+            }
+            tn = tn.max(entry);
+            tf = tf.min(exit);
+        }
+        let tn = tn * Vec4::splat(1.0 - WIDEN);
+        let tf = tf * Vec4::splat(1.0 + WIDEN);
+        let hit: BVec4A = tn.cmple(tf);
+        mask |= hit.bitmask() << (4 * group);
+        tn.write_to_slice(&mut t_out[4 * group..4 * group + 4]);
+    }
+    (t_out, mask)
+}
+
+/// [`frustum_hits`] with the eight children in one register: the same operations on the same
+/// values, so the same result bit for bit (`avx2_frustum_test_matches_the_portable_one`).
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn frustum_hits_avx2<const MARGIN: bool>(
+    node: &WideNode,
+    f: &Frustum,
+    tmin: f32,
+    tmax: f32,
+    margin: f32,
+) -> ([f32; 8], u32) {
+    use std::arch::x86_64::*;
+    // SAFETY (whole body): unaligned loads and stores of eight f32 from and to arrays of
+    // eight f32; AVX2 is enabled for this function.
+    unsafe {
+        let load = |a: &[f32; 8]| _mm256_loadu_ps(a.as_ptr());
+        let m = _mm256_set1_ps(margin);
+        let mut tn = _mm256_set1_ps(tmin);
+        let mut tf = _mm256_set1_ps(tmax);
+        for axis in 0..3 {
+            let near = f.near[axis];
+            let mut pn = load(&node.bounds[near]);
+            let mut pf = load(&node.bounds[near ^ 1]);
+            if MARGIN {
+                if near & 1 == 0 {
+                    pn = _mm256_sub_ps(pn, m);
+                    pf = _mm256_add_ps(pf, m);
+                } else {
+                    pn = _mm256_add_ps(pn, m);
+                    pf = _mm256_sub_ps(pf, m);
+                }
+            }
+            let (olo, ohi) = (_mm256_set1_ps(f.o_lo[axis]), _mm256_set1_ps(f.o_hi[axis]));
+            let (ilo, ihi) = (
+                _mm256_set1_ps(f.inv_lo[axis]),
+                _mm256_set1_ps(f.inv_hi[axis]),
+            );
+            let (a0, b0) = (_mm256_sub_ps(pn, ohi), _mm256_sub_ps(pf, ohi));
+            let mut entry = _mm256_min_ps(_mm256_mul_ps(a0, ilo), _mm256_mul_ps(a0, ihi));
+            let mut exit = _mm256_max_ps(_mm256_mul_ps(b0, ilo), _mm256_mul_ps(b0, ihi));
+            if !f.one_origin {
+                let (a1, b1) = (_mm256_sub_ps(pn, olo), _mm256_sub_ps(pf, olo));
+                entry = _mm256_min_ps(
+                    entry,
+                    _mm256_min_ps(_mm256_mul_ps(a1, ilo), _mm256_mul_ps(a1, ihi)),
+                );
+                exit = _mm256_max_ps(
+                    exit,
+                    _mm256_max_ps(_mm256_mul_ps(b1, ilo), _mm256_mul_ps(b1, ihi)),
+                );
+            }
+            tn = _mm256_max_ps(tn, entry);
+            tf = _mm256_min_ps(tf, exit);
+        }
+        let tn = _mm256_mul_ps(tn, _mm256_set1_ps(1.0 - WIDEN));
+        let tf = _mm256_mul_ps(tf, _mm256_set1_ps(1.0 + WIDEN));
+        let hit = _mm256_cmp_ps::<_CMP_LE_OQ>(tn, tf);
+        let mut t_out = [0.0f32; 8];
+        _mm256_storeu_ps(t_out.as_mut_ptr(), tn);
+        (t_out, _mm256_movemask_ps(hit) as u32)
+    }
+}
+
+/// One ray's own test of a node's children (the single-ray walk's), by AVX2 when `AVX2`.
+#[inline(always)]
+fn ray_hits<const MARGIN: bool, const AVX2: bool>(
+    node: &WideNode,
+    r: &NodeRay,
+    tmin: f32,
+    tmax: f32,
+    margin: f32,
+) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    if AVX2 {
+        // SAFETY: `AVX2` is only true inside `packet_avx2`, which runs on AVX2 CPUs.
+        return unsafe { super::child_hits_avx2::<MARGIN>(node, r, tmin, tmax, margin).1 };
+    }
+    child_hits::<MARGIN>(node, r, tmin, tmax, margin).1
+}
+
+/// What a packet walk hands to its caller.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum PacketLeaf {
+    /// Grouped trees: ray `ray` meets the leaf children `slots` of a node (`meta` is the first
+    /// one's [`WideNode::meta`]); its `tmax` is `tmax[ray]`.
+    Ray { ray: usize, meta: u32, slots: u32 },
+    /// Other trees: the rays of the mask `rays` (bit i for ray i) may meet the leaf child
+    /// `meta`.
+    Packet { meta: u32, rays: u32 },
+}
+
+/// Below this many rays a packet walk lets each ray finish the subtree on its own (the
+/// single-ray walk), since the shared node test no longer pays for itself.
+const SOLO: u32 = 2;
+
+/// A pending child of a packet walk: as [`Entry`], with the rays that may meet it.
+#[derive(Clone, Copy, Default)]
+struct PacketEntry {
+    t: f32,
+    meta: u32,
+    rays: u32,
+}
+
+/// Walks the tree once for the rays of `active` (bit i for `rays[i]`; at most [`PACKET`] rays,
+/// `frustum` must bound them), calling `leaf(what, tmax)` as [`PacketLeaf`] describes; the
+/// callback may shrink entries of `tmax` (closest hit), set one to −∞ to retire its ray (any
+/// hit), or break. A ray whose `tmax` is NaN or below `tmin` is never handed to a leaf.
+///
+/// Each pending child carries the rays that may meet it. Where the rays part ways — the
+/// packet's test hits two or more inner children, or a node has leaf children — each ray runs
+/// its own test (the single-ray walk's) and each child keeps only the rays that meet it; a
+/// child left with fewer than [`SOLO`] + 1 rays is finished by single-ray walks. So a
+/// coherent packet shares its walk down to where it splits, and an incoherent one (rays
+/// through sub-pixel triangles) costs about its rays' own walks.
+///
+/// `ORDERED` visits hit children nearest first (by the packet's entry bound); `GROUPED` is
+/// as in [`super::traverse_grouped`].
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub(crate) fn traverse_packet<const MARGIN: bool, const ORDERED: bool, const GROUPED: bool>(
+    nodes: &[WideNode],
+    rays: &[NodeRay],
+    active: u32,
+    frustum: &Frustum,
+    tmin: f32,
+    tmax: &mut [f32],
+    margin: f32,
+    leaf: impl FnMut(PacketLeaf, &mut [f32]) -> ControlFlow<()>,
+) {
+    debug_assert!(rays.len() <= PACKET && rays.len() == tmax.len());
+    let tmin = query_tmin(tmin);
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2() {
+        // SAFETY: the CPU supports AVX2 (just checked).
+        unsafe {
+            packet_avx2::<MARGIN, ORDERED, GROUPED>(
+                nodes, rays, active, frustum, tmin, tmax, margin, leaf,
+            )
+        };
+        return;
+    }
+    packet_impl::<MARGIN, false, ORDERED, GROUPED>(
+        nodes, rays, active, frustum, tmin, tmax, margin, leaf,
+    )
+}
+
+/// [`packet_impl`] compiled with AVX2.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[allow(clippy::too_many_arguments)]
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn packet_avx2<const MARGIN: bool, const ORDERED: bool, const GROUPED: bool>(
+    nodes: &[WideNode],
+    rays: &[NodeRay],
+    active: u32,
+    frustum: &Frustum,
+    tmin: f32,
+    tmax: &mut [f32],
+    margin: f32,
+    leaf: impl FnMut(PacketLeaf, &mut [f32]) -> ControlFlow<()>,
+) {
+    packet_impl::<MARGIN, true, ORDERED, GROUPED>(
+        nodes, rays, active, frustum, tmin, tmax, margin, leaf,
+    )
+}
+
+/// The rays of `mask` still in the walk (`tmax >= tmin`: not retired, not NaN) and the largest
+/// of their `tmax` (−∞ when none is).
+#[inline(always)]
+fn live(tmin: f32, tmax: &[f32], mask: u32) -> (u32, f32) {
+    let (mut alive, mut far) = (0u32, f32::NEG_INFINITY);
+    let mut m = mask;
+    while m != 0 {
+        let i = m.trailing_zeros() as usize;
+        m &= m - 1;
+        if tmax[i] >= tmin {
+            alive |= 1 << i;
+            far = far.max(tmax[i]);
+        }
+    }
+    (alive, far)
+}
+
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn packet_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, const GROUPED: bool>(
+    nodes: &[WideNode],
+    rays: &[NodeRay],
+    active: u32,
+    frustum: &Frustum,
+    tmin: f32,
+    tmax: &mut [f32],
+    margin: f32,
+    mut leaf: impl FnMut(PacketLeaf, &mut [f32]) -> ControlFlow<()>,
+) {
+    if nodes.is_empty() || tmin.is_nan() {
+        return;
+    }
+    let mut stack: Stack<PacketEntry> = Stack::new();
+    let mut next = Some(PacketEntry {
+        t: tmin,
+        meta: 0,
+        rays: active,
+    });
+    while let Some(e) = next.take().or_else(|| stack.pop()) {
+        let (alive, far) = live(tmin, tmax, e.rays);
+        if alive == 0 || e.t > far {
+            continue;
+        }
+        if !GROUPED && e.meta & LEAF_BIT != 0 {
+            let what = PacketLeaf::Packet {
+                meta: e.meta,
+                rays: alive,
+            };
+            if leaf(what, tmax).is_break() {
+                return;
+            }
+            continue;
+        }
+        if alive.count_ones() <= SOLO {
+            // Each remaining ray finishes this subtree alone.
+            let mut m = alive;
+            while m != 0 {
+                let ray = m.trailing_zeros() as usize;
+                m &= m - 1;
+                let mut t = tmax[ray];
+                let mut broke = false;
+                super::traverse_impl::<MARGIN, AVX2, ORDERED, GROUPED>(
+                    nodes,
+                    e.meta,
+                    &rays[ray],
+                    tmin,
+                    &mut t,
+                    margin,
+                    |meta, slots, t| {
+                        tmax[ray] = *t;
+                        let what = if GROUPED {
+                            PacketLeaf::Ray { ray, meta, slots }
+                        } else {
+                            PacketLeaf::Packet {
+                                meta,
+                                rays: 1 << ray,
+                            }
+                        };
+                        let flow = leaf(what, tmax);
+                        *t = tmax[ray];
+                        broke |= flow.is_break();
+                        flow
+                    },
+                );
+                if broke {
+                    return;
+                }
+            }
+            continue;
+        }
+        let node = &nodes[e.meta as usize];
+        #[cfg(target_arch = "x86_64")]
+        let (t, mut mask) = if AVX2 {
+            // SAFETY: `AVX2` is only true inside `packet_avx2`, which runs on AVX2 CPUs.
+            unsafe { frustum_hits_avx2::<MARGIN>(node, frustum, tmin, far, margin) }
+        } else {
+            frustum_hits::<MARGIN>(node, frustum, tmin, far, margin)
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        let (t, mut mask) = frustum_hits::<MARGIN>(node, frustum, tmin, far, margin);
+        if mask == 0 {
+            continue;
+        }
+        let leaves = if GROUPED {
+            mask & leaf_slots_with::<AVX2>(node)
+        } else {
+            0
+        };
+        let inner = mask & !leaves;
+        // The rays of each child: all of them, unless the rays part ways here.
+        let mut child_rays = [alive; 8];
+        if leaves != 0 || inner & inner.wrapping_sub(1) != 0 {
+            child_rays = [0; 8];
+            let mut m = alive;
+            while m != 0 {
+                let ray = m.trailing_zeros() as usize;
+                m &= m - 1;
+                let hit =
+                    ray_hits::<MARGIN, AVX2>(node, &rays[ray], tmin, tmax[ray], margin) & mask;
+                let slots = hit & leaves;
+                if slots != 0 {
+                    let meta = node.meta[slots.trailing_zeros() as usize];
+                    if leaf(PacketLeaf::Ray { ray, meta, slots }, tmax).is_break() {
+                        return;
+                    }
+                }
+                let mut c = hit & inner;
+                while c != 0 {
+                    let i = c.trailing_zeros() as usize;
+                    c &= c - 1;
+                    child_rays[i] |= 1 << ray;
+                }
+            }
+        }
+        mask = inner;
+        let mut hits = [PacketEntry::default(); 8];
+        let mut n = 0;
+        while mask != 0 {
+            let i = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            if child_rays[i] == 0 {
+                continue;
+            }
+            let e = PacketEntry {
+                t: t[i],
+                meta: node.meta[i],
+                rays: child_rays[i],
+            };
+            if e.meta & LEAF_BIT == 0 {
+                prefetch_node(nodes, e.meta);
+            }
+            let mut j = n;
+            while ORDERED && j > 0 && hits[j - 1].t > e.t {
+                hits[j] = hits[j - 1];
+                j -= 1;
+            }
+            hits[j] = e;
+            n += 1;
+        }
+        if n == 0 {
+            continue;
+        }
+        for h in hits[1..n].iter().rev() {
+            stack.push(*h);
+        }
+        next = Some(hits[0]);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::tests::grid;
+    use super::super::{leaf_count, leaf_first, traverse};
+    use super::*;
+    use crate::rng::Rng;
+    use glam::Vec3;
+
+    /// Leaves each ray of a packet is handed, per ray, sorted.
+    fn packet_leaves(nodes: &[WideNode], rays: &[(Vec3, Vec3)], tmax: f32) -> Vec<Vec<u32>> {
+        let (f, _) = Frustum::new(rays.iter().map(|r| (r.0, r.1))).expect("coherent packet");
+        let rays: Vec<NodeRay> = rays.iter().map(|r| NodeRay::new(r.0, r.1)).collect();
+        let rays = &rays[..];
+        let mut seen = vec![Vec::new(); rays.len()];
+        let mut tmaxs = vec![tmax; rays.len()];
+        traverse_packet::<false, true, false>(
+            nodes,
+            rays,
+            all_rays(rays.len()),
+            &f,
+            0.0,
+            &mut tmaxs,
+            0.0,
+            |what, _| {
+                if let PacketLeaf::Packet { meta, rays } = what {
+                    let (first, count) = (leaf_first(meta), leaf_count(meta));
+                    for (i, s) in seen.iter_mut().enumerate() {
+                        if rays & (1 << i) != 0 {
+                            s.extend(first..first + count);
+                        }
+                    }
+                }
+                ControlFlow::Continue(())
+            },
+        );
+        seen
+    }
+
+    #[test]
+    fn a_packet_reaches_every_leaf_its_rays_reach() {
+        let (_, bvh) = grid();
+        let mut rng = Rng::new(7);
+        for _ in 0..300 {
+            // A pinhole's neighbouring rays: one origin, directions in a small cone, or
+            // spread origins (shadow-like rays towards one point).
+            let target = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 8.0;
+            let shared = rng.next_f32() < 0.5;
+            let o0 = Vec3::new(-3.0, -2.0, -4.0) + rng.direction() * 0.5;
+            let rays: Vec<(Vec3, Vec3)> = (0..1 + (rng.next_f32() * 31.0) as usize)
+                .map(|_| {
+                    let o = if shared {
+                        o0
+                    } else {
+                        o0 + rng.direction() * 0.2
+                    };
+                    (o, target + rng.direction() * 0.3 - o)
+                })
+                .collect();
+            if Frustum::new(rays.iter().copied()).is_none() {
+                continue;
+            }
+            let got = packet_leaves(&bvh.nodes, &rays, f32::INFINITY);
+            for (r, got) in rays.iter().zip(got) {
+                let r = &NodeRay::new(r.0, r.1);
+                let mut t = f32::INFINITY;
+                traverse::<false>(&bvh.nodes, r, 0.0, &mut t, 0.0, |first, count, _| {
+                    for p in first..first + count {
+                        assert!(got.contains(&p), "the packet skipped leaf {p}");
+                    }
+                    ControlFlow::Continue(())
+                });
+            }
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx2_frustum_test_matches_the_portable_one() {
+        if !has_avx2() {
+            eprintln!("no AVX2 on this CPU: only the portable frustum test exists here");
+            return;
+        }
+        let (_, bvh) = grid();
+        let mut rng = Rng::new(11);
+        for _ in 0..2000 {
+            let o = rng.in_box(Vec3::splat(-2.0), Vec3::splat(10.0));
+            let d = rng.direction();
+            let rays: Vec<(Vec3, Vec3)> = (0..4)
+                .map(|_| (o + rng.direction() * 0.1, d + rng.direction() * 0.05))
+                .collect();
+            let Some((f, _)) = Frustum::new(rays.into_iter()) else {
+                continue;
+            };
+            let node = &bvh.nodes[(rng.next_f32() * bvh.nodes.len() as f32) as usize];
+            let tmax = if rng.next_f32() < 0.5 {
+                f32::INFINITY
+            } else {
+                5.0
+            };
+            let margin = rng.next_f32() * 0.01;
+            // SAFETY: AVX2 checked above.
+            let a = unsafe { frustum_hits_avx2::<true>(node, &f, 0.0, tmax, margin) };
+            let p = frustum_hits::<true>(node, &f, 0.0, tmax, margin);
+            assert_eq!(a.1, p.1);
+            for i in 0..8 {
+                if a.1 & (1 << i) != 0 {
+                    assert_eq!(a.0[i].to_bits(), p.0[i].to_bits());
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn incoherent_rays_make_no_packet() {
+        let a = (Vec3::ZERO, Vec3::new(1.0, 1.0, 1.0));
+        let b = (Vec3::ZERO, Vec3::new(-1.0, 1.0, 1.0));
+        let c = (Vec3::ZERO, Vec3::new(0.0, 1.0, 1.0));
+        let nan = (Vec3::new(f32::NAN, 0.0, 0.0), Vec3::new(1.0, 1.0, 1.0));
+        assert!(Frustum::new([a, a].into_iter()).is_some());
+        assert!(Frustum::new([a, b].into_iter()).is_none());
+        assert!(Frustum::new([a, c].into_iter()).is_none());
+        assert!(Frustum::new([a, nan].into_iter()).is_none());
+        assert!(Frustum::new([].into_iter()).is_none());
+    }
+}
