@@ -33,6 +33,9 @@ pub const MESH_SCENES: [(&str, &str); 4] = [
     ("bunny", "obj/common-3d-test-models/stanford-bunny.obj"),
 ];
 
+/// The ray sets of the mesh section, in the order they run.
+pub const RAY_SETS: [&str; 4] = ["primary", "ao", "shadow", "incoherent"];
+
 /// One figure: a ray set on a scene with a number of threads.
 #[derive(Debug, Clone, Serialize)]
 pub struct MeshRow {
@@ -345,7 +348,8 @@ pub fn run(opts: &BenchOptions) -> anyhow::Result<MeshReport> {
             },
         ];
         for set in &sets {
-            if set.rays.is_empty() || std::env::var("ONLYKIND").is_ok_and(|k| k != set.kind) {
+            let chosen = opts.ray_sets.is_empty() || opts.ray_sets.iter().any(|k| k == set.kind);
+            if set.rays.is_empty() || !chosen {
                 continue;
             }
             for w in &workers {

@@ -38,6 +38,8 @@ pub struct BenchOptions {
     pub assets: PathBuf,
     /// Mesh scenes to run, by name (all when empty).
     pub mesh_scenes: Vec<String>,
+    /// Ray sets of the mesh section to run, by name (all when empty).
+    pub ray_sets: Vec<String>,
     /// Primary-ray image size of the mesh section.
     pub width: u32,
     /// See `width`.

@@ -32,6 +32,10 @@ pub struct BenchArgs {
     /// MetalRoughSpheresNoTextures, bunny); default all (the bunny with --quick).
     #[arg(long, value_delimiter = ',')]
     pub mesh_scenes: Vec<String>,
+    /// Ray sets of the mesh section, comma-separated (primary, ao, shadow, incoherent);
+    /// default all. The geometric means cover the sets that ran.
+    #[arg(long, value_delimiter = ',')]
+    pub ray_sets: Vec<String>,
     /// Primary-ray image of the mesh section, WIDTHxHEIGHT.
     #[arg(long)]
     pub size: Option<String>,
@@ -113,6 +117,14 @@ pub fn run(args: BenchArgs) -> Result<()> {
     } else {
         args.mesh_scenes.clone()
     };
+    for set in &args.ray_sets {
+        if !hytrace::bench::mesh::RAY_SETS.contains(&set.as_str()) {
+            anyhow::bail!(
+                "--ray-sets {set}: expected some of {}",
+                hytrace::bench::mesh::RAY_SETS.join(", ")
+            );
+        }
+    }
     let min_seconds = args
         .min_seconds
         .unwrap_or(if args.quick { 0.0 } else { 1.0 });
@@ -126,6 +138,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         threads,
         assets,
         mesh_scenes,
+        ray_sets: args.ray_sets.clone(),
         width,
         height,
         incoherent: args

@@ -1,9 +1,10 @@
 //! The CPU backend: rayon over tiles, one camera path per sample.
 
 use super::{Framebuffer, RenderOptions, Tile, sample_offset, tiles};
+use crate::geom::Ray;
 use crate::scene::Scene;
 use crate::sdf::tape::MaterialVec;
-use crate::shade::integrator::{CameraSample, trace_camera_ray};
+use crate::shade::integrator::{CameraSample, trace_camera_ray_from};
 use crate::trace::SceneTracer;
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
@@ -50,39 +51,44 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> anyhow::Result<Framebuffer
     Ok(fb)
 }
 
+/// A tile's samples, per pixel in row order. Each sample's camera rays are traced a tile row
+/// at a time: the row's closest hits come from one [`SceneTracer::closest_hits`] call (mesh
+/// packets), then each ray is shaded on its own. The answers are those of tracing every ray
+/// alone, so the image does not depend on this grouping.
 fn render_tile(
     tracer: &SceneTracer,
     materials: &[MaterialVec],
     opts: &RenderOptions,
     tile: Tile,
 ) -> Vec<Vec<CameraSample>> {
-    let mut out = Vec::with_capacity((tile.w * tile.h) as usize);
-    for y in tile.y0..tile.y0 + tile.h {
-        for x in tile.x0..tile.x0 + tile.w {
-            let samples = (0..opts.samples)
-                .map(|s| {
-                    let (dx, dy) = sample_offset(x, y, s, opts.samples);
-                    camera_sample(tracer, materials, opts, x as f32 + dx, y as f32 + dy)
-                })
-                .collect();
-            out.push(samples);
+    let mut out: Vec<Vec<CameraSample>> = (0..tile.w * tile.h)
+        .map(|_| Vec::with_capacity(opts.samples as usize))
+        .collect();
+    let mut rays = Vec::with_capacity(tile.w as usize);
+    let mut hits = vec![None; tile.w as usize];
+    for s in 0..opts.samples {
+        for y in tile.y0..tile.y0 + tile.h {
+            rays.clear();
+            for x in tile.x0..tile.x0 + tile.w {
+                let (dx, dy) = sample_offset(x, y, s, opts.samples);
+                rays.push(camera_ray(tracer, opts, x as f32 + dx, y as f32 + dy));
+            }
+            tracer.closest_hits(&rays, 0.0, f32::INFINITY, &mut hits);
+            let row = ((y - tile.y0) * tile.w) as usize;
+            for (i, (ray, hit)) in rays.iter().zip(&hits).enumerate() {
+                let sample = trace_camera_ray_from(tracer, materials, *ray, Some(*hit));
+                out[row + i].push(sample);
+            }
         }
     }
     out
 }
 
-/// What the camera ray through image position (px, py), in pixels, sees.
-pub fn camera_sample(
-    tracer: &SceneTracer,
-    materials: &[MaterialVec],
-    opts: &RenderOptions,
-    px: f32,
-    py: f32,
-) -> CameraSample {
+/// The camera ray through image position (px, py), in pixels.
+fn camera_ray(tracer: &SceneTracer, opts: &RenderOptions, px: f32, py: f32) -> Ray {
     let aspect = opts.width as f32 / opts.height as f32;
-    let ray = tracer
+    tracer
         .scene()
         .camera
-        .ray(px / opts.width as f32, py / opts.height as f32, aspect);
-    trace_camera_ray(tracer, materials, ray)
+        .ray(px / opts.width as f32, py / opts.height as f32, aspect)
 }

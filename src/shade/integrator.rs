@@ -19,7 +19,7 @@ use super::{ShadingTracer, SurfacePoint, shade, surface_offset};
 use crate::geom::Ray;
 use crate::scene::MAX_BOUNCES;
 use crate::sdf::tape::MaterialVec;
-use crate::trace::Surface;
+use crate::trace::{Hit, Surface};
 use glam::Vec3;
 
 /// What one camera sample sees: its radiance and the first hit's auxiliary values (AOVs).
@@ -58,6 +58,18 @@ pub fn trace_camera_ray<T: ShadingTracer + ?Sized>(
     tracer: &T,
     materials: &[MaterialVec],
     ray: Ray,
+) -> CameraSample {
+    trace_camera_ray_from(tracer, materials, ray, None)
+}
+
+/// [`trace_camera_ray`] when the caller has already found the camera ray's closest hit over
+/// `[0, ∞)` (`first_hit`, as `tracer.closest_hit` answers it): the CPU renderer traces a tile
+/// row's camera rays together (see [`crate::trace::SceneTracer::closest_hits`]).
+pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
+    tracer: &T,
+    materials: &[MaterialVec],
+    ray: Ray,
+    mut first_hit: Option<Option<Hit>>,
 ) -> CameraSample {
     let scene = tracer.scene();
     let max_bounces = scene.shading.max_bounces.min(MAX_BOUNCES);
@@ -116,7 +128,10 @@ pub fn trace_camera_ray<T: ShadingTracer + ?Sized>(
             );
             continue;
         }
-        let hit = tracer.closest_hit(&item.ray, 0.0, f32::INFINITY);
+        let hit = match first_hit.take() {
+            Some(hit) if primary => hit,
+            _ => tracer.closest_hit(&item.ray, 0.0, f32::INFINITY),
+        };
         if primary {
             sample.steps = hit.map_or(0, |h| h.steps);
         }

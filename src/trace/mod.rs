@@ -130,8 +130,7 @@ impl<'a> SceneTracer<'a> {
     /// The closest hit in (tmin, tmax) over meshes and SDFs, with its normal. Meshes are
     /// tried first: their hit (cheap to find) shortens every SDF object's march.
     pub fn closest_hit(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<Hit> {
-        let s = &self.scene.tracer;
-        let mut limit = tmax.min(s.max_distance);
+        let limit = tmax.min(self.scene.tracer.max_distance);
         let mesh_hit = if self.meshes.is_empty() {
             None
         } else {
@@ -139,6 +138,40 @@ impl<'a> SceneTracer<'a> {
                 .tlas
                 .closest_hit(&self.meshes.blas, ray, tmin, limit)
         };
+        self.closest_hit_after_meshes(ray, tmin, limit, mesh_hit)
+    }
+
+    /// [`Self::closest_hit`] of every ray, into `out`: the same answers, with the mesh hits of
+    /// coherent neighbours (a row of a render tile) found by one packet walk
+    /// ([`crate::accel::bvh::InstanceBvh::closest_hits`]).
+    ///
+    /// # Panics
+    /// When `rays` and `out` differ in length.
+    pub fn closest_hits(&self, rays: &[Ray], tmin: f32, tmax: f32, out: &mut [Option<Hit>]) {
+        assert_eq!(rays.len(), out.len());
+        let limit = tmax.min(self.scene.tracer.max_distance);
+        let mut mesh_hits = vec![None; rays.len()];
+        if !self.meshes.is_empty() {
+            let limits = vec![limit; rays.len()];
+            self.meshes
+                .tlas
+                .closest_hits(&self.meshes.blas, rays, tmin, &limits, &mut mesh_hits);
+        }
+        for ((ray, mesh_hit), out) in rays.iter().zip(mesh_hits).zip(out) {
+            *out = self.closest_hit_after_meshes(ray, tmin, limit, mesh_hit);
+        }
+    }
+
+    /// The rest of [`Self::closest_hit`] once the meshes' closest hit within `[tmin, limit]`
+    /// is known: the SDF objects nearer than it, and the hit's surface.
+    fn closest_hit_after_meshes(
+        &self,
+        ray: &Ray,
+        tmin: f32,
+        mut limit: f32,
+        mesh_hit: Option<crate::accel::bvh::InstanceHit>,
+    ) -> Option<Hit> {
+        let s = &self.scene.tracer;
         if let Some(h) = &mesh_hit {
             limit = h.t;
         }
