@@ -1109,7 +1109,7 @@ fn degenerate_input_does_not_panic() {
 // ---------------------------------------------------------------------------------------------
 // Packets: `InstanceBvh::closest_hits` against one `closest_hit` per ray, bit for bit.
 
-/// Asserts that the batch query answers each ray exactly as the single-ray query does.
+/// Asserts that the batch queries answer each ray exactly as the single-ray queries do.
 fn assert_batch_matches_single(
     what: &str,
     tlas: &InstanceBvh,
@@ -1140,6 +1140,15 @@ fn assert_batch_matches_single(
             "{what}: ray {i} ({r:?}, tmin {tmin}, tmax {t}): packet {b:?} vs single {single:?}"
         );
         hits += usize::from(single.is_some());
+    }
+    let mut blocked = vec![false; rays.len()];
+    tlas.any_hits(meshes, rays, tmin, tmax, &mut blocked);
+    for (i, ((r, &t), &b)) in rays.iter().zip(tmax).zip(&blocked).enumerate() {
+        let single = tlas.any_hit(meshes, r, tmin, t);
+        assert_eq!(
+            b, single,
+            "{what}: any hit, ray {i} ({r:?}, tmin {tmin}, tmax {t})"
+        );
     }
     hits
 }

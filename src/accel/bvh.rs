@@ -289,23 +289,20 @@ impl MeshBvh {
 
     /// [`Self::closest_in`] for a packet of rays that share one walk (see `wide::packet`):
     /// `best[i]` and `tmax[i]` are updated for ray i as `closest_in` would.
-    #[allow(clippy::too_many_arguments)]
     fn closest_in_packet(
         &self,
-        shears: &mut PacketShears<'_>,
-        rays: &[NodeRay],
-        active: u32,
-        frustum: &Frustum,
+        w: &mut PacketWalk<'_, '_>,
         tmin: f32,
         tmax: &mut [f32],
         best: &mut [Option<MeshHit>],
     ) {
         let tmin = wide::query_tmin(tmin);
+        let shears = &mut *w.shears;
         wide::traverse_packet::<false, true, true>(
             &self.nodes,
-            rays,
-            active,
-            frustum,
+            w.rays,
+            w.active,
+            w.frustum,
             tmin,
             tmax,
             0.0,
@@ -313,6 +310,42 @@ impl MeshBvh {
                 if let PacketLeaf::Ray { ray, meta, slots } = what {
                     let wr = shears.get(ray);
                     self.closest_in_leaves(wr, meta, slots, tmin, &mut tmax[ray], &mut best[ray]);
+                }
+                ControlFlow::Continue(())
+            },
+        );
+    }
+
+    /// [`Self::any_in`] for a packet of rays that share one walk: `found[i]` is set for each
+    /// ray i that hits something, and the ray is retired (`tmax[i]` = −∞).
+    fn any_in_packet(
+        &self,
+        w: &mut PacketWalk<'_, '_>,
+        tmin: f32,
+        tmax: &mut [f32],
+        found: &mut [bool],
+    ) {
+        let tmin = wide::query_tmin(tmin);
+        let shears = &mut *w.shears;
+        wide::traverse_packet::<false, false, true>(
+            &self.nodes,
+            w.rays,
+            w.active,
+            w.frustum,
+            tmin,
+            tmax,
+            0.0,
+            |what, tmax| {
+                if let PacketLeaf::Ray { ray, meta, slots } = what {
+                    let wr = shears.get(ray);
+                    for k in self.leaves.blocks_for(meta, slots) {
+                        let block = &self.leaves.blocks[k];
+                        if leaf::block_hits(block, wr, slots, tmin, tmax[ray]).mask != 0 {
+                            found[ray] = true;
+                            tmax[ray] = f32::NEG_INFINITY;
+                            break;
+                        }
+                    }
                 }
                 ControlFlow::Continue(())
             },
@@ -510,6 +543,83 @@ fn beats(best: &Option<InstanceHit>, t: f32, instance: u32, triangle: u32) -> bo
                 || (t == b.t
                     && (instance < b.instance || (instance == b.instance && triangle < b.triangle)))
         }
+    }
+}
+
+/// The rays of a packet as a mesh walk takes them: node rays, the mask of those to trace, their
+/// bounds, and their lazily computed shears.
+struct PacketWalk<'s, 'r> {
+    shears: &'s mut PacketShears<'r>,
+    rays: &'s [NodeRay],
+    active: u32,
+    frustum: &'s Frustum,
+}
+
+/// A query that [`InstanceBvh::packet`] traces: what one mesh walk answers per ray.
+trait PacketQuery {
+    /// One ray's answer on one mesh.
+    type Answer: Copy;
+    /// The answer before anything is found.
+    const NONE: Self::Answer;
+    /// Whether the walks go nearest first (closest hit) or in any order (any hit).
+    const ORDERED: bool;
+    /// The packet walk of `mesh`, writing `answers[i]` for the active rays.
+    fn walk(
+        mesh: &MeshBvh,
+        w: &mut PacketWalk<'_, '_>,
+        tmin: f32,
+        tmax: &mut [f32],
+        answers: &mut [Self::Answer],
+    );
+    /// The single-ray walk of `mesh` (object-space rays that cannot share one).
+    fn walk_one(mesh: &MeshBvh, ray: &Ray, tmin: f32, tmax: f32) -> Self::Answer;
+}
+
+/// Closest hit: the nearest triangle per mesh.
+struct Closest;
+
+impl PacketQuery for Closest {
+    type Answer = Option<MeshHit>;
+    const NONE: Option<MeshHit> = None;
+    const ORDERED: bool = true;
+    #[inline(always)]
+    fn walk(
+        mesh: &MeshBvh,
+        w: &mut PacketWalk<'_, '_>,
+        tmin: f32,
+        tmax: &mut [f32],
+        answers: &mut [Option<MeshHit>],
+    ) {
+        mesh.closest_in_packet(w, tmin, tmax, answers)
+    }
+    #[inline(always)]
+    fn walk_one(mesh: &MeshBvh, r: &Ray, tmin: f32, tmax: f32) -> Option<MeshHit> {
+        let nr = NodeRay::new(r.origin, r.direction);
+        mesh.closest_in(&mut Shear::new(r.origin, r.direction), &nr, tmin, tmax)
+    }
+}
+
+/// Any hit: whether the ray is blocked.
+struct Any;
+
+impl PacketQuery for Any {
+    type Answer = bool;
+    const NONE: bool = false;
+    const ORDERED: bool = false;
+    #[inline(always)]
+    fn walk(
+        mesh: &MeshBvh,
+        w: &mut PacketWalk<'_, '_>,
+        tmin: f32,
+        tmax: &mut [f32],
+        answers: &mut [bool],
+    ) {
+        mesh.any_in_packet(w, tmin, tmax, answers)
+    }
+    #[inline(always)]
+    fn walk_one(mesh: &MeshBvh, r: &Ray, tmin: f32, tmax: f32) -> bool {
+        let nr = NodeRay::new(r.origin, r.direction);
+        mesh.any_in(&mut Shear::new(r.origin, r.direction), &nr, tmin, tmax)
     }
 }
 
@@ -718,25 +828,77 @@ impl InstanceBvh {
             .zip(tmax.chunks(PACKET))
             .zip(out.chunks_mut(PACKET))
         {
-            self.closest_packet(meshes, rays, tmin, tmax, out);
+            out.fill(None);
+            let traced = self.packet::<Closest>(meshes, rays, tmin, tmax, |p, i, h, tmax| {
+                let Some(h) = h else { return };
+                if beats(&out[i], h.t, p.index, h.triangle) {
+                    out[i] = Some(InstanceHit {
+                        t: h.t,
+                        instance: p.index,
+                        triangle: h.triangle,
+                        u: h.u,
+                        v: h.v,
+                    });
+                    *tmax = h.t;
+                }
+            });
+            if !traced {
+                for ((r, &tmax), out) in rays.iter().zip(tmax).zip(out.iter_mut()) {
+                    *out = self.closest_hit(meshes, r, tmin, tmax);
+                }
+            }
         }
     }
 
-    /// [`Self::closest_hits`] of at most [`PACKET`] rays.
-    fn closest_packet(
+    /// [`Self::any_hit`] of every ray `rays[i]` over `[tmin, tmax[i]]`, into `out[i]`, with
+    /// coherent neighbours traced together as in [`Self::closest_hits`]. The same answers.
+    ///
+    /// # Panics
+    /// When the three slices differ in length.
+    pub fn any_hits(
+        &self,
+        meshes: &[MeshBvh],
+        rays: &[Ray],
+        tmin: f32,
+        tmax: &[f32],
+        out: &mut [bool],
+    ) {
+        assert!(rays.len() == tmax.len() && rays.len() == out.len());
+        for ((rays, tmax), out) in rays
+            .chunks(PACKET)
+            .zip(tmax.chunks(PACKET))
+            .zip(out.chunks_mut(PACKET))
+        {
+            out.fill(false);
+            let traced = self.packet::<Any>(meshes, rays, tmin, tmax, |_, i, hit, tmax| {
+                if hit {
+                    out[i] = true;
+                    // Retired: the walk drops the ray.
+                    *tmax = f32::NEG_INFINITY;
+                }
+            });
+            if !traced {
+                for ((r, &tmax), out) in rays.iter().zip(tmax).zip(out.iter_mut()) {
+                    *out = self.any_hit(meshes, r, tmin, tmax);
+                }
+            }
+        }
+    }
+
+    /// Traces at most [`PACKET`] rays as one packet with query `Q`, handing each mesh walk's
+    /// answer for ray i to `keep(instance, i, answer, &mut tmax[i])`. Returns false, having done
+    /// nothing, when the rays are not coherent enough to share a walk ([`Frustum::new`]).
+    fn packet<Q: PacketQuery>(
         &self,
         meshes: &[MeshBvh],
         rays: &[Ray],
         tmin: f32,
         tmax_in: &[f32],
-        out: &mut [Option<InstanceHit>],
-    ) {
+        mut keep: impl FnMut(&PlacedInstance, usize, Q::Answer, &mut f32),
+    ) -> bool {
         let Some((frustum, world)) = Frustum::new(rays.iter().map(|r| (r.origin, r.direction)))
         else {
-            for ((r, &tmax), out) in rays.iter().zip(tmax_in).zip(out.iter_mut()) {
-                *out = self.closest_hit(meshes, r, tmin, tmax);
-            }
-            return;
+            return false;
         };
         let qtmin = wide::query_tmin(tmin);
         // Rays with nothing to find (NaN or empty interval) are retired from the start.
@@ -744,7 +906,6 @@ impl InstanceBvh {
             .iter()
             .map(|&t| if t >= qtmin { t } else { f32::NEG_INFINITY })
             .collect();
-        out.fill(None);
         let mut world_shears = PacketShears::new(rays);
         let margin = if self.origin_margin > 0.0 {
             self.origin_margin
@@ -754,31 +915,8 @@ impl InstanceBvh {
         } else {
             0.0
         };
-        let mut mesh_hits = [None; PACKET];
         let n = rays.len();
-        // Keeps, per ray of `active`, the better of its hit so far and this instance's.
-        let merge = |p: &PlacedInstance,
-                     active: u32,
-                     hits: &[Option<MeshHit>],
-                     tmax: &mut [f32],
-                     out: &mut [Option<InstanceHit>]| {
-            let mut m = active;
-            while m != 0 {
-                let i = m.trailing_zeros() as usize;
-                m &= m - 1;
-                let Some(h) = hits[i] else { continue };
-                if beats(&out[i], h.t, p.index, h.triangle) {
-                    out[i] = Some(InstanceHit {
-                        t: h.t,
-                        instance: p.index,
-                        triangle: h.triangle,
-                        u: h.u,
-                        v: h.v,
-                    });
-                    tmax[i] = h.t;
-                }
-            }
-        };
+        let mut answers = [Q::NONE; PACKET];
         let visit = |what: PacketLeaf, tmax: &mut [f32]| {
             let PacketLeaf::Packet { meta, rays: active } = what else {
                 return ControlFlow::Continue(());
@@ -788,7 +926,7 @@ impl InstanceBvh {
                 let Some(mesh) = meshes.get(p.mesh as usize) else {
                     continue;
                 };
-                let hits = &mut mesh_hits[..n];
+                let answers = &mut answers[..n];
                 if p.identity {
                     // The world rays themselves, bounded afresh when only some of them
                     // may meet this instance.
@@ -799,64 +937,69 @@ impl InstanceBvh {
                         sub = Frustum::of(&world, active);
                         &sub
                     };
-                    hits.fill(None);
-                    mesh.closest_in_packet(&mut world_shears, &world, active, f, tmin, tmax, hits);
-                    merge(p, active, hits, tmax, out);
-                    continue;
+                    answers.fill(Q::NONE);
+                    let mut w = PacketWalk {
+                        shears: &mut world_shears,
+                        rays: &world,
+                        active,
+                        frustum: f,
+                    };
+                    Q::walk(mesh, &mut w, tmin, tmax, answers);
+                } else {
+                    // The rays that may meet the instance, mapped into its object space (not
+                    // renormalised: t stays the world ray's parameter) and packed together.
+                    let mut index: ArrayVec<u8, PACKET> = ArrayVec::new();
+                    let mut object: ArrayVec<Ray, PACKET> = ArrayVec::new();
+                    let mut sub_tmax: ArrayVec<f32, PACKET> = ArrayVec::new();
+                    let mut m = active;
+                    while m != 0 {
+                        let i = m.trailing_zeros() as usize;
+                        m &= m - 1;
+                        index.push(i as u8);
+                        sub_tmax.push(tmax[i]);
+                        object.push(Ray {
+                            origin: p.world_to_object.transform_point3(rays[i].origin),
+                            direction: p.world_to_object.transform_vector3(rays[i].direction),
+                        });
+                    }
+                    let k = object.len();
+                    let packed = &mut answers[..k];
+                    packed.fill(Q::NONE);
+                    match Frustum::new(object.iter().map(|r| (r.origin, r.direction))) {
+                        Some((f, nodes)) => {
+                            let mut w = PacketWalk {
+                                shears: &mut PacketShears::new(&object),
+                                rays: &nodes,
+                                active: wide::all_rays(k),
+                                frustum: &f,
+                            };
+                            Q::walk(mesh, &mut w, tmin, &mut sub_tmax, packed);
+                        }
+                        None => {
+                            for (j, r) in object.iter().enumerate() {
+                                packed[j] = Q::walk_one(mesh, r, tmin, sub_tmax[j]);
+                            }
+                        }
+                    }
+                    // Back to packet order (index[j] >= j, so from the back nothing is
+                    // overwritten before it is moved).
+                    for j in (0..k).rev() {
+                        let i = index[j] as usize;
+                        answers[i] = answers[j];
+                    }
                 }
-                // The rays that may meet the instance, mapped into its object space (not
-                // renormalised: t stays the world ray's parameter) and packed together.
-                let mut index: ArrayVec<u8, PACKET> = ArrayVec::new();
-                let mut object: ArrayVec<Ray, PACKET> = ArrayVec::new();
-                let mut sub_tmax: ArrayVec<f32, PACKET> = ArrayVec::new();
                 let mut m = active;
                 while m != 0 {
                     let i = m.trailing_zeros() as usize;
                     m &= m - 1;
-                    index.push(i as u8);
-                    sub_tmax.push(tmax[i]);
-                    object.push(Ray {
-                        origin: p.world_to_object.transform_point3(rays[i].origin),
-                        direction: p.world_to_object.transform_vector3(rays[i].direction),
-                    });
+                    keep(p, i, answers[i], &mut tmax[i]);
                 }
-                let k = object.len();
-                let sub_hits = &mut hits[..k];
-                sub_hits.fill(None);
-                let mut shears = PacketShears::new(&object);
-                match Frustum::new(object.iter().map(|r| (r.origin, r.direction))) {
-                    Some((f, nodes)) => mesh.closest_in_packet(
-                        &mut shears,
-                        &nodes,
-                        wide::all_rays(k),
-                        &f,
-                        tmin,
-                        &mut sub_tmax,
-                        sub_hits,
-                    ),
-                    None => {
-                        for (j, r) in object.iter().enumerate() {
-                            let mut shear = Shear::new(r.origin, r.direction);
-                            let nr = NodeRay::new(r.origin, r.direction);
-                            sub_hits[j] = mesh.closest_in(&mut shear, &nr, tmin, sub_tmax[j]);
-                        }
-                    }
-                }
-                // Back to packet order.
-                for j in (0..k).rev() {
-                    let i = index[j] as usize;
-                    hits[i] = hits[j];
-                    if i != j {
-                        hits[j] = None;
-                    }
-                }
-                merge(p, active, hits, tmax, out);
             }
             ControlFlow::Continue(())
         };
         let all = wide::all_rays(n);
-        if margin > 0.0 {
-            wide::traverse_packet::<true, true, false>(
+        match (margin > 0.0, Q::ORDERED) {
+            (true, true) => wide::traverse_packet::<true, true, false>(
                 &self.nodes,
                 &world,
                 all,
@@ -865,9 +1008,8 @@ impl InstanceBvh {
                 &mut tmax,
                 margin,
                 visit,
-            );
-        } else {
-            wide::traverse_packet::<false, true, false>(
+            ),
+            (false, true) => wide::traverse_packet::<false, true, false>(
                 &self.nodes,
                 &world,
                 all,
@@ -876,8 +1018,29 @@ impl InstanceBvh {
                 &mut tmax,
                 0.0,
                 visit,
-            );
+            ),
+            (true, false) => wide::traverse_packet::<true, false, false>(
+                &self.nodes,
+                &world,
+                all,
+                &frustum,
+                tmin,
+                &mut tmax,
+                margin,
+                visit,
+            ),
+            (false, false) => wide::traverse_packet::<false, false, false>(
+                &self.nodes,
+                &world,
+                all,
+                &frustum,
+                tmin,
+                &mut tmax,
+                0.0,
+                visit,
+            ),
         }
+        true
     }
 
     /// Whether any instance is hit with `tmin <= t <= tmax`; stops at the first.

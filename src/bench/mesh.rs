@@ -213,7 +213,7 @@ fn referee_query(_: &Referee, _: Query) -> impl Fn(&[QueryRay], &mut [f32]) + Sy
 
 /// Our answers: closest hits through [`crate::accel::bvh::InstanceBvh::closest_hits`], which
 /// traces coherent neighbours as packets (and the rest one by one), with the geometric normal
-/// of each hit; occlusion one ray at a time.
+/// of each hit; occlusion through `any_hits`, likewise.
 fn ours_query<'a>(
     accel: &'a MeshAccel,
     normals: &'a FaceNormals,
@@ -240,13 +240,16 @@ fn ours_query<'a>(
             }
         }
         Query::Occluded => {
-            for (q, o) in rays.iter().zip(out) {
-                *o = f32::from(u8::from(accel.tlas.any_hit(
-                    &accel.blas,
-                    &q.ray,
-                    0.0,
-                    q.tmax,
-                )));
+            let n = rays.len();
+            let mut blocked = [false; super::CHUNK];
+            let ray_buf: ArrayVec<crate::geom::Ray, { super::CHUNK }> =
+                rays.iter().map(|q| q.ray).collect();
+            let tmax_buf: ArrayVec<f32, { super::CHUNK }> = rays.iter().map(|q| q.tmax).collect();
+            accel
+                .tlas
+                .any_hits(&accel.blas, &ray_buf, 0.0, &tmax_buf, &mut blocked[..n]);
+            for (o, &b) in out.iter_mut().zip(&blocked[..n]) {
+                *o = f32::from(u8::from(b));
             }
         }
     }
