@@ -16,12 +16,15 @@
 //! that any ray's own test hits within its `[tmin, tmax]` is hit by the packet test within
 //! `[tmin, max tmax]` — so a packet walk reaches every leaf that any of its rays' walks reaches.
 //!
-//! At a node with leaf children, each ray still runs its own exact 8-wide test against the node
-//! (with its own `tmax`) before its leaf test, so the rays meet exactly the leaves, in the same
-//! per-node grouping, that their single-ray walks would: only the inner nodes are shared. With
-//! closest-hit ties broken by index (see the module contract of `super::super`), the answers are
-//! bit for bit the single-ray ones (`packet_walks_give_the_single_ray_answers` and the
-//! integration tests check that on real models).
+//! Rays are only ever *dropped* from a child by their own exact 8-wide test (the single-ray
+//! walk's, with the ray's own current `tmax`): at a node with leaf children, before any ray's
+//! leaf test, and where the rays part ways (see [`traverse_packet`]). A leaf test therefore
+//! sees exactly the leaf slots the ray's own test hits, and a child is pruned for a ray only
+//! when its entry distance exceeds the ray's nearest hit so far, as in its single-ray walk. The
+//! visiting order differs, but closest-hit ties are broken by index (see the query contract in
+//! `super::super`), so the answers are bit for bit the single-ray ones
+//! (`packets_give_the_single_ray_answers` and
+//! `packets_give_the_single_ray_answers_on_the_bench_models` in `tests/bvh.rs`).
 
 use std::ops::ControlFlow;
 
