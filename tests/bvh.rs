@@ -1259,6 +1259,17 @@ fn packets_give_the_single_ray_answers() {
     for _ in 0..4000 {
         rays.push(Ray::new(rng.vec3_in(-4.0, 4.0), rng.direction()));
     }
+    // Non-finite rays inside otherwise coherent packets: such a packet is traced ray by ray.
+    let camera = pinhole_rays(Vec3::new(0.3, 0.8, 6.0), Vec3::ZERO, 64, 2, 1.0);
+    for (k, mut r) in camera.into_iter().enumerate() {
+        match k % 37 {
+            5 => r.origin.x = f32::NAN,
+            11 => r.direction.y = f32::NAN,
+            17 => r.origin.z = f32::INFINITY,
+            _ => {}
+        }
+        rays.push(r);
+    }
     let inf = vec![f32::INFINITY; rays.len()];
     assert_batch_matches_single("mixed", &tlas, &meshes, &rays, 0.0, &inf);
     // Lengths that are not a multiple of the packet.
