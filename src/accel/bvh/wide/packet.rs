@@ -78,7 +78,15 @@ impl Frustum {
         let (mut inv_lo, mut inv_hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
         // Branch-free accumulation: one test at the end.
         let (mut parallel, mut octants, mut finite) = (0u32, 0u32, true);
+        let mut first_signs = None;
         for (o, d) in rays {
+            // Rays in another octant than the first end it here, before any division: AO and
+            // incoherent rays almost never make a packet, and should pay as little as possible
+            // for finding out. (Zero and NaN components are caught below.)
+            let signs = d.is_negative_bitmask();
+            if *first_signs.get_or_insert(signs) != signs {
+                return None;
+            }
             let r = NodeRay::new(o, d);
             parallel |= r.parallel;
             octants |= 1 << (r.near[0] & 1 | (r.near[1] & 1) << 1 | (r.near[2] & 1) << 2);
