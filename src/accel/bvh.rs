@@ -296,24 +296,9 @@ impl MeshBvh {
         tmax: &mut [f32],
         best: &mut [Option<MeshHit>],
     ) {
-        let tmin = wide::query_tmin(tmin);
-        let shears = &mut *w.shears;
-        wide::traverse_packet::<false, true, true>(
-            &self.nodes,
-            w.rays,
-            w.active,
-            w.frustum,
-            tmin,
-            tmax,
-            0.0,
-            |what, tmax| {
-                if let PacketLeaf::Ray { ray, meta, slots } = what {
-                    let wr = shears.get(ray);
-                    self.closest_in_leaves(wr, meta, slots, tmin, &mut tmax[ray], &mut best[ray]);
-                }
-                ControlFlow::Continue(())
-            },
-        );
+        self.walk_packet::<true>(w, tmin, tmax, |wr, ray, meta, slots, tmin, tmax| {
+            self.closest_in_leaves(wr, meta, slots, tmin, tmax, &mut best[ray]);
+        });
     }
 
     /// [`Self::any_in`] for a packet of rays that share one walk: `found[i]` is set for each
@@ -325,9 +310,28 @@ impl MeshBvh {
         tmax: &mut [f32],
         found: &mut [bool],
     ) {
+        self.walk_packet::<false>(w, tmin, tmax, |wr, ray, meta, slots, tmin, tmax| {
+            if self.any_in_leaves(wr, meta, slots, tmin, *tmax) {
+                found[ray] = true;
+                *tmax = f32::NEG_INFINITY;
+            }
+        });
+    }
+
+    /// The packet walk of this mesh's tree, nearest first when `ORDERED`: `leaf(shear, ray,
+    /// meta, slots, tmin, tmax)` for each ray and node whose leaf slots `slots` the ray meets,
+    /// with the ray's shear and its `tmax[ray]`.
+    #[inline(always)]
+    fn walk_packet<const ORDERED: bool>(
+        &self,
+        w: &mut PacketWalk<'_, '_>,
+        tmin: f32,
+        tmax: &mut [f32],
+        mut leaf: impl FnMut(&WatertightRay, usize, u32, u32, f32, &mut f32),
+    ) {
         let tmin = wide::query_tmin(tmin);
         let shears = &mut *w.shears;
-        wide::traverse_packet::<false, false, true>(
+        wide::traverse_packet::<false, ORDERED, true>(
             &self.nodes,
             w.rays,
             w.active,
@@ -337,19 +341,27 @@ impl MeshBvh {
             0.0,
             |what, tmax| {
                 if let PacketLeaf::Ray { ray, meta, slots } = what {
-                    let wr = shears.get(ray);
-                    for k in self.leaves.blocks_for(meta, slots) {
-                        let block = &self.leaves.blocks[k];
-                        if leaf::block_hits(block, wr, slots, tmin, tmax[ray]).mask != 0 {
-                            found[ray] = true;
-                            tmax[ray] = f32::NEG_INFINITY;
-                            break;
-                        }
-                    }
+                    leaf(shears.get(ray), ray, meta, slots, tmin, &mut tmax[ray]);
                 }
                 ControlFlow::Continue(())
             },
         );
+    }
+
+    /// The any-hit leaf test: whether one ray hits a triangle of the leaf slots `slots` of a
+    /// node (`meta` as the walk hands it over) within `[tmin, tmax]`.
+    #[inline(always)]
+    fn any_in_leaves(
+        &self,
+        wr: &WatertightRay,
+        meta: u32,
+        slots: u32,
+        tmin: f32,
+        tmax: f32,
+    ) -> bool {
+        self.leaves
+            .blocks_for(meta, slots)
+            .any(|k| leaf::block_hits(&self.leaves.blocks[k], wr, slots, tmin, tmax).mask != 0)
     }
 
     /// The closest-hit leaf test: the triangles of the leaf slots `slots` of a node (`meta` as
@@ -395,14 +407,12 @@ impl MeshBvh {
         let tmin = wide::query_tmin(tmin);
         let mut found = false;
         wide::traverse_grouped::<false>(&self.nodes, nr, tmin, &mut tmax, |meta, slots, tmax| {
-            let wr = shear.get();
-            for k in self.leaves.blocks_for(meta, slots) {
-                if leaf::block_hits(&self.leaves.blocks[k], wr, slots, tmin, *tmax).mask != 0 {
-                    found = true;
-                    return ControlFlow::Break(());
-                }
+            found = self.any_in_leaves(shear.get(), meta, slots, tmin, *tmax);
+            if found {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
             }
-            ControlFlow::Continue(())
         });
         found
     }

@@ -219,37 +219,36 @@ fn ours_query<'a>(
     normals: &'a FaceNormals,
     query: Query,
 ) -> impl Fn(&[QueryRay], &mut [f32]) + Sync + 'a {
-    move |rays: &[QueryRay], out: &mut [f32]| match query {
-        Query::Closest => {
-            let n = rays.len();
-            let mut hits = [None; super::CHUNK];
-            let ray_buf: ArrayVec<crate::geom::Ray, { super::CHUNK }> =
-                rays.iter().map(|q| q.ray).collect();
-            let tmax_buf: ArrayVec<f32, { super::CHUNK }> = rays.iter().map(|q| q.tmax).collect();
-            accel
-                .tlas
-                .closest_hits(&accel.blas, &ray_buf, 0.0, &tmax_buf, &mut hits[..n]);
-            for (o, h) in out.iter_mut().zip(&hits[..n]) {
-                *o = match h {
-                    Some(h) => {
-                        black_box(normals.normal(h.instance, h.triangle));
-                        h.t
-                    }
-                    None => f32::INFINITY,
-                };
+    move |rays: &[QueryRay], out: &mut [f32]| {
+        // The batch queries take the rays and their limits as two slices.
+        let n = rays.len();
+        let ray_buf: ArrayVec<crate::geom::Ray, { super::CHUNK }> =
+            rays.iter().map(|q| q.ray).collect();
+        let tmax_buf: ArrayVec<f32, { super::CHUNK }> = rays.iter().map(|q| q.tmax).collect();
+        match query {
+            Query::Closest => {
+                let mut hits = [None; super::CHUNK];
+                accel
+                    .tlas
+                    .closest_hits(&accel.blas, &ray_buf, 0.0, &tmax_buf, &mut hits[..n]);
+                for (o, h) in out.iter_mut().zip(&hits[..n]) {
+                    *o = match h {
+                        Some(h) => {
+                            black_box(normals.normal(h.instance, h.triangle));
+                            h.t
+                        }
+                        None => f32::INFINITY,
+                    };
+                }
             }
-        }
-        Query::Occluded => {
-            let n = rays.len();
-            let mut blocked = [false; super::CHUNK];
-            let ray_buf: ArrayVec<crate::geom::Ray, { super::CHUNK }> =
-                rays.iter().map(|q| q.ray).collect();
-            let tmax_buf: ArrayVec<f32, { super::CHUNK }> = rays.iter().map(|q| q.tmax).collect();
-            accel
-                .tlas
-                .any_hits(&accel.blas, &ray_buf, 0.0, &tmax_buf, &mut blocked[..n]);
-            for (o, &b) in out.iter_mut().zip(&blocked[..n]) {
-                *o = f32::from(u8::from(b));
+            Query::Occluded => {
+                let mut blocked = [false; super::CHUNK];
+                accel
+                    .tlas
+                    .any_hits(&accel.blas, &ray_buf, 0.0, &tmax_buf, &mut blocked[..n]);
+                for (o, &b) in out.iter_mut().zip(&blocked[..n]) {
+                    *o = f32::from(u8::from(b));
+                }
             }
         }
     }

@@ -497,10 +497,13 @@ fn prefetch_node(nodes: &[WideNode], index: u32) {
     let _ = (nodes, index);
 }
 
+/// A pending child: its entry distance and meta, and what else a walk keeps with it (`X`: the
+/// packet walk's ray mask).
 #[derive(Clone, Copy, Default)]
-struct Entry {
+struct Entry<X = ()> {
     t: f32,
     meta: u32,
+    rays: X,
 }
 
 /// LIFO of pending children: a fixed array, spilling to a `Vec` only for trees deeper than
@@ -719,6 +722,7 @@ fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, cons
     let mut next = Some(Entry {
         t: tmin,
         meta: root,
+        rays: (),
     });
     while let Some(e) = next.take().or_else(|| stack.pop()) {
         if e.t > *tmax {
@@ -759,6 +763,7 @@ fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, cons
             let e = Entry {
                 t: t[i],
                 meta: node.meta[i],
+                rays: (),
             };
             if e.meta & LEAF_BIT == 0 {
                 prefetch_node(nodes, e.meta);
@@ -775,6 +780,7 @@ fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, cons
             let e = Entry {
                 t: t[i],
                 meta: node.meta[i],
+                rays: (),
             };
             // In a grouped walk the leaves may just have shrunk tmax.
             if GROUPED && e.t > *tmax {
@@ -1023,6 +1029,7 @@ mod tests {
             s.push(Entry {
                 t: i as f32,
                 meta: i,
+                rays: (),
             });
         }
         for i in (0..100).rev() {

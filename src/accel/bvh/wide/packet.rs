@@ -32,7 +32,7 @@ use arrayvec::ArrayVec;
 use glam::{BVec4A, Vec3, Vec3A, Vec4};
 
 use super::{
-    LEAF_BIT, NodeRay, Stack, WIDEN, WideNode, child_hits, has_avx2, lanes, leaf_slots_with,
+    Entry, LEAF_BIT, NodeRay, Stack, WIDEN, WideNode, child_hits, has_avx2, lanes, leaf_slots_with,
     prefetch_node, query_tmin,
 };
 
@@ -74,70 +74,82 @@ impl Frustum {
     ) -> Option<(Frustum, ArrayVec<NodeRay, PACKET>)> {
         assert!(rays.len() <= PACKET, "a packet holds at most {PACKET} rays");
         let mut out: ArrayVec<NodeRay, PACKET> = ArrayVec::new();
-        let (mut o_lo, mut o_hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
-        let (mut inv_lo, mut inv_hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
-        // Branch-free accumulation: one test at the end.
-        let (mut parallel, mut octants, mut finite) = (0u32, 0u32, true);
+        let mut bounds = Bounds::new();
+        let (mut parallel, mut finite) = (0u32, true);
         let mut first_signs = None;
         for (o, d) in rays {
             // Rays in another octant than the first end it here, before any division: AO and
             // incoherent rays almost never make a packet, and should pay as little as possible
-            // for finding out. (Zero and NaN components are caught below.)
+            // for finding out. Equal signs of d give equal entry planes (`NodeRay::near`)
+            // except on axes where 1/d is not finite, which `parallel` catches.
             let signs = d.is_negative_bitmask();
             if *first_signs.get_or_insert(signs) != signs {
                 return None;
             }
             let r = NodeRay::new(o, d);
             parallel |= r.parallel;
-            octants |= 1 << (r.near[0] & 1 | (r.near[1] & 1) << 1 | (r.near[2] & 1) << 2);
             finite &= o.is_finite();
-            let (o, inv) = (Vec3A::from(o), Vec3A::from_array(r.inv));
-            o_lo = o_lo.min(o);
-            o_hi = o_hi.max(o);
-            inv_lo = inv_lo.min(inv);
-            inv_hi = inv_hi.max(inv);
+            bounds.add(&r);
             out.push(r);
         }
         let first = out.first()?;
-        if parallel != 0 || octants.count_ones() != 1 || !finite {
+        if parallel != 0 || !finite {
             return None;
         }
-        let f = Frustum {
-            o_lo: o_lo.to_array(),
-            o_hi: o_hi.to_array(),
-            inv_lo: inv_lo.to_array(),
-            inv_hi: inv_hi.to_array(),
-            near: first.near,
-            one_origin: o_lo == o_hi,
-        };
-        Some((f, out))
+        Some((bounds.frustum(first.near), out))
+    }
+
+    /// The bounds of the rays of `mask` (bit i for `rays[i]`, not empty), which share one
+    /// octant and have finite origins and inverse directions (as [`Frustum::new`] checks).
+    #[inline(always)]
+    pub fn of(rays: &[NodeRay], mask: u32) -> Frustum {
+        let mut bounds = Bounds::new();
+        let mut m = mask;
+        while m != 0 {
+            bounds.add(&rays[m.trailing_zeros() as usize]);
+            m &= m - 1;
+        }
+        bounds.frustum(rays[mask.trailing_zeros() as usize].near)
     }
 }
 
-impl Frustum {
-    /// The bounds of the rays of `mask` (bit i for `rays[i]`, not empty), which a frustum
-    /// has already been made of (so they share one octant and are finite).
+/// The running bounds of origins and inverse directions that make a [`Frustum`].
+struct Bounds {
+    o_lo: Vec3A,
+    o_hi: Vec3A,
+    inv_lo: Vec3A,
+    inv_hi: Vec3A,
+}
+
+impl Bounds {
     #[inline(always)]
-    pub fn of(rays: &[NodeRay], mask: u32) -> Frustum {
-        let (mut o_lo, mut o_hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
-        let (mut inv_lo, mut inv_hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
-        let mut m = mask;
-        while m != 0 {
-            let r = &rays[m.trailing_zeros() as usize];
-            m &= m - 1;
-            let (o, inv) = (Vec3A::from_array(r.o), Vec3A::from_array(r.inv));
-            o_lo = o_lo.min(o);
-            o_hi = o_hi.max(o);
-            inv_lo = inv_lo.min(inv);
-            inv_hi = inv_hi.max(inv);
+    fn new() -> Self {
+        Bounds {
+            o_lo: Vec3A::INFINITY,
+            o_hi: Vec3A::NEG_INFINITY,
+            inv_lo: Vec3A::INFINITY,
+            inv_hi: Vec3A::NEG_INFINITY,
         }
+    }
+
+    #[inline(always)]
+    fn add(&mut self, r: &NodeRay) {
+        let (o, inv) = (Vec3A::from_array(r.o), Vec3A::from_array(r.inv));
+        self.o_lo = self.o_lo.min(o);
+        self.o_hi = self.o_hi.max(o);
+        self.inv_lo = self.inv_lo.min(inv);
+        self.inv_hi = self.inv_hi.max(inv);
+    }
+
+    #[inline(always)]
+    fn frustum(&self, near: [usize; 3]) -> Frustum {
         Frustum {
-            o_lo: o_lo.to_array(),
-            o_hi: o_hi.to_array(),
-            inv_lo: inv_lo.to_array(),
-            inv_hi: inv_hi.to_array(),
-            near: rays[mask.trailing_zeros() as usize].near,
-            one_origin: o_lo == o_hi,
+            o_lo: self.o_lo.to_array(),
+            o_hi: self.o_hi.to_array(),
+            inv_lo: self.inv_lo.to_array(),
+            inv_hi: self.inv_hi.to_array(),
+            near,
+            one_origin: self.o_lo == self.o_hi,
         }
     }
 }
@@ -292,13 +304,8 @@ pub(crate) enum PacketLeaf {
 /// single-ray walk), since the shared node test no longer pays for itself.
 const SOLO: u32 = 2;
 
-/// A pending child of a packet walk: as [`Entry`], with the rays that may meet it.
-#[derive(Clone, Copy, Default)]
-struct PacketEntry {
-    t: f32,
-    meta: u32,
-    rays: u32,
-}
+/// A pending child of a packet walk, with the mask of the rays that may meet it.
+type PacketEntry = Entry<u32>;
 
 /// Walks the tree once for the rays of `active` (bit i for `rays[i]`; at most [`PACKET`] rays,
 /// `frustum` must bound them), calling `leaf(what, tmax)` as [`PacketLeaf`] describes; the
