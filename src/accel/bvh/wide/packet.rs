@@ -507,6 +507,8 @@ fn packet_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, const 
             }
         }
         mask = inner;
+        // Nearest first, as in `traverse_impl`. Written out in both walks: a shared helper
+        // measured 5–7% slower on shadow rays.
         let mut hits = [PacketEntry::default(); 8];
         let mut n = 0;
         while mask != 0 {
