@@ -81,7 +81,7 @@ fn tape_eval(c: &mut Criterion) {
         .objects
         .iter()
         .map(|o| &o.lowered.distance)
-        .max_by_key(|t| t.instrs.len())
+        .max_by_key(|t| t.len())
         .expect("the showcase has objects");
     let mut rng = Rng::new(3);
     let points: Vec<Vec3> = (0..1024).map(|_| rng.vec3_in(-3.0, 3.0)).collect();
@@ -89,7 +89,7 @@ fn tape_eval(c: &mut Criterion) {
     c.bench_function(
         &format!(
             "tape eval (largest showcase object, {} instructions), 1024 points",
-            tape.instrs.len()
+            tape.len()
         ),
         |b| {
             b.iter(|| {

@@ -1,128 +1,92 @@
 // The tape interpreter: `Tape::eval_in` and `Tape::eval_material` of src/sdf/tape.rs, op for
-// op. Instructions of every tape of the scene sit in `instrs`, their affine rows in
-// `tape_constants`; a `TapeRef` says where one tape starts. Registers live in private arrays
-// of the generated sizes (MAX_REGISTERS vec4s, MAX_MATERIAL_REGISTERS materials).
+// op (the value of each op is `sdf::tape::apply`). Instructions of every tape of the scene
+// sit in `instrs`; a `TapeRef` says where one tape starts. An instruction's first word packs
+// op | out << 8 | a << 16 | b << 24; the second is the immediate (a float's bits, the third
+// register of SELECT and MATMIX, or a material number). Registers live in private arrays of
+// the generated sizes; registers 0–2 hold the sample point on entry.
 
-var<private> regs: array<vec4<f32>, MAX_REGISTERS>;
+var<private> regs: array<f32, MAX_REGISTERS>;
 var<private> mat_regs: array<array<vec4<f32>, 3>, MAX_MATERIAL_REGISTERS>;
 
-// The lane of a swizzle pattern (3 bits per output lane: 0–3 pick x..w, 4 gives zero).
-fn swizzle_lane(a: vec4<f32>, pattern: u32, i: u32) -> f32 {
-    let s = (pattern >> (3u * i)) & 7u;
-    if s < 4u {
-        return a[s];
-    }
-    return 0.0;
-}
-
-// Runs the tape at p; with `materials`, also the material ops (MatLoad, MatMix) over the
+// Runs the tape at p; with `materials_on`, also the material ops (MatLoad, MatMix) over the
 // scene's material table.
 fn tape_run(tape: TapeRef, p: vec3<f32>, materials_on: bool) {
-    let mask = MAX_REGISTERS - 1u;
-    regs[0] = vec4<f32>(p, 0.0);
-    var out: vec4<f32>;
-    var write: bool;
+    regs[0] = p.x;
+    regs[1] = p.y;
+    regs[2] = p.z;
     for (var i = 0u; i < tape.len; i = i + 1u) {
         let ins = instrs[tape.start + i];
-        let a = regs[ins.a & mask];
-        var b: vec4<f32>;
-        if ins.b == IMM {
-            b = ins.imm;
-        } else {
-            b = regs[ins.b & mask];
-        }
-        let c = regs[ins.c & mask];
-        out = vec4<f32>(0.0);
-        write = true;
-        switch ins.op {
-            case OP_CONST: { out = ins.imm; }
-            case OP_ADD: { out = a + b; }
-            case OP_SUB: { out = a - b; }
-            case OP_MUL: { out = a * b; }
-            case OP_DIV: { out = a / b; }
-            case OP_MIN: { out = min(a, b); }
-            case OP_MAX: { out = max(a, b); }
-            case OP_POW: { out = pow(a, b); }
-            case OP_NEG: { out = -a; }
-            case OP_ABS: { out = abs(a); }
-            case OP_SQRT: { out = sqrt(a); }
-            case OP_SIN: { out = sin(a); }
-            case OP_COS: { out = cos(a); }
-            case OP_TAN: { out = tan(a); }
-            case OP_EXP: { out = exp(a); }
-            case OP_LN: { out = log(a); }
-            case OP_FLOOR: { out = floor(a); }
-            case OP_MULADD: { out = a * b + c; }
+        let op = ins.code & 0xffu;
+        let out = (ins.code >> 8u) & 0xffu;
+        let a = regs[(ins.code >> 16u) & 0xffu];
+        let b = regs[ins.code >> 24u];
+        let k = bitcast<f32>(ins.imm);
+        var v = 0.0;
+        var write = true;
+        switch op {
+            case OP_CONST: { v = k; }
+            case OP_COPY: { v = a; }
+            case OP_NEG: { v = -a; }
+            case OP_ABS: { v = abs(a); }
+            case OP_SQRT: { v = sqrt(a); }
+            case OP_SQUARE: { v = a * a; }
+            case OP_FLOOR: { v = floor(a); }
+            case OP_SIN: { v = sin(a); }
+            case OP_COS: { v = cos(a); }
+            case OP_TAN: { v = tan(a); }
+            case OP_EXP: { v = exp(a); }
+            case OP_LN: { v = log(a); }
+            case OP_ADD: { v = a + b; }
+            case OP_SUB: { v = a - b; }
+            case OP_MUL: { v = a * b; }
+            case OP_DIV: { v = a / b; }
+            case OP_MIN: { v = min(a, b); }
+            case OP_MAX: { v = max(a, b); }
+            case OP_POW: { v = pow(a, b); }
+            case OP_HYPOT: { v = sqrt(a * a + b * b); }
+            case OP_HYPOT3: {
+                let c = regs[ins.imm & 0xffu];
+                v = sqrt(a * a + b * b + c * c);
+            }
+            case OP_ADDIMM: { v = a + k; }
+            case OP_SUBIMM: { v = a - k; }
+            case OP_RSUBIMM: { v = k - a; }
+            case OP_MULIMM: { v = a * k; }
+            case OP_DIVIMM: { v = a / k; }
+            case OP_RDIVIMM: { v = k / a; }
+            case OP_MINIMM: { v = min(a, k); }
+            case OP_MAXIMM: { v = max(a, k); }
+            case OP_POWIMM: { v = pow(a, k); }
             case OP_SELECT: {
-                if c.x > 0.0 {
-                    out = a;
+                if regs[ins.imm & 0xffu] > 0.0 {
+                    v = a;
                 } else {
-                    out = b;
+                    v = b;
                 }
-            }
-            case OP_SWIZZLE: {
-                out = vec4<f32>(
-                    swizzle_lane(a, ins.aux, 0u),
-                    swizzle_lane(a, ins.aux, 1u),
-                    swizzle_lane(a, ins.aux, 2u),
-                    swizzle_lane(a, ins.aux, 3u),
-                );
-            }
-            case OP_PACK: {
-                out = vec4<f32>(a[ins.aux & 3u], b[(ins.aux >> 2u) & 3u], c[(ins.aux >> 4u) & 3u], 0.0);
-            }
-            case OP_DOT3: { out = vec4<f32>(dot(a.xyz, b.xyz), 0.0, 0.0, 0.0); }
-            case OP_LENGTH: {
-                var l: f32;
-                if ins.aux == 2u {
-                    l = length(a.xy);
-                } else {
-                    l = length(a.xyz);
-                }
-                out = vec4<f32>(l, 0.0, 0.0, 0.0);
-            }
-            case OP_MAXLANE: {
-                var m: f32;
-                if ins.aux == 2u {
-                    m = max(a.x, a.y);
-                } else {
-                    m = max(max(a.x, a.y), a.z);
-                }
-                out = vec4<f32>(m, 0.0, 0.0, 0.0);
-            }
-            case OP_AFFINE: {
-                let k = tape.constants + ins.aux;
-                let q = vec4<f32>(a.xyz, 1.0);
-                out = vec4<f32>(
-                    dot(tape_constants[k], q),
-                    dot(tape_constants[k + 1u], q),
-                    dot(tape_constants[k + 2u], q),
-                    0.0,
-                );
             }
             case OP_MATLOAD: {
                 write = false;
                 if materials_on {
-                    mat_regs[ins.dst % MAX_MATERIAL_REGISTERS] = materials[ins.aux].lanes;
+                    mat_regs[out % MAX_MATERIAL_REGISTERS] = materials[ins.imm].lanes;
                 }
             }
             case OP_MATMIX: {
                 write = false;
                 if materials_on {
-                    let ma = mat_regs[ins.a % MAX_MATERIAL_REGISTERS];
-                    let mb = mat_regs[ins.b % MAX_MATERIAL_REGISTERS];
-                    let h = c.x;
+                    let ma = mat_regs[((ins.code >> 16u) & 0xffu) % MAX_MATERIAL_REGISTERS];
+                    let mb = mat_regs[(ins.code >> 24u) % MAX_MATERIAL_REGISTERS];
+                    let h = regs[ins.imm & 0xffu];
                     var mixed: array<vec4<f32>, 3>;
                     for (var j = 0u; j < 3u; j = j + 1u) {
                         mixed[j] = ma[j] + (mb[j] - ma[j]) * h;
                     }
-                    mat_regs[ins.dst % MAX_MATERIAL_REGISTERS] = mixed;
+                    mat_regs[out % MAX_MATERIAL_REGISTERS] = mixed;
                 }
             }
             default: { write = false; }
         }
         if write {
-            regs[ins.dst & mask] = out;
+            regs[out] = v;
         }
     }
 }
@@ -130,7 +94,7 @@ fn tape_run(tape: TapeRef, p: vec3<f32>, materials_on: bool) {
 // Tape::eval_in: the signed distance (or bound) at p.
 fn tape_eval(tape: TapeRef, p: vec3<f32>) -> f32 {
     tape_run(tape, p, false);
-    return regs[tape.result & (MAX_REGISTERS - 1u)].x;
+    return regs[tape.result];
 }
 
 // Tape::eval_material's material: the blended material lanes at p (the table's first

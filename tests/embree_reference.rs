@@ -311,8 +311,8 @@ fn compare(scene: &Scene, candidate: &dyn RayQuery, referee: &EmbreeScene, seed:
         }
         r.rays += 1;
         let debug = std::env::var_os("EMBREE_REF_DEBUG").is_some();
-        // An excused disagreement: the referee's hit grazes the surface, or the candidate's
-        // hit is a sphere tracer's near miss, a point within 3·ε(t) (plus the tolerance of a
+        // An excused disagreement: the referee's hit grazes the surface or clips a sliver, or
+        // the candidate's hit is a sphere tracer's near miss, a point within 3·ε(t) (plus the tolerance of a
         // meshed object) of the referee's surface.
         let grazing = |h: &QueryHit| h.normal.dot(ray.direction).abs() < GRAZING;
         // A sphere tracer stops where f < ε(t), which is within ε(t)/|∇f| of the surface
@@ -336,6 +336,21 @@ fn compare(scene: &Scene, candidate: &dyn RayQuery, referee: &EmbreeScene, seed:
             referee.occluded(&Ray::new(p + e * h.normal, -h.normal), 0.0, 2.0 * e)
         };
         let near_miss = |h: &QueryHit| near_miss_on(ray, h);
+        // The referee's ray only clips the solid: along it the field never gets deeper than
+        // ε(t) inside (a corner or rim cut by a chord shorter than the band). A sphere tracer
+        // confirms a candidate by probing about ε ahead (`trace::crossing`), so it may step
+        // over such a sliver by design, wherever its samples happen to fall.
+        let sliver = |h: &QueryHit| match h.object {
+            ObjectId::Sdf(i) => {
+                let tape = &scene.objects[i].lowered.distance;
+                let e = epsilon_at(s, h.t);
+                (0..=256).all(|k| {
+                    let t = h.t - 2.0 * e + 12.0 * e * k as f32 / 256.0;
+                    tape.eval(ray.at(t)) > -e
+                })
+            }
+            ObjectId::MeshInstance(_) => false,
+        };
         // The referee hit a mesh of an SDF object where the object's field is within the
         // mesh's tolerance (1-Lipschitz: |f| ≤ distance to the surface).
         let within_mesh_tolerance_on = |ray: &Ray, h: &QueryHit| match h.object {
@@ -382,7 +397,7 @@ fn compare(scene: &Scene, candidate: &dyn RayQuery, referee: &EmbreeScene, seed:
                     if x.t < y.t {
                         disagree(near_miss(x), false, &mut r);
                     } else {
-                        disagree(grazing(y), within_mesh_tolerance(y), &mut r);
+                        disagree(grazing(y) || sliver(y), within_mesh_tolerance(y), &mut r);
                     }
                 } else {
                     r.agree += 1;
@@ -400,7 +415,7 @@ fn compare(scene: &Scene, candidate: &dyn RayQuery, referee: &EmbreeScene, seed:
                 }
             }
             (Some(x), None) => disagree(near_miss(x), false, &mut r),
-            (None, Some(y)) => disagree(grazing(y), within_mesh_tolerance(y), &mut r),
+            (None, Some(y)) => disagree(grazing(y) || sliver(y), within_mesh_tolerance(y), &mut r),
         }
         // Shadow ray from the candidate's hit, 4·ε(t) off the surface on the side the ray came
         // from, as the renderer casts it, plus twice the tolerance of the referee's mesh of

@@ -8,6 +8,7 @@
 //! ([`bvh::InstanceBvh`]), with a watertight triangle test ([`triangle`]).
 
 pub mod bvh;
+pub mod field;
 pub mod triangle;
 
 use crate::geom::{Aabb, Ray};

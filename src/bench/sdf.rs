@@ -4,9 +4,10 @@
 
 use super::rays::{self, QueryRay};
 use super::{BenchOptions, Workers, alternate, median, per_ray};
+use crate::accel::field::FieldCursor;
 use crate::scene::{Scene, Stepper, TracerSettings};
 use crate::sdf::tape::Registers;
-use crate::trace::{AccelOptions, SceneTracer, epsilon_at, normal, sphere};
+use crate::trace::{AccelOptions, SceneTracer, epsilon_at, normal, trace};
 use serde::Serialize;
 use std::cell::RefCell;
 use std::fmt::Write;
@@ -90,7 +91,6 @@ fn primary_hit(
     ray: &QueryRay,
     regs: &mut Registers,
 ) -> Found {
-    let scene = tracer.scene();
     let mut limit = ray.tmax.min(s.max_distance);
     let mut found = Found {
         t: f32::INFINITY,
@@ -109,8 +109,7 @@ fn primary_hit(
     tracer
         .sdf_accel()
         .visit(&ray.ray, 0.0, &mut limit, |i, t0, t1, limit| {
-            let tape = &scene.objects[i].lowered.distance;
-            let r = sphere::trace(tape, &ray.ray, t0, t1, s, regs);
+            let r = trace(&mut tracer.cursor(i, regs), &ray.ray, t0, t1, s);
             found.steps += r.steps;
             found.intervals += r.intervals;
             if let Some(t) = r.t {
@@ -204,11 +203,10 @@ pub fn run(opts: &BenchOptions, scenes: &[(String, Scene)]) -> anyhow::Result<Sd
                 let tape = &scene.objects[b.id as usize].lowered.distance;
                 let p = q.ray.at(b.t);
                 let (nrm, _) = normal::estimate(
-                    tape,
+                    &mut FieldCursor::whole(tape, &mut regs),
                     p,
                     normal::step_for(&scene.tracer, b.t),
                     scene.tracer.normals,
-                    &mut regs,
                 );
                 let cos = nrm.dot(q.ray.direction).abs().max(0.01);
                 let band = (epsilon_at(s, a.t) + epsilon_at(s, b.t)) / cos;

@@ -44,11 +44,7 @@ pub fn run(args: InfoArgs) -> Result<()> {
         m.textures.len()
     );
     let nodes: usize = scene.objects.iter().map(|o| o.node.node_count()).sum();
-    let instrs: usize = scene
-        .objects
-        .iter()
-        .map(|o| o.lowered.distance.instrs.len())
-        .sum();
+    let instrs: usize = scene.objects.iter().map(|o| o.lowered.distance.len()).sum();
     let unbounded = scene
         .objects
         .iter()

@@ -11,17 +11,38 @@ pub const NONE: u32 = u32::MAX;
 pub const STACK_SIZE: u32 = 64;
 
 gpu_struct! {
-    /// Where one tape lives in the shared instruction and constant buffers.
+    /// Where one tape lives in the shared instruction buffer.
     pub struct TapeRef(16) {
         /// First instruction.
         pub start: u32,
         /// Instruction count.
         pub len: u32,
-        /// First constant of the tape (its `Affine` ops index from here).
-        pub constants: u32,
         /// Register holding the distance at the end.
         pub result: u32,
+        /// Unused.
+        pub pad: u32,
     }
+}
+
+gpu_struct! {
+    /// One tape instruction as the GPU reads it: the bytes of [`crate::sdf::tape::Instr`],
+    /// whose first word packs `op | out << 8 | a << 16 | b << 24` (little-endian bytes) and
+    /// whose second is the immediate.
+    pub struct InstrRecord(8) {
+        /// Operation, destination and operand registers, a byte each.
+        pub code: u32,
+        /// Immediate bits (a float, a register or a material number).
+        pub imm: u32,
+    }
+}
+
+// The GPU buffer is the tape's instructions reinterpreted: same size, same bytes.
+const _: () =
+    assert!(std::mem::size_of::<InstrRecord>() == std::mem::size_of::<crate::sdf::tape::Instr>());
+
+/// The GPU view of a tape's instructions (a copy of the same bytes).
+pub fn instr_records(instrs: &[crate::sdf::tape::Instr]) -> &[InstrRecord] {
+    bytemuck::cast_slice(instrs)
 }
 
 gpu_struct! {

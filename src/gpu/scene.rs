@@ -19,7 +19,7 @@ use super::shaders::{BindingKind, normals_code, scene_bindings, wrap_code};
 use crate::accel::triangle;
 use crate::geom::Aabb;
 use crate::scene::{Scene, TracerSettings};
-use crate::sdf::tape::{Instr, Tape};
+use crate::sdf::tape::Tape;
 use glam::{Vec3, Vec3A};
 use obvhs::BvhBuildParams;
 use obvhs::aabb::Aabb as OAabb;
@@ -30,9 +30,7 @@ pub struct SceneData {
     /// Tracer settings and roots.
     pub globals: SceneGlobals,
     /// Instructions of every tape.
-    pub instrs: Vec<Instr>,
-    /// Affine rows of every tape.
-    pub constants: Vec<[f32; 4]>,
+    pub instrs: Vec<InstrRecord>,
     /// SDF objects.
     pub objects: Vec<SdfObjectRecord>,
     /// Nodes of every BVH (objects, instances, meshes).
@@ -81,15 +79,14 @@ fn finite_or_max(v: Vec3) -> [f32; 3] {
     })
 }
 
-fn tape_ref(tape: &Tape, instrs: &mut Vec<Instr>, constants: &mut Vec<[f32; 4]>) -> TapeRef {
+fn tape_ref(tape: &Tape, instrs: &mut Vec<InstrRecord>) -> TapeRef {
     let r = TapeRef {
         start: instrs.len() as u32,
-        len: tape.instrs.len() as u32,
-        constants: constants.len() as u32,
-        result: tape.result,
+        len: tape.len() as u32,
+        result: tape.result() as u32,
+        pad: 0,
     };
-    instrs.extend_from_slice(&tape.instrs);
-    constants.extend_from_slice(&tape.constants);
+    instrs.extend_from_slice(instr_records(tape.instrs()));
     r
 }
 
@@ -115,15 +112,15 @@ impl SceneData {
         let mut unbounded = Vec::new();
         for (i, object) in scene.objects.iter().enumerate() {
             let lowered = &object.lowered;
-            let distance = tape_ref(&lowered.distance, &mut data.instrs, &mut data.constants);
-            let shading = tape_ref(&lowered.shading, &mut data.instrs, &mut data.constants);
+            let distance = tape_ref(&lowered.distance, &mut data.instrs);
+            let shading = tape_ref(&lowered.shading, &mut data.instrs);
             let b: Aabb = object.bounds();
             let nan = b.min.is_nan() || b.max.is_nan();
             data.objects.push(SdfObjectRecord {
                 lo: finite_or_max(b.min),
                 nan_bounds: nan as u32,
                 hi: finite_or_max(b.max),
-                material_result: lowered.shading.material_result.unwrap_or(NONE),
+                material_result: lowered.shading.material_result().map_or(NONE, u32::from),
                 distance,
                 shading,
             });
@@ -334,7 +331,7 @@ impl SceneData {
         data.globals.object_root = NONE;
         data.globals.tlas_root = NONE;
         for tape in tapes {
-            let distance = tape_ref(tape, &mut data.instrs, &mut data.constants);
+            let distance = tape_ref(tape, &mut data.instrs);
             data.objects.push(SdfObjectRecord {
                 lo: [0.0; 3],
                 nan_bounds: 1,
@@ -409,7 +406,6 @@ impl SceneData {
         let bytes: Vec<&[u8]> = vec![
             bytemuck::bytes_of(&self.globals),
             bytemuck::cast_slice(&self.instrs),
-            bytemuck::cast_slice(&self.constants),
             bytemuck::cast_slice(&self.objects),
             bytemuck::cast_slice(&self.nodes),
             bytemuck::cast_slice(&self.refs),

@@ -6,10 +6,9 @@ use super::records::*;
 use crate::scene::Shadow;
 use crate::scene::file::NormalMethod;
 use crate::scene::mesh::Wrap;
-use crate::sdf::tape::{self, Instr};
+use crate::sdf::tape;
 use crate::shade::material::MaterialParams;
 use glam::Vec3;
-use std::mem::offset_of;
 
 /// The tape interpreter (`Tape::eval_in`, `Tape::eval_material`).
 pub const TAPE_WGSL: &str = include_str!("../../shaders/tape.wgsl");
@@ -86,8 +85,7 @@ pub fn scene_bindings() -> Vec<(&'static str, BindingKind, String)> {
     let array = |t: String| format!("array<{t}>");
     vec![
         ("globals", Uniform, SceneGlobals::wgsl_name()),
-        ("instrs", Storage, array("Instr".into())),
-        ("tape_constants", Storage, array(<[f32; 4]>::wgsl_name())),
+        ("instrs", Storage, array(InstrRecord::wgsl_name())),
         ("objects", Storage, array(SdfObjectRecord::wgsl_name())),
         ("nodes", Storage, array(BvhNode::wgsl_name())),
         ("refs", Storage, array(u32::wgsl_name())),
@@ -104,26 +102,6 @@ pub fn scene_bindings() -> Vec<(&'static str, BindingKind, String)> {
         ("textures", Storage, array(TextureRecord::wgsl_name())),
         ("texels", Storage, array(<[f32; 4]>::wgsl_name())),
     ]
-}
-
-// `Instr` is declared in `src/sdf/tape.rs` (not with `gpu_struct!`); its WGSL twin below is
-// checked field by field against the Rust offsets.
-const _: () = {
-    assert!(offset_of!(Instr, op) == 0);
-    assert!(offset_of!(Instr, dst) == 4);
-    assert!(offset_of!(Instr, a) == 8);
-    assert!(offset_of!(Instr, b) == 12);
-    assert!(offset_of!(Instr, c) == 16);
-    assert!(offset_of!(Instr, aux) == 20);
-    assert!(offset_of!(Instr, pad) == 24);
-    assert!(offset_of!(Instr, imm) == 32);
-    assert!(std::mem::size_of::<Instr>() == 48);
-};
-
-fn instr_wgsl() -> String {
-    "struct Instr {\n    op: u32,\n    dst: u32,\n    a: u32,\n    b: u32,\n    c: u32,\n    \
-     aux: u32,\n    pad0: u32,\n    pad1: u32,\n    imm: vec4<f32>,\n}\n"
-        .into()
 }
 
 /// The WGSL `Material` struct (the fields of [`MaterialParams`]) and `material_from_lanes`,
@@ -209,8 +187,8 @@ pub fn wgsl_prelude() -> String {
     s += &u("WRAP_CLAMP_TO_EDGE", wrap_code(Wrap::ClampToEdge));
     s += &u("WRAP_MIRRORED_REPEAT", wrap_code(Wrap::MirroredRepeat));
     s += "\n";
-    s += &instr_wgsl();
     for decl in [
+        InstrRecord::wgsl(),
         TapeRef::wgsl(),
         SdfObjectRecord::wgsl(),
         BvhNode::wgsl(),

@@ -22,6 +22,7 @@
 
 use super::embree::{EmbreeScene, SdfCheck};
 use super::query::{ObjectId, QueryHit, RayQuery};
+use crate::accel::field::FieldCursor;
 use crate::geom::Ray;
 use crate::scene::{Scene, Shadow};
 use crate::sdf::tape::{MaterialVec, Registers};
@@ -78,11 +79,10 @@ impl<'a> EmbreeTracer<'a> {
                         let s = &scene.tracer;
                         let mut regs = Registers::new();
                         normal::estimate(
-                            &scene.objects[i].lowered.distance,
+                            &mut FieldCursor::whole(&scene.objects[i].lowered.distance, &mut regs),
                             ray.at(q.t),
                             normal::step_for(s, q.t),
                             s.normals,
-                            &mut regs,
                         )
                         .0
                     }
@@ -158,11 +158,10 @@ impl EmbreeTracer<'_> {
             }
             let s = &scene.tracer;
             let (n, _) = normal::estimate(
-                field,
+                &mut FieldCursor::whole(field, &mut regs),
                 ray.origin,
                 normal::step_for(s, 0.0),
                 s.normals,
-                &mut regs,
             );
             let cos = n.dot(ray.direction).abs().max(0.05);
             clearance = clearance.max(2.0 * tolerance / cos);

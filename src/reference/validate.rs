@@ -54,6 +54,7 @@
 //! undecidable at that tolerance: it is left out of the agreement and counted.
 
 use super::query::{ObjectId, QueryHit, RayQuery};
+use crate::accel::field::FieldCursor;
 use crate::geom::{Aabb, Ray};
 use crate::rng::Rng;
 use crate::scene::{Light, Scene};
@@ -778,11 +779,10 @@ where
         {
             let s = settings;
             let g = crate::trace::normal::estimate(
-                &scene.objects[i].lowered.distance,
+                &mut FieldCursor::whole(&scene.objects[i].lowered.distance, &mut Registers::new()),
                 p,
                 crate::trace::normal::step_for(s, hit.t),
                 s.normals,
-                &mut Registers::new(),
             )
             .0
             .normalize_or_zero();

@@ -1,7 +1,7 @@
 //! Interval arithmetic over the tape: enclosures of a field and of its slope along a ray.
 //!
-//! Every [`Op`] is evaluated on intervals, lane by lane, for a sample point known only to lie in
-//! an axis-aligned box (Moore, "Interval Analysis", 1966; the inclusion property of natural
+//! Every [`Op`] is evaluated on intervals for a sample point known only to lie in an
+//! axis-aligned box (Moore, "Interval Analysis", 1966; the inclusion property of natural
 //! interval extensions, as used for implicit surfaces by Mitchell, "Robust ray intersection with
 //! interval arithmetic", Graphics Interface 1990, and Snyder, "Interval analysis for computer
 //! graphics", SIGGRAPH 1992). [`eval_box`] gives an interval containing f(p) for every p in the
@@ -16,15 +16,20 @@
 //! `Div` or `Tan`), the mean-value theorem no longer holds and the derivative enclosure is the
 //! whole line; the value enclosure stays valid.
 //!
-//! Soundness: bounds are computed in f32 and widened outwards by one ulp after every operation
-//! (four for the transcendental functions, whose library results are not correctly rounded), so
-//! they contain the exact real result of each op on the interval's reals. An interval that may
+//! Soundness: bounds are computed in f32 and widened outwards by one ulp after every operation,
+//! so they contain the exact real result of each op on the interval's reals — and, rounding
+//! being monotone, the f32 result the point interpreter computes from any operands inside the
+//! operand enclosures. The transcendental functions are evaluated with the tape's own kernels
+//! ([`crate::sdf::math`]) and widened by their stated error, so the enclosures contain what the
+//! point interpreter returns too: a branch of `min` that an enclosure proves unused is unused by
+//! the interpreter at every point of the box, which is what region specialisation relies on. An interval that may
 //! hold a NaN of the point interpreter (`√` or `ln` of a negative, `pow` of a negative base,
 //! `0/0`) is the whole line: `min`/`max` in the point interpreter drop a NaN operand, and only the
 //! whole line stays an enclosure of whatever they return then. Material ops (absent from
 //! distance tapes) are skipped.
 
-use crate::sdf::tape::{IMM, MAX_REGISTERS, Op, Tape};
+use crate::sdf::math::{self, SIN_COS_ABS_ERROR, SIN_COS_ACCURATE};
+use crate::sdf::tape::{MAX_REGISTERS, Op, Tape};
 use glam::Vec3;
 use std::f32::consts::{FRAC_PI_2, PI, TAU};
 
@@ -133,15 +138,26 @@ impl Interval {
     }
 
     /// sin(x + phase), with the phase only moving where the extremes lie (not added to x,
-    /// which would round).
+    /// which would round). The endpoint values come from the tape's own kernels; widening by
+    /// twice their error bound covers the exact values between them and the kernel's values
+    /// at every point of the interval.
     fn periodic(self, phase: f32) -> Self {
         // Extremes of sin(x + phase) at x = π/2 − phase + kπ; tested with a small slack, so
         // that rounding in locating them can only widen the result.
         let slack = 1e-6 * (1.0 + self.lo.abs().max(self.hi.abs()));
-        if !self.is_finite() || self.hi - self.lo + 2.0 * slack >= TAU {
+        if !self.is_finite()
+            || self.hi - self.lo + 2.0 * slack >= TAU
+            || self.lo.abs().max(self.hi.abs()) > SIN_COS_ACCURATE
+        {
             return Interval { lo: -1.0, hi: 1.0 };
         }
-        let f = |x: f32| if phase == 0.0 { x.sin() } else { x.cos() };
+        let f = |x: f32| {
+            if phase == 0.0 {
+                math::sin(x)
+            } else {
+                math::cos(x)
+            }
+        };
         let (a, b) = (f(self.lo), f(self.hi));
         let (mut lo, mut hi) = (a.min(b), a.max(b));
         let first = FRAC_PI_2 - phase;
@@ -159,7 +175,7 @@ impl Interval {
                 break;
             }
         }
-        let w = Self::out4(lo, hi);
+        let w = Self::out(lo - 2.0 * SIN_COS_ABS_ERROR, hi + 2.0 * SIN_COS_ABS_ERROR);
         Interval {
             lo: w.lo.max(-1.0),
             hi: w.hi.min(1.0),
@@ -220,13 +236,10 @@ pub trait Domain: Copy {
     fn floor(self) -> Self;
     /// (c > 0) ? a : b
     fn select(c: Self, a: Self, b: Self) -> Self;
-    /// Euclidean length of the lanes.
-    fn length(lanes: &[Self]) -> Self {
-        lanes
-            .iter()
-            .fold(Self::constant(0.0), |s, x| s.add(x.sqr()))
-            .sqrt()
-    }
+    /// √(a² + b²).
+    fn hypot(self, b: Self) -> Self;
+    /// √(a² + b² + c²).
+    fn hypot3(self, b: Self, c: Self) -> Self;
 }
 
 impl Domain for Interval {
@@ -279,7 +292,12 @@ impl Domain for Interval {
     fn sqr(self) -> Self {
         let (a, b) = (self.lo * self.lo, self.hi * self.hi);
         if self.lo >= 0.0 || self.hi <= 0.0 {
-            Self::out(a.min(b), a.max(b))
+            // squares are never negative: the outward rounding stops at 0
+            let w = Self::out(a.min(b), a.max(b));
+            Interval {
+                lo: w.lo.max(0.0),
+                hi: w.hi,
+            }
         } else {
             Interval {
                 lo: 0.0,
@@ -347,23 +365,35 @@ impl Domain for Interval {
     }
 
     /// x^e for x ≥ 0: monotone in x for a fixed e and in e for a fixed x, so the extremes are
-    /// at the corners.
+    /// at the corners. The kernel computes e^(e·ln x), whose error grows with |e·ln x|: the
+    /// bounds are widened by that relative error.
     fn pow(self, e: Self) -> Self {
         if self.lo < 0.0 {
             return Self::WHOLE;
         }
         let c = [
-            self.lo.powf(e.lo),
-            self.lo.powf(e.hi),
-            self.hi.powf(e.lo),
-            self.hi.powf(e.hi),
+            math::pow(self.lo, e.lo),
+            math::pow(self.lo, e.hi),
+            math::pow(self.hi, e.lo),
+            math::pow(self.hi, e.hi),
         ];
         if c.iter().any(|x| x.is_nan()) {
             return Self::WHOLE;
         }
         let lo = c.iter().copied().fold(f32::INFINITY, f32::min);
         let hi = c.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-        Self::out4(lo, hi).max(Self::point(0.0))
+        let spread = e.lo.abs().max(e.hi.abs())
+            * math::ln(self.hi.max(1.0))
+                .abs()
+                .max(math::ln(self.lo.max(f32::MIN_POSITIVE)).abs());
+        let rel = (8.0 + 4.0 * spread) * f32::EPSILON;
+        if !rel.is_finite() || rel > 0.5 {
+            return Interval {
+                lo: 0.0,
+                hi: f32::INFINITY,
+            };
+        }
+        Self::out4(lo * (1.0 - rel), hi * (1.0 + rel)).max(Self::point(0.0))
     }
 
     /// sin over the interval: the endpoints, and ±1 where a peak or trough lies inside.
@@ -377,31 +407,60 @@ impl Domain for Interval {
     }
 
     /// tan: increasing between its poles at π/2 + kπ; the whole line if one may lie inside.
+    /// The kernel divides sin by cos, each within [`SIN_COS_ABS_ERROR`]: the quotient errs by
+    /// at most about 2E/cos², widened for at the endpoint nearer a pole.
     fn tan(self) -> Self {
         let slack = 1e-6 * (1.0 + self.lo.abs().max(self.hi.abs()));
-        if !self.is_finite() || self.hi - self.lo + 2.0 * slack >= PI {
+        if !self.is_finite()
+            || self.hi - self.lo + 2.0 * slack >= PI
+            || self.lo.abs().max(self.hi.abs()) > SIN_COS_ACCURATE
+        {
             return Self::WHOLE;
         }
         let k = ((self.lo - slack - FRAC_PI_2) / PI).ceil();
         if FRAC_PI_2 + k * PI <= self.hi + slack {
             return Self::WHOLE;
         }
-        Self::out4(self.lo.tan(), self.hi.tan())
+        let cos_min = math::cos(self.lo).abs().min(math::cos(self.hi).abs()) - SIN_COS_ABS_ERROR;
+        if cos_min <= 1e-3 {
+            return Self::WHOLE;
+        }
+        let err = 3.0 * SIN_COS_ABS_ERROR / (cos_min * cos_min);
+        Self::out4(math::tan(self.lo) - err, math::tan(self.hi) + err)
     }
 
     fn exp(self) -> Self {
-        Self::out4(self.lo.exp(), self.hi.exp()).max(Self::point(0.0))
+        Self::out4(math::exp(self.lo), math::exp(self.hi)).max(Self::point(0.0))
     }
 
     fn ln(self) -> Self {
         if self.lo < 0.0 {
             return Self::WHOLE;
         }
-        Self::out4(self.lo.ln(), self.hi.ln())
+        Self::out4(math::ln(self.lo), math::ln(self.hi))
     }
 
     fn floor(self) -> Self {
         Self::exact(self.lo.floor(), self.hi.floor())
+    }
+
+    fn hypot(self, b: Self) -> Self {
+        let sum = self.sqr().add(b.sqr());
+        // a sum of squares is never negative, in the reals and in floats alike
+        Interval {
+            lo: sum.lo.max(0.0),
+            hi: sum.hi,
+        }
+        .sqrt()
+    }
+
+    fn hypot3(self, b: Self, c: Self) -> Self {
+        let sum = self.sqr().add(b.sqr()).add(c.sqr());
+        Interval {
+            lo: sum.lo.max(0.0),
+            hi: sum.hi,
+        }
+        .sqrt()
     }
 
     fn select(c: Self, a: Self, b: Self) -> Self {
@@ -598,110 +657,75 @@ impl Domain for Slope {
             Slope::jumping(a.v.hull(b.v))
         }
     }
-    fn length(lanes: &[Self]) -> Self {
+    fn hypot(self, b: Self) -> Self {
         // |p|' = (p·p')/|p|, and by Cauchy–Schwarz |(p·p')/|p|| ≤ |p'|: the quotient is
         // unbounded where |p| may be 0, the second bound never is.
-        let sq = lanes
-            .iter()
-            .fold(Interval::point(0.0), |s, x| s.add(x.v.sqr()));
-        let v = sq.sqrt();
-        let dot = lanes
-            .iter()
-            .fold(Interval::point(0.0), |s, x| s.add(x.v.mul(x.d)));
-        let m = lanes
-            .iter()
-            .fold(Interval::point(0.0), |s, x| s.add(x.d.sqr()))
-            .sqrt()
-            .hi;
+        let v = self.v.hypot(b.v);
+        let dot = self.v.mul(self.d).add(b.v.mul(b.d));
+        let m = self.d.hypot(b.d).hi;
+        let d = dot.div(v).meet(Interval { lo: -m, hi: m });
+        Slope { v, d }
+    }
+    fn hypot3(self, b: Self, c: Self) -> Self {
+        let v = self.v.hypot3(b.v, c.v);
+        let dot = self.v.mul(self.d).add(b.v.mul(b.d)).add(c.v.mul(c.d));
+        let m = self.d.hypot3(b.d, c.d).hi;
         let d = dot.div(v).meet(Interval { lo: -m, hi: m });
         Slope { v, d }
     }
 }
 
-/// Scratch registers for the interval evaluators (4 lanes per register), and the lanes each
-/// instruction of the last tape must compute.
+/// The value of one operation on a [`Domain`]: [`crate::sdf::tape::apply`] on enclosures.
+#[inline]
+pub fn apply_domain<T: Domain>(op: Op, a: T, b: T, c: T, imm: f32) -> T {
+    let k = || T::constant(imm);
+    match op {
+        Op::Const => k(),
+        Op::Copy => a,
+        Op::Neg => a.neg(),
+        Op::Abs => a.abs(),
+        Op::Sqrt => a.sqrt(),
+        Op::Square => a.sqr(),
+        Op::Floor => a.floor(),
+        Op::Sin => a.sin(),
+        Op::Cos => a.cos(),
+        Op::Tan => a.tan(),
+        Op::Exp => a.exp(),
+        Op::Ln => a.ln(),
+        Op::Add => a.add(b),
+        Op::Sub => a.sub(b),
+        Op::Mul => a.mul(b),
+        Op::Div => a.div(b),
+        Op::Min => a.min(b),
+        Op::Max => a.max(b),
+        Op::Pow => a.pow(b),
+        Op::Hypot => a.hypot(b),
+        Op::AddImm => a.add(k()),
+        Op::SubImm => a.sub(k()),
+        Op::RsubImm => k().sub(a),
+        Op::MulImm => a.scale(imm),
+        Op::DivImm => a.div(k()),
+        Op::RdivImm => k().div(a),
+        Op::MinImm => a.min(k()),
+        Op::MaxImm => a.max(k()),
+        Op::PowImm => a.pow(k()),
+        Op::Select => T::select(c, a, b),
+        Op::Hypot3 => a.hypot3(b, c),
+        Op::MatLoad | Op::MatMix | Op::Input => T::constant(0.0),
+    }
+}
+
+/// Scratch registers for the interval evaluators.
 pub struct IntervalRegisters<T> {
-    regs: Box<[[T; 4]; MAX_REGISTERS]>,
-    live: Vec<u8>,
+    regs: Box<[T; MAX_REGISTERS]>,
 }
 
 impl<T: Domain> IntervalRegisters<T> {
     /// Fresh registers.
     pub fn new() -> Self {
         IntervalRegisters {
-            regs: Box::new([[T::constant(0.0); 4]; MAX_REGISTERS]),
-            live: Vec::new(),
+            regs: Box::new([T::constant(0.0); MAX_REGISTERS]),
         }
-    }
-}
-
-/// The lanes of each instruction's result that the tape's result depends on (a backward
-/// liveness pass). Most registers of a distance tape are scalars carried in lane x, and an
-/// interval lane costs tens of point operations: computing only live lanes pays for the pass.
-fn live_lanes(tape: &Tape, live: &mut Vec<u8>) {
-    let reg = |i: u32| i as usize & (MAX_REGISTERS - 1);
-    let mut need = [0u8; MAX_REGISTERS];
-    need[reg(tape.result)] = 1;
-    live.clear();
-    live.resize(tape.instrs.len(), 0);
-    for (k, ins) in tape.instrs.iter().enumerate().rev() {
-        let op = ins.opcode();
-        if matches!(op, Op::MatLoad | Op::MatMix) {
-            continue;
-        }
-        let m = need[reg(ins.dst)];
-        need[reg(ins.dst)] = 0;
-        live[k] = m;
-        if m == 0 {
-            continue;
-        }
-        let mut use_a = 0;
-        let mut use_b = 0;
-        let mut use_c = 0;
-        match op {
-            Op::Const | Op::MatLoad | Op::MatMix => {}
-            Op::Select => {
-                (use_a, use_b, use_c) = (m, m, 1);
-            }
-            Op::Swizzle => {
-                for i in 0..4 {
-                    let s = (ins.aux >> (3 * i)) & 7;
-                    if m & (1 << i) != 0 && s < 4 {
-                        use_a |= 1 << s;
-                    }
-                }
-            }
-            Op::Pack => {
-                if m & 1 != 0 {
-                    use_a = 1 << (ins.aux & 3);
-                }
-                if m & 2 != 0 {
-                    use_b = 1 << ((ins.aux >> 2) & 3);
-                }
-                if m & 4 != 0 {
-                    use_c = 1 << ((ins.aux >> 4) & 3);
-                }
-            }
-            Op::Dot3 => {
-                (use_a, use_b) = ((m & 1) * 7, (m & 1) * 7);
-            }
-            Op::Length | Op::MaxLane => {
-                use_a = if m & 1 == 0 {
-                    0
-                } else if ins.aux == 2 {
-                    3
-                } else {
-                    7
-                };
-            }
-            Op::Affine => use_a = if m & 7 != 0 { 7 } else { 0 },
-            _ => (use_a, use_b, use_c) = (m, m, m),
-        }
-        need[reg(ins.a)] |= use_a;
-        if ins.b != IMM {
-            need[reg(ins.b)] |= use_b;
-        }
-        need[reg(ins.c)] |= use_c;
     }
 }
 
@@ -711,7 +735,7 @@ impl<T: Domain> Default for IntervalRegisters<T> {
     }
 }
 
-/// An enclosure of the tape's value (lane x of its result) over the box [lo, hi].
+/// An enclosure of the tape's value over the box [lo, hi].
 pub fn eval_box(
     tape: &Tape,
     lo: Vec3,
@@ -719,7 +743,7 @@ pub fn eval_box(
     regs: &mut IntervalRegisters<Interval>,
 ) -> Interval {
     let p = [0, 1, 2].map(|i| Interval::exact(lo[i].min(hi[i]), lo[i].max(hi[i])));
-    run(tape, [p[0], p[1], p[2], Interval::point(0.0)], regs)
+    run(tape, p, regs)
 }
 
 /// Enclosures of the tape's value and of its derivative along `dir` over the bounding box of
@@ -735,167 +759,37 @@ pub fn eval_segment(
         v: Interval::exact(a[i].min(b[i]), a[i].max(b[i])),
         d: Interval::point(dir[i]),
     });
-    run(tape, [p[0], p[1], p[2], Slope::constant(0.0)], regs)
+    run(tape, p, regs)
 }
 
 /// The tape interpreter of [`Tape::eval_in`] on a [`Domain`].
-fn run<T: Domain>(tape: &Tape, p: [T; 4], scratch: &mut IntervalRegisters<T>) -> T {
-    live_lanes(tape, &mut scratch.live);
-    let regs = &mut *scratch.regs;
-    let zero = T::constant(0.0);
-    let reg = |i: u32| i as usize & (MAX_REGISTERS - 1);
-    regs[0] = p;
-    for (ins, &m) in tape.instrs.iter().zip(&scratch.live) {
-        if m == 0 {
+fn run<T: Domain>(tape: &Tape, p: [T; 3], scratch: &mut IntervalRegisters<T>) -> T {
+    let r = &mut *scratch.regs;
+    r[..3].copy_from_slice(&p);
+    for ins in tape.instrs() {
+        if ins.op().is_material() {
             continue;
         }
-        // Operands by reference: a register is four (value, slope) pairs, 64 bytes, and most
-        // ops read one or two of its lanes.
-        let r = &*regs;
-        let imm;
-        let a = &r[reg(ins.a)];
-        let b = if ins.b == IMM {
-            imm = ins.imm.map(T::constant);
-            &imm
-        } else {
-            &r[reg(ins.b)]
-        };
-        let c = &r[reg(ins.c)];
-        // a·a is tighter as a² (an interval straddling 0 times itself looks negative).
-        let same = ins.b != IMM && reg(ins.a) == reg(ins.b);
-        // Componentwise ops compute the live lanes only; the others hold zero, never read.
-        let lanes = |f: fn(T, T, T) -> T| -> [T; 4] {
-            let mut out = [zero; 4];
-            for i in 0..4 {
-                if m & (1 << i) != 0 {
-                    out[i] = f(a[i], b[i], c[i]);
-                }
-            }
-            out
-        };
-        let out = match ins.opcode() {
-            Op::Const => ins.imm.map(T::constant),
-            Op::Add => lanes(|a, b, _| a.add(b)),
-            Op::Sub => lanes(|a, b, _| a.sub(b)),
-            Op::Mul if same => lanes(|a, _, _| a.sqr()),
-            Op::Mul => lanes(|a, b, _| a.mul(b)),
-            Op::Div => lanes(|a, b, _| a.div(b)),
-            Op::Min => lanes(|a, b, _| a.min(b)),
-            Op::Max => lanes(|a, b, _| a.max(b)),
-            Op::Pow => lanes(|a, b, _| a.pow(b)),
-            Op::Neg => lanes(|a, _, _| a.neg()),
-            Op::Abs => lanes(|a, _, _| a.abs()),
-            Op::Sqrt => lanes(|a, _, _| a.sqrt()),
-            Op::Sin => lanes(|a, _, _| a.sin()),
-            Op::Cos => lanes(|a, _, _| a.cos()),
-            Op::Tan => lanes(|a, _, _| a.tan()),
-            Op::Exp => lanes(|a, _, _| a.exp()),
-            Op::Ln => lanes(|a, _, _| a.ln()),
-            Op::Floor => lanes(|a, _, _| a.floor()),
-            Op::MulAdd if same => lanes(|a, _, c| a.sqr().add(c)),
-            Op::MulAdd => lanes(|a, b, c| a.mul(b).add(c)),
-            Op::Select => {
-                let mut out = [zero; 4];
-                for i in 0..4 {
-                    if m & (1 << i) != 0 {
-                        out[i] = T::select(c[0], a[i], b[i]);
-                    }
-                }
-                out
-            }
-            Op::Swizzle => {
-                let lane = |i: u32| {
-                    let s = (ins.aux >> (3 * i)) & 7;
-                    if s < 4 { a[s as usize] } else { zero }
-                };
-                [lane(0), lane(1), lane(2), lane(3)]
-            }
-            Op::Pack => [
-                a[(ins.aux & 3) as usize],
-                b[((ins.aux >> 2) & 3) as usize],
-                c[((ins.aux >> 4) & 3) as usize],
-                zero,
-            ],
-            Op::Dot3 => {
-                let x = if same {
-                    a[0].sqr().add(a[1].sqr()).add(a[2].sqr())
-                } else {
-                    a[0].mul(b[0]).add(a[1].mul(b[1])).add(a[2].mul(b[2]))
-                };
-                [x, zero, zero, zero]
-            }
-            Op::Length => {
-                let n = if ins.aux == 2 { 2 } else { 3 };
-                [T::length(&a[..n]), zero, zero, zero]
-            }
-            Op::MaxLane => {
-                let m = if ins.aux == 2 {
-                    a[0].max(a[1])
-                } else {
-                    a[0].max(a[1]).max(a[2])
-                };
-                [m, zero, zero, zero]
-            }
-            Op::Affine => {
-                let k = ins.aux as usize;
-                let mut out = [zero; 4];
-                for (i, o) in out.iter_mut().take(3).enumerate() {
-                    if m & (1 << i) != 0 {
-                        let r = tape.constants[k + i];
-                        *o = a[0]
-                            .scale(r[0])
-                            .add(a[1].scale(r[1]))
-                            .add(a[2].scale(r[2]))
-                            .add(T::constant(r[3]));
-                    }
-                }
-                out
-            }
-            Op::MatLoad | Op::MatMix => continue,
-        };
-        regs[reg(ins.dst)] = out;
+        let a = r[ins.a() as usize];
+        let b = r[ins.b() as usize];
+        let c = r[ins.imm_bits() as u8 as usize];
+        r[ins.out() as usize] = apply_domain(ins.op(), a, b, c, ins.imm());
     }
-    regs[reg(tape.result)][0]
+    r[tape.result() as usize]
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sdf::conformance::{CASES, distance_tape, parse_node};
+    use crate::sdf::conformance::{case_tapes, distance_tape, parse_node};
     use proptest::prelude::*;
     use std::sync::OnceLock;
 
-    /// The distance tapes of every shipped scene's objects and of the conformance catalogue,
-    /// with the centre and half-size of the region their boxes are drawn from.
+    /// The conformance catalogue's tapes (the shipped scenes' are swept by
+    /// `tests/evaluators.rs`).
     fn tapes() -> &'static [(String, Tape, Vec3, f32)] {
         static TAPES: OnceLock<Vec<(String, Tape, Vec3, f32)>> = OnceLock::new();
-        TAPES.get_or_init(|| {
-            let mut out = Vec::new();
-            for (name, scene) in crate::scene::shipped_scenes() {
-                for o in &scene.objects {
-                    let b = o.bounds();
-                    let (c, r) = if b.min.is_finite() && b.max.is_finite() {
-                        (
-                            0.5 * (b.min + b.max),
-                            0.6 * (b.max - b.min).max_element() + 0.5,
-                        )
-                    } else {
-                        (Vec3::ZERO, 8.0)
-                    };
-                    out.push((
-                        format!("{name}/{}", o.name),
-                        o.lowered.distance.clone(),
-                        c,
-                        r,
-                    ));
-                }
-            }
-            for case in CASES {
-                let tape = distance_tape(&parse_node(case.src));
-                out.push((case.name.to_string(), tape, Vec3::ZERO, case.extent));
-            }
-            out
-        })
+        TAPES.get_or_init(case_tapes)
     }
 
     /// The point interpreter rounds too: a value may sit a few ulps of its magnitude outside

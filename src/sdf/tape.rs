@@ -1,37 +1,42 @@
-//! The tape: the flat instruction list every backend evaluates, and the CPU interpreter for it.
+//! The tape: the flat, register-allocated program every backend evaluates, and its interpreter.
 //!
-//! An SDF tree is lowered once (see [`crate::sdf::lower`]) into a straight-line program over
-//! 4-wide float registers, in the manner of fidget's bytecode: the CPU runs it with the
-//! interpreter below and the GPU will upload the very same instructions and constants. SDF
-//! formulas therefore exist exactly once, as lowering code; a backend only implements the
-//! handful of elementary operations listed in [`Op`].
+//! An SDF tree is lowered once (see [`crate::sdf::lower`]) into SSA ([`crate::sdf::ssa`]),
+//! which is specialised to regions ([`crate::sdf::simplify`]) and register-allocated into a
+//! [`Tape`]: a straight-line program over scalar `f32` registers, in the manner of fidget's
+//! bytecode and libfive's tapes. The CPU runs it with the interpreter below — one point per
+//! call, or 4 or 8 points per instruction on SIMD lanes ([`crate::sdf::simd`]) — and the GPU
+//! uploads the very same instructions (`shaders/tape.wgsl`). SDF formulas therefore exist
+//! exactly once, as lowering code; a backend only implements the elementary operations of
+//! [`Op`].
 //!
-//! Layout (`#[repr(C)]`, `bytemuck::Pod`, 48 bytes per instruction):
-//! `op, dst, a, b, c, aux, pad, pad: u32` then `imm: [f32; 4]`.
-//! Register 0 holds the sample point (x, y, z, 0) on entry. A `b` operand equal to
-//! [`IMM`] means "use `imm`" instead of a register. Material operations (`MatLoad`, `MatMix`)
-//! act on a second register file of blended materials and are absent from distance-only tapes.
+//! Layout (`#[repr(C)]`, `bytemuck::Pod`, 8 bytes per instruction): `op, out, a, b: u8`, then
+//! `imm: u32`, an `f32` immediate for the `…Imm` ops and [`Op::Const`], the third register of
+//! [`Op::Select`], [`Op::Hypot3`] and [`Op::MatMix`], or a material number. Registers 0, 1 and 2 hold the
+//! sample point's x, y and z on entry. Material operations act on a second register file of
+//! blended materials and are absent from distance tapes.
 
+use crate::sdf::lanes::Lanes;
+use crate::sdf::math;
 use bytemuck::{Pod, Zeroable};
-use glam::{Vec3, Vec4};
+use glam::Vec3;
 
-/// Operand value meaning "the instruction's immediate" instead of a register.
-pub const IMM: u32 = u32::MAX;
+/// Value registers a tape may use: register numbers are bytes.
+pub const MAX_REGISTERS: usize = 256;
 
-/// Maximum value registers a tape may use (the GPU interpreter's private array size).
-pub const MAX_REGISTERS: usize = 64;
-
-/// Maximum material registers a tape may use.
+/// Material registers a tape may use.
 pub const MAX_MATERIAL_REGISTERS: usize = 16;
 
 /// Number of floats in one blended material (see [`crate::shade::MaterialParams`]).
 pub const MATERIAL_FLOATS: usize = 12;
 
+/// A blended material as the tape carries it: see [`crate::shade::MaterialParams`] for lanes.
+pub type MaterialVec = [f32; MATERIAL_FLOATS];
+
 macro_rules! opcodes {
     ($( $(#[$doc:meta])* $name:ident = $val:expr, )*) => {
-        /// Elementary operations of the tape. Componentwise ops act on all four lanes.
-        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-        #[repr(u32)]
+        /// Elementary operations of the tape, on scalars.
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+        #[repr(u8)]
         pub enum Op { $( $(#[$doc])* $name = $val, )* }
 
         impl Op {
@@ -39,7 +44,7 @@ macro_rules! opcodes {
             pub const ALL: &'static [Op] = &[ $( Op::$name, )* ];
 
             /// The opcode for a raw number read from an instruction.
-            pub fn from_u32(v: u32) -> Option<Op> {
+            pub fn from_u8(v: u8) -> Option<Op> {
                 match v { $( $val => Some(Op::$name), )* _ => None }
             }
 
@@ -52,116 +57,246 @@ macro_rules! opcodes {
 }
 
 opcodes! {
-    /// dst = imm
+    /// out = imm
     Const = 0,
-    /// dst = a + b
-    Add = 1,
-    /// dst = a − b
-    Sub = 2,
-    /// dst = a · b
-    Mul = 3,
-    /// dst = a / b
-    Div = 4,
-    /// dst = min(a, b)
-    Min = 5,
-    /// dst = max(a, b)
-    Max = 6,
-    /// dst = pow(a, b), defined for a ≥ 0 only (integer powers are lowered to products)
-    Pow = 7,
-    /// dst = −a
-    Neg = 8,
-    /// dst = |a|
-    Abs = 9,
-    /// dst = √a
-    Sqrt = 10,
-    /// dst = sin a
-    Sin = 11,
-    /// dst = cos a
-    Cos = 12,
-    /// dst = tan a
-    Tan = 13,
-    /// dst = eᵃ
-    Exp = 14,
-    /// dst = ln a
-    Ln = 15,
-    /// dst = ⌊a⌋
-    Floor = 16,
-    /// dst = a · b + c
-    MulAdd = 17,
-    /// dst = (c.x > 0) ? a : b
-    Select = 18,
-    /// dst = lanes of a chosen by aux: 3 bits per output lane (0–3 = x,y,z,w, 4 = zero)
-    Swizzle = 19,
-    /// dst = (a[aux&3], b[(aux>>2)&3], c[(aux>>4)&3], 0)
-    Pack = 20,
-    /// dst.x = a.xyz · b.xyz
-    Dot3 = 21,
-    /// dst.x = length of the first `aux` lanes of a (aux = 2 or 3)
-    Length = 22,
-    /// dst.x = max of the first `aux` lanes of a (aux = 2 or 3)
-    MaxLane = 23,
-    /// dst = (M · (a.xyz, 1), 0) with the 3×4 matrix M in constants[aux..aux+3] (rows)
-    Affine = 24,
-    /// material register dst = the scene material number aux
-    MatLoad = 25,
-    /// material register dst = mix(material a, material b, value register c.x)
-    MatMix = 26,
+    /// out = a
+    Copy = 1,
+    /// out = −a
+    Neg = 2,
+    /// out = |a|
+    Abs = 3,
+    /// out = √a
+    Sqrt = 4,
+    /// out = a²
+    Square = 5,
+    /// out = ⌊a⌋
+    Floor = 6,
+    /// out = sin a
+    Sin = 7,
+    /// out = cos a
+    Cos = 8,
+    /// out = tan a
+    Tan = 9,
+    /// out = eᵃ
+    Exp = 10,
+    /// out = ln a
+    Ln = 11,
+    /// out = a + b
+    Add = 12,
+    /// out = a − b
+    Sub = 13,
+    /// out = a · b
+    Mul = 14,
+    /// out = a / b
+    Div = 15,
+    /// out = min(a, b)
+    Min = 16,
+    /// out = max(a, b)
+    Max = 17,
+    /// out = aᵇ, defined for a ≥ 0 only (integer powers are lowered to products)
+    Pow = 18,
+    /// out = √(a² + b²), computed as sqrt(a·a + b·b): a 2-D length as one operation, whose
+    /// slope the interval evaluator bounds by Cauchy–Schwarz
+    Hypot = 19,
+    /// out = a + imm
+    AddImm = 20,
+    /// out = a − imm
+    SubImm = 21,
+    /// out = imm − a
+    RsubImm = 22,
+    /// out = a · imm
+    MulImm = 23,
+    /// out = a / imm
+    DivImm = 24,
+    /// out = imm / a
+    RdivImm = 25,
+    /// out = min(a, imm)
+    MinImm = 26,
+    /// out = max(a, imm)
+    MaxImm = 27,
+    /// out = a^imm, a ≥ 0
+    PowImm = 28,
+    /// out = (register imm > 0) ? a : b
+    Select = 29,
+    /// out = √(a² + b² + c²) with c the register imm, computed as sqrt((a·a + b·b) + c·c): a
+    /// 3-D length as one operation (nested `Hypot`s would round once more)
+    Hypot3 = 33,
+    /// material out = the scene material number imm
+    MatLoad = 30,
+    /// material out = mix(material a, material b, value register imm)
+    MatMix = 31,
+    /// out = the sample point's coordinate imm (0, 1, 2); SSA only: tapes start with the
+    /// point in registers 0–2
+    Input = 32,
 }
 
-/// One tape instruction; mirrors `struct Instr` in `shaders/sdf.wgsl`.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
-pub struct Instr {
-    /// An [`Op`] as u32.
-    pub op: u32,
-    /// Destination register.
-    pub dst: u32,
-    /// First operand register.
-    pub a: u32,
-    /// Second operand register, or [`IMM`].
-    pub b: u32,
-    /// Third operand register.
-    pub c: u32,
-    /// Op-specific small integer (swizzle pattern, lane count, constant index, material).
-    pub aux: u32,
-    /// Padding to a 16-byte multiple for WGSL storage layout.
-    pub pad: [u32; 2],
-    /// Immediate operand.
-    pub imm: [f32; 4],
+/// What an operation reads and writes, for liveness and register allocation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Shape {
+    /// No operands (`Const`, `Input`).
+    Nullary,
+    /// Reads `a`.
+    Unary,
+    /// Reads `a` and `b`.
+    Binary,
+    /// Reads `a` and an `f32` immediate.
+    WithImm,
+    /// Reads `a`, `b` and the value register in `imm`.
+    Ternary,
+    /// Writes a material register from the table (`MatLoad`).
+    MatLoad,
+    /// Reads materials `a`, `b` and the value register in `imm`, writes a material.
+    MatMix,
 }
-const _: () = assert!(std::mem::size_of::<Instr>() == 48);
 
-impl Instr {
-    /// The decoded opcode.
-    pub fn opcode(&self) -> Op {
-        Op::from_u32(self.op).expect("tapes are built only by the lowering code")
+impl Op {
+    /// The operation's operands.
+    pub fn shape(self) -> Shape {
+        use Op::*;
+        match self {
+            Const | Input => Shape::Nullary,
+            Copy | Neg | Abs | Sqrt | Square | Floor | Sin | Cos | Tan | Exp | Ln => Shape::Unary,
+            Add | Sub | Mul | Div | Min | Max | Pow | Hypot => Shape::Binary,
+            AddImm | SubImm | RsubImm | MulImm | DivImm | RdivImm | MinImm | MaxImm | PowImm => {
+                Shape::WithImm
+            }
+            Select | Hypot3 => Shape::Ternary,
+            MatLoad => Shape::MatLoad,
+            MatMix => Shape::MatMix,
+        }
+    }
+
+    /// Whether the result is a material.
+    pub fn is_material(self) -> bool {
+        matches!(self, Op::MatLoad | Op::MatMix)
     }
 }
 
-/// A lowered SDF: instructions, constants, and where the results end up.
+/// The value of one value operation, on any lanes: the single definition of what every op
+/// computes, shared by the interpreters, constant folding and the tests. `c` is the third
+/// operand of [`Op::Select`]; `imm` the immediate of the `…Imm` ops and [`Op::Const`].
+#[inline(always)]
+pub fn apply<L: Lanes>(op: Op, a: L, b: L, c: L, imm: f32) -> L {
+    let k = || L::splat(imm);
+    match op {
+        Op::Const => k(),
+        Op::Copy => a,
+        Op::Neg => a.neg(),
+        Op::Abs => a.abs(),
+        Op::Sqrt => a.sqrt(),
+        Op::Square => a.mul(a),
+        Op::Floor => a.floor(),
+        Op::Sin => math::sin(a),
+        Op::Cos => math::cos(a),
+        Op::Tan => math::tan(a),
+        Op::Exp => math::exp(a),
+        Op::Ln => math::ln(a),
+        Op::Add => a.add(b),
+        Op::Sub => a.sub(b),
+        Op::Mul => a.mul(b),
+        Op::Div => a.div(b),
+        Op::Min => a.min(b),
+        Op::Max => a.max(b),
+        Op::Pow => math::pow(a, b),
+        Op::Hypot => a.mul(a).add(b.mul(b)).sqrt(),
+        Op::AddImm => a.add(k()),
+        Op::SubImm => a.sub(k()),
+        Op::RsubImm => k().sub(a),
+        Op::MulImm => a.mul(k()),
+        Op::DivImm => a.div(k()),
+        Op::RdivImm => k().div(a),
+        Op::MinImm => a.min(k()),
+        Op::MaxImm => a.max(k()),
+        Op::PowImm => math::pow(a, k()),
+        Op::Select => L::select_pos(c, a, b),
+        Op::Hypot3 => a.mul(a).add(b.mul(b)).add(c.mul(c)).sqrt(),
+        // Not value operations: the interpreters handle them apart.
+        Op::MatLoad | Op::MatMix | Op::Input => L::splat(0.0),
+    }
+}
+
+/// One tape instruction; mirrors `struct Instr` in `shaders/tape.wgsl`, which reads the four
+/// bytes of the first word as `op | out << 8 | a << 16 | b << 24`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Pod, Zeroable)]
+pub struct Instr {
+    op: u8,
+    out: u8,
+    a: u8,
+    b: u8,
+    imm: u32,
+}
+const _: () = assert!(std::mem::size_of::<Instr>() == 8);
+
+impl Instr {
+    /// An instruction; only [`crate::sdf::ssa`]'s register allocator makes them, so that a
+    /// tape's operation bytes are always valid [`Op`]s.
+    pub(crate) fn new(op: Op, out: u8, a: u8, b: u8, imm: u32) -> Self {
+        Instr {
+            op: op as u8,
+            out,
+            a,
+            b,
+            imm,
+        }
+    }
+
+    /// The operation.
+    #[inline(always)]
+    pub fn op(&self) -> Op {
+        // SAFETY: `Instr::new` is the only constructor and stores `Op as u8`; `Op` is
+        // `repr(u8)`, so the byte is a valid discriminant.
+        unsafe { std::mem::transmute::<u8, Op>(self.op) }
+    }
+
+    /// Destination register (a material register for material ops).
+    #[inline(always)]
+    pub fn out(&self) -> u8 {
+        self.out
+    }
+
+    /// First operand register.
+    #[inline(always)]
+    pub fn a(&self) -> u8 {
+        self.a
+    }
+
+    /// Second operand register.
+    #[inline(always)]
+    pub fn b(&self) -> u8 {
+        self.b
+    }
+
+    /// The immediate's raw bits.
+    #[inline(always)]
+    pub fn imm_bits(&self) -> u32 {
+        self.imm
+    }
+
+    /// The immediate as a float.
+    #[inline(always)]
+    pub fn imm(&self) -> f32 {
+        f32::from_bits(self.imm)
+    }
+}
+
+/// A register-allocated program: instructions, and where the results end up.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Tape {
-    /// The program.
-    pub instrs: Vec<Instr>,
-    /// Large constants (affine matrix rows), referenced by `aux`.
-    pub constants: Vec<[f32; 4]>,
-    /// Register holding the distance (lane x) at the end.
-    pub result: u32,
-    /// Material register holding the blended material at the end (shading tapes only).
-    pub material_result: Option<u32>,
-    /// Value registers used.
-    pub registers: usize,
-    /// Material registers used.
-    pub material_registers: usize,
+    pub(crate) instrs: Vec<Instr>,
+    pub(crate) result: u8,
+    pub(crate) material_result: Option<u8>,
+    pub(crate) registers: usize,
+    pub(crate) material_registers: usize,
 }
 
 /// Scratch value registers for [`Tape::eval_in`].
-pub struct Registers([Vec4; MAX_REGISTERS]);
+pub struct Registers(Box<[f32; MAX_REGISTERS]>);
 
 impl Registers {
     /// Fresh (zeroed) registers.
     pub fn new() -> Self {
-        Registers([Vec4::ZERO; MAX_REGISTERS])
+        Registers(Box::new([0.0; MAX_REGISTERS]))
     }
 }
 
@@ -171,10 +306,42 @@ impl Default for Registers {
     }
 }
 
-/// A blended material as the tape carries it: see [`crate::shade::MaterialParams`] for lanes.
-pub type MaterialVec = [f32; MATERIAL_FLOATS];
-
 impl Tape {
+    /// The instructions.
+    pub fn instrs(&self) -> &[Instr] {
+        &self.instrs
+    }
+
+    /// Number of instructions.
+    pub fn len(&self) -> usize {
+        self.instrs.len()
+    }
+
+    /// Whether the tape has no instruction (the result is an input register).
+    pub fn is_empty(&self) -> bool {
+        self.instrs.is_empty()
+    }
+
+    /// Register holding the distance at the end.
+    pub fn result(&self) -> u8 {
+        self.result
+    }
+
+    /// Material register holding the blended material at the end (shading tapes only).
+    pub fn material_result(&self) -> Option<u8> {
+        self.material_result
+    }
+
+    /// Value registers used.
+    pub fn registers(&self) -> usize {
+        self.registers
+    }
+
+    /// Material registers used.
+    pub fn material_registers(&self) -> usize {
+        self.material_registers
+    }
+
     /// The signed distance (or bound) at `p`.
     #[inline]
     pub fn eval(&self, p: Vec3) -> f32 {
@@ -182,154 +349,82 @@ impl Tape {
     }
 
     /// The signed distance at `p`, using caller-provided scratch registers (the tracer keeps
-    /// one set per ray instead of clearing 1 KiB per evaluation).
+    /// one set per thread instead of allocating 1 KiB per evaluation).
     #[inline]
     pub fn eval_in(&self, p: Vec3, regs: &mut Registers) -> f32 {
-        self.run(p, &mut regs.0, None);
-        regs.0[self.result as usize & (MAX_REGISTERS - 1)].x
+        self.eval_lanes(p.x, p.y, p.z, &mut regs.0)
+    }
+
+    /// The tape on lanes: lane i of the result is the distance at (x[i], y[i], z[i]), with
+    /// the bits a scalar evaluation at that point gives.
+    #[inline(always)]
+    pub fn eval_lanes<L: Lanes>(&self, x: L, y: L, z: L, r: &mut [L; MAX_REGISTERS]) -> L {
+        r[0] = x;
+        r[1] = y;
+        r[2] = z;
+        let material = self.material_registers > 0;
+        for ins in &self.instrs {
+            // Every operand slot is read unconditionally (a byte always names a register):
+            // the compiler sinks the loads into the arms that use them, and no branch is
+            // spent deciding which to read.
+            let a = r[ins.a as usize];
+            let b = r[ins.b as usize];
+            let c = r[ins.imm as u8 as usize];
+            let op = ins.op();
+            // a shading tape's material operations write material registers, not these
+            if material && op.is_material() {
+                continue;
+            }
+            r[ins.out as usize] = apply(op, a, b, c, ins.imm());
+        }
+        r[self.result as usize]
     }
 
     /// The distance and the blended material at `p` (`materials` is the scene's table).
     pub fn eval_material(&self, p: Vec3, materials: &[MaterialVec]) -> (f32, MaterialVec) {
-        let mut regs = [Vec4::ZERO; MAX_REGISTERS];
+        let mut regs = [0.0f32; MAX_REGISTERS];
         let mut mats = [[0.0; MATERIAL_FLOATS]; MAX_MATERIAL_REGISTERS];
-        self.run(p, &mut regs, Some((&mut mats, materials)));
+        regs[0] = p.x;
+        regs[1] = p.y;
+        regs[2] = p.z;
+        let mreg = |i: u8| i as usize % MAX_MATERIAL_REGISTERS;
+        for ins in &self.instrs {
+            match ins.op() {
+                Op::MatLoad => {
+                    mats[mreg(ins.out)] = materials
+                        .get(ins.imm as usize)
+                        .copied()
+                        .unwrap_or([0.0; MATERIAL_FLOATS]);
+                }
+                Op::MatMix => {
+                    let (ma, mb) = (mats[mreg(ins.a)], mats[mreg(ins.b)]);
+                    let h = regs[ins.imm as u8 as usize];
+                    mats[mreg(ins.out)] = std::array::from_fn(|i| ma[i] + (mb[i] - ma[i]) * h);
+                }
+                op => {
+                    let a = regs[ins.a as usize];
+                    let b = regs[ins.b as usize];
+                    let c = regs[ins.imm as u8 as usize];
+                    regs[ins.out as usize] = apply(op, a, b, c, ins.imm());
+                }
+            }
+        }
         let m = self
             .material_result
-            .map(|r| mats[r as usize])
+            .map(|r| mats[mreg(r)])
             .unwrap_or_else(|| materials.first().copied().unwrap_or([0.0; MATERIAL_FLOATS]));
-        (regs[self.result as usize].x, m)
+        (regs[self.result as usize], m)
     }
 
     /// Central-difference gradient with step h (6 evaluations).
     pub fn gradient(&self, p: Vec3, h: f32) -> Vec3 {
-        let dx = Vec3::new(h, 0.0, 0.0);
-        let dy = Vec3::new(0.0, h, 0.0);
-        let dz = Vec3::new(0.0, 0.0, h);
+        let mut regs = Registers::new();
+        let mut f = |q: Vec3| self.eval_in(q, &mut regs);
         Vec3::new(
-            self.eval(p + dx) - self.eval(p - dx),
-            self.eval(p + dy) - self.eval(p - dy),
-            self.eval(p + dz) - self.eval(p - dz),
+            f(p + Vec3::X * h) - f(p - Vec3::X * h),
+            f(p + Vec3::Y * h) - f(p - Vec3::Y * h),
+            f(p + Vec3::Z * h) - f(p - Vec3::Z * h),
         ) / (2.0 * h)
-    }
-
-    fn run(
-        &self,
-        p: Vec3,
-        regs: &mut [Vec4; MAX_REGISTERS],
-        mut materials: Option<(&mut [MaterialVec; MAX_MATERIAL_REGISTERS], &[MaterialVec])>,
-    ) {
-        regs[0] = p.extend(0.0);
-        for ins in &self.instrs {
-            let a = regs[ins.a as usize & (MAX_REGISTERS - 1)];
-            let b = if ins.b == IMM {
-                Vec4::from_array(ins.imm)
-            } else {
-                regs[ins.b as usize & (MAX_REGISTERS - 1)]
-            };
-            let c = regs[ins.c as usize & (MAX_REGISTERS - 1)];
-            let out = match ins.opcode() {
-                Op::Const => Vec4::from_array(ins.imm),
-                Op::Add => a + b,
-                Op::Sub => a - b,
-                Op::Mul => a * b,
-                Op::Div => a / b,
-                Op::Min => a.min(b),
-                Op::Max => a.max(b),
-                Op::Pow => a.powf_vec(b),
-                Op::Neg => -a,
-                Op::Abs => a.abs(),
-                Op::Sqrt => a.map(f32::sqrt),
-                Op::Sin => a.map(f32::sin),
-                Op::Cos => a.map(f32::cos),
-                Op::Tan => a.map(f32::tan),
-                Op::Exp => a.map(f32::exp),
-                Op::Ln => a.map(f32::ln),
-                Op::Floor => a.floor(),
-                Op::MulAdd => a * b + c,
-                Op::Select => {
-                    if c.x > 0.0 {
-                        a
-                    } else {
-                        b
-                    }
-                }
-                Op::Swizzle => swizzle(a, ins.aux),
-                Op::Pack => Vec4::new(
-                    a[(ins.aux & 3) as usize],
-                    b[((ins.aux >> 2) & 3) as usize],
-                    c[((ins.aux >> 4) & 3) as usize],
-                    0.0,
-                ),
-                Op::Dot3 => Vec4::new(a.truncate().dot(b.truncate()), 0.0, 0.0, 0.0),
-                Op::Length => {
-                    let l = if ins.aux == 2 {
-                        a.truncate().truncate().length()
-                    } else {
-                        a.truncate().length()
-                    };
-                    Vec4::new(l, 0.0, 0.0, 0.0)
-                }
-                Op::MaxLane => {
-                    let m = if ins.aux == 2 {
-                        a.x.max(a.y)
-                    } else {
-                        a.x.max(a.y).max(a.z)
-                    };
-                    Vec4::new(m, 0.0, 0.0, 0.0)
-                }
-                Op::Affine => {
-                    let k = ins.aux as usize;
-                    let q = a.truncate().extend(1.0);
-                    Vec4::new(
-                        Vec4::from_array(self.constants[k]).dot(q),
-                        Vec4::from_array(self.constants[k + 1]).dot(q),
-                        Vec4::from_array(self.constants[k + 2]).dot(q),
-                        0.0,
-                    )
-                }
-                Op::MatLoad => {
-                    if let Some((mats, table)) = materials.as_mut() {
-                        mats[ins.dst as usize] = table[ins.aux as usize];
-                    }
-                    continue;
-                }
-                Op::MatMix => {
-                    if let Some((mats, _)) = materials.as_mut() {
-                        let (ma, mb) = (mats[ins.a as usize], mats[ins.b as usize]);
-                        let h = c.x;
-                        mats[ins.dst as usize] =
-                            std::array::from_fn(|i| ma[i] + (mb[i] - ma[i]) * h);
-                    }
-                    continue;
-                }
-            };
-            regs[ins.dst as usize & (MAX_REGISTERS - 1)] = out;
-        }
-    }
-}
-
-/// Swizzle lane selector: 3 bits per output lane, 0–3 pick x, y, z, w and 4 gives zero.
-pub fn swizzle(a: Vec4, pattern: u32) -> Vec4 {
-    let lane = |i: u32| {
-        let s = (pattern >> (3 * i)) & 7;
-        if s < 4 { a[s as usize] } else { 0.0 }
-    };
-    Vec4::new(lane(0), lane(1), lane(2), lane(3))
-}
-
-trait PowVec {
-    fn powf_vec(self, e: Vec4) -> Vec4;
-}
-
-impl PowVec for Vec4 {
-    fn powf_vec(self, e: Vec4) -> Vec4 {
-        Vec4::new(
-            self.x.powf(e.x),
-            self.y.powf(e.y),
-            self.z.powf(e.z),
-            self.w.powf(e.w),
-        )
     }
 }
 
@@ -345,7 +440,6 @@ pub fn wgsl_constants() -> String {
             *op as u32
         );
     }
-    s += &format!("const IMM: u32 = {}u;\n", IMM);
     s += &format!("const MAX_REGISTERS: u32 = {}u;\n", MAX_REGISTERS);
     s += &format!(
         "const MAX_MATERIAL_REGISTERS: u32 = {}u;\n",

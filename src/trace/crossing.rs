@@ -17,10 +17,10 @@
 //! curvature spoiled): the march goes on by max(f, ε) from the secant's end, so it cannot skip
 //! more than ε of surface — the band Hart's test accepts anyway.
 
-use super::epsilon_at;
+use super::step::epsilon_at;
+use crate::accel::field::FieldCursor;
 use crate::geom::Ray;
 use crate::scene::TracerSettings;
-use crate::sdf::tape::{Registers, Tape};
 
 /// What a candidate hit turned out to be.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -36,15 +36,13 @@ const MAX_BISECTIONS: u32 = 24;
 
 /// Confirms the candidate at `t`, where the field is `d < ε(t)`, before `t1`. Adds the
 /// evaluations spent to `steps`.
-#[allow(clippy::too_many_arguments)]
 pub fn confirm(
-    tape: &Tape,
+    field: &mut FieldCursor,
     ray: &Ray,
     t: f32,
     d: f32,
     t1: f32,
     s: &TracerSettings,
-    regs: &mut Registers,
     steps: &mut u32,
 ) -> Candidate {
     // Already inside (the ray starts in the solid, or a bound field let a step overshoot):
@@ -58,20 +56,20 @@ pub fn confirm(
     if ts <= t {
         return Candidate::Continue(t + eps);
     }
-    let ds = tape.eval_in(ray.at(ts), regs);
+    let ds = field.eval(ray.at(ts));
     *steps += 1;
     if ds <= 0.0 {
-        return Candidate::Hit(bisect(tape, ray, t, ts, s, regs, steps));
+        return Candidate::Hit(bisect(field, ray, t, ts, s, steps));
     }
     let slope = (ds - d) / (ts - t);
     if slope < 0.0 {
         // Newton's prediction of the crossing, probed one ε past.
         let tp = (ts + ds / -slope + eps).min(t1);
         if tp > ts {
-            let dp = tape.eval_in(ray.at(tp), regs);
+            let dp = field.eval(ray.at(tp));
             *steps += 1;
             if dp <= 0.0 {
-                return Candidate::Hit(bisect(tape, ray, ts, tp, s, regs, steps));
+                return Candidate::Hit(bisect(field, ray, ts, tp, s, steps));
             }
         }
     }
@@ -81,12 +79,11 @@ pub fn confirm(
 
 /// Narrows a bracket (`outside`: f > 0, `inside`: f ≤ 0) to ε/2 and returns its outside end.
 fn bisect(
-    tape: &Tape,
+    field: &mut FieldCursor,
     ray: &Ray,
     mut outside: f32,
     mut inside: f32,
     s: &TracerSettings,
-    regs: &mut Registers,
     steps: &mut u32,
 ) -> f32 {
     for _ in 0..MAX_BISECTIONS {
@@ -94,7 +91,7 @@ fn bisect(
             break;
         }
         let mid = 0.5 * (outside + inside);
-        let d = tape.eval_in(ray.at(mid), regs);
+        let d = field.eval(ray.at(mid));
         *steps += 1;
         if d <= 0.0 {
             inside = mid;

@@ -1,18 +1,23 @@
-//! Tracing: sphere tracing of SDF tapes, normals, and the scene's closest-hit and occlusion
-//! queries over SDF objects and triangle meshes together.
+//! Tracing: sphere tracing of SDF objects over their specialised-tape octrees, normals, and
+//! the scene's closest-hit and occlusion queries over SDF objects and triangle meshes together.
 
 pub mod crossing;
 pub mod normal;
 pub mod segment;
 pub mod sphere;
+pub mod step;
+
+pub use step::{TraceResult, epsilon_at};
 
 use crate::accel::bvh::BuildQuality;
+use crate::accel::field::{FieldCursor, ObjectField};
 use crate::accel::{MeshAccel, SdfAccel};
-use crate::geom::Ray;
-use crate::scene::{Scene, Shadow, TracerSettings};
+use crate::geom::{Aabb, Ray};
+use crate::scene::{Scene, SdfObject, Shadow, Stepper, TracerSettings};
 use crate::sdf::tape::{MaterialVec, Registers};
 use crate::shade::material::MaterialParams;
 use glam::Vec3;
+use rayon::prelude::*;
 use std::ops::ControlFlow;
 
 /// What a ray hit.
@@ -53,12 +58,22 @@ pub struct Hit {
     pub steps: u32,
 }
 
-/// The hit threshold at distance t: ε(t) = ε₀ + ε₁·t, a cone of roughly one pixel's footprint
-/// when ε₁ ≈ tan(fov/2)/height (Hart 1996, §4.2 uses a fixed ε; the growth keeps far-away
-/// surfaces from costing the full step budget).
-#[inline]
-pub fn epsilon_at(s: &TracerSettings, t: f32) -> f32 {
-    s.epsilon + s.epsilon_per_unit * t.max(0.0)
+/// Marches from t0 towards t1 with the scene's stepper (`tracer.stepper`):
+/// [`sphere::trace_hart`] by default, [`sphere::trace_relaxed`], [`sphere::trace_adaptive`] or
+/// [`segment::trace_segment`] when asked for.
+pub fn trace(
+    field: &mut FieldCursor,
+    ray: &Ray,
+    t0: f32,
+    t1: f32,
+    s: &TracerSettings,
+) -> TraceResult {
+    match s.stepper {
+        Stepper::Hart => sphere::trace_hart(field, ray, t0, t1, s),
+        Stepper::Relaxed(omega) => sphere::trace_relaxed(field, ray, t0, t1, s, omega),
+        Stepper::Adaptive => sphere::trace_adaptive(field, ray, t0, t1, s),
+        Stepper::Segment => segment::trace_segment(field, ray, t0, t1, s),
+    }
 }
 
 /// How to build the acceleration structures.
@@ -68,6 +83,9 @@ pub struct AccelOptions {
     pub sdf_bvh: bool,
     /// Build quality of the mesh BVHs.
     pub mesh_quality: BuildQuality,
+    /// An octree of region-specialised tapes per SDF object (else every sample evaluates the
+    /// whole tape, the reference the octree is tested against).
+    pub specialise: bool,
 }
 
 impl Default for AccelOptions {
@@ -75,8 +93,46 @@ impl Default for AccelOptions {
         AccelOptions {
             sdf_bvh: true,
             mesh_quality: BuildQuality::Medium,
+            specialise: true,
         }
     }
+}
+
+/// The box an object's octree covers: its bounds, with the unbounded axes (planes, infinite
+/// repetition) clipped to the scene's finite bounds grown by half their size — where the
+/// camera looks; outside it the whole tape is evaluated, which is always right.
+pub fn field_region(object: &SdfObject, scene_box: &Aabb) -> Aabb {
+    let b = object.bounds();
+    if b.is_finite() {
+        return b;
+    }
+    if scene_box.is_empty() || !scene_box.is_finite() {
+        return Aabb::EMPTY;
+    }
+    let grow = 0.5 * (scene_box.max - scene_box.min).max_element() + 1.0;
+    b.intersection(&scene_box.expand(grow))
+}
+
+/// Builds every object's field (in parallel over objects; each octree builds in parallel too).
+pub fn build_fields(scene: &Scene, specialise: bool) -> Vec<ObjectField> {
+    let scene_box = scene.finite_bounds();
+    scene
+        .objects
+        .par_iter()
+        .map(|o| {
+            let l = &o.lowered;
+            if specialise {
+                ObjectField::build(
+                    &l.program,
+                    &l.distance,
+                    &l.shading,
+                    field_region(o, &scene_box),
+                )
+            } else {
+                ObjectField::whole(&l.distance, &l.shading)
+            }
+        })
+        .collect()
 }
 
 /// Answers ray queries against a scene's SDF objects and meshes on the CPU.
@@ -84,6 +140,8 @@ pub struct SceneTracer<'a> {
     scene: &'a Scene,
     accel: SdfAccel,
     meshes: MeshAccel,
+    fields: Vec<ObjectField>,
+    field_build_time: std::time::Duration,
 }
 
 impl<'a> SceneTracer<'a> {
@@ -95,12 +153,16 @@ impl<'a> SceneTracer<'a> {
             AccelOptions {
                 sdf_bvh: true,
                 mesh_quality: scene.tracer.bvh,
+                specialise: true,
             },
         )
     }
 
     /// Prepares the acceleration structures.
     pub fn with_options(scene: &'a Scene, options: AccelOptions) -> Self {
+        let start = std::time::Instant::now();
+        let fields = build_fields(scene, options.specialise);
+        let field_build_time = start.elapsed();
         SceneTracer {
             scene,
             accel: if options.sdf_bvh {
@@ -109,7 +171,24 @@ impl<'a> SceneTracer<'a> {
                 SdfAccel::linear(&scene.objects)
             },
             meshes: MeshAccel::new(&scene.meshes, options.mesh_quality),
+            fields,
+            field_build_time,
         }
+    }
+
+    /// The SDF objects' fields (octrees of specialised tapes), in scene order.
+    pub fn fields(&self) -> &[ObjectField] {
+        &self.fields
+    }
+
+    /// Wall-clock time spent building the fields.
+    pub fn field_build_time(&self) -> std::time::Duration {
+        self.field_build_time
+    }
+
+    /// A cursor over object i's field.
+    pub fn cursor<'r>(&self, object: usize, regs: &'r mut Registers) -> FieldCursor<'_, 'r> {
+        self.fields[object].cursor(regs)
     }
 
     /// The SDF objects' acceleration structure.
@@ -179,8 +258,7 @@ impl<'a> SceneTracer<'a> {
         let mut best: Option<(f32, usize)> = None;
         let mut steps = 0;
         self.accel.visit(ray, tmin, &mut limit, |i, t0, t1, limit| {
-            let tape = &self.scene.objects[i].lowered.distance;
-            let r = sphere::trace(tape, ray, t0, t1, s, &mut regs);
+            let r = trace(&mut self.fields[i].cursor(&mut regs), ray, t0, t1, s);
             steps += r.steps;
             // the march stays within [t0, t1] ⊆ [tmin, limit]: any hit is the nearest so far
             if let Some(t) = r.t {
@@ -190,10 +268,10 @@ impl<'a> SceneTracer<'a> {
             ControlFlow::Continue(())
         });
         if let Some((t, object)) = best {
-            let tape = &self.scene.objects[object].lowered.distance;
             let p = ray.at(t);
             let h = normal::step_for(s, t);
-            let (n, gradient) = normal::estimate(tape, p, h, s.normals, &mut regs);
+            let mut field = self.fields[object].cursor(&mut regs);
+            let (n, gradient) = normal::estimate(&mut field, p, h, s.normals);
             return Some(Hit {
                 t,
                 surface: Surface::Sdf(object),
@@ -252,9 +330,9 @@ impl<'a> SceneTracer<'a> {
         let margin = limit / k;
         self.accel
             .visit_within(ray, tmin, &mut limit, margin, |i, t0, t1, _| {
-                let tape = &self.scene.objects[i].lowered.distance;
                 // the penumbra counts distance from the shadow ray's origin, not from the bounds
-                let v = sphere::penumbra(tape, ray, t0, t1, s, k, improved, &mut regs);
+                let mut field = self.fields[i].cursor(&mut regs);
+                let v = sphere::penumbra(&mut field, ray, t0, t1, s, k, improved);
                 res = res.min(v);
                 if res <= 0.0 {
                     ControlFlow::Break(())
@@ -280,7 +358,7 @@ impl<'a> SceneTracer<'a> {
         let mut tmax = 0.0;
         self.accel
             .visit_within(&probe, 0.0, &mut tmax, reach, |i, _, _, _| {
-                d = d.min(self.scene.objects[i].lowered.distance.eval_in(p, &mut regs));
+                d = d.min(self.fields[i].cursor(&mut regs).eval(p));
                 ControlFlow::Continue(())
             });
         d
@@ -292,9 +370,8 @@ impl<'a> SceneTracer<'a> {
     pub fn material_at(&self, hit: &Hit, p: Vec3, materials: &[MaterialVec]) -> MaterialParams {
         match hit.surface {
             Surface::Sdf(object) => {
-                let (_, m) = self.scene.objects[object]
-                    .lowered
-                    .shading
+                let (_, m) = self.fields[object]
+                    .shading_at(p)
                     .eval_material(p, materials);
                 MaterialParams::from_vec(&m)
             }
@@ -340,17 +417,10 @@ impl<'a> SceneTracer<'a> {
                 return Some((h.t, if n.dot(ray.direction) < 0.0 { -n } else { n }));
             }
         };
-        let tape = &self.scene.objects[object].lowered.distance;
         let mut regs = Registers::new();
-        let t = sphere::exit(tape, ray, 0.0, tmax.min(s.max_distance), s, &mut regs)?;
-        let n = normal::estimate(
-            tape,
-            ray.at(t),
-            normal::step_for(s, t),
-            s.normals,
-            &mut regs,
-        )
-        .0;
+        let mut field = self.fields[object].cursor(&mut regs);
+        let t = sphere::exit(&mut field, ray, 0.0, tmax.min(s.max_distance), s)?;
+        let n = normal::estimate(&mut field, ray.at(t), normal::step_for(s, t), s.normals).0;
         Some((t, n))
     }
 
@@ -365,8 +435,10 @@ impl<'a> SceneTracer<'a> {
         let mut blocked = false;
         let mut limit = tmax.min(s.max_distance);
         self.accel.visit(ray, tmin, &mut limit, |i, t0, t1, _| {
-            let tape = &self.scene.objects[i].lowered.distance;
-            if sphere::trace(tape, ray, t0, t1, s, &mut regs).t.is_some() {
+            if trace(&mut self.fields[i].cursor(&mut regs), ray, t0, t1, s)
+                .t
+                .is_some()
+            {
                 blocked = true;
                 return ControlFlow::Break(());
             }

@@ -1,9 +1,9 @@
 //! Surface normals from the distance field: the gradient by finite differences.
 
-use super::epsilon_at;
+use super::step::epsilon_at;
+use crate::accel::field::FieldCursor;
 use crate::scene::TracerSettings;
 use crate::scene::file::NormalMethod;
-use crate::sdf::tape::{Registers, Tape};
 use glam::Vec3;
 
 /// The finite-difference step at distance t: a few ε(t), so the stencil straddles the
@@ -14,23 +14,17 @@ pub fn step_for(s: &TracerSettings, t: f32) -> f32 {
 
 /// The unit normal at p by the chosen estimator, and the gradient's length; a zero gradient
 /// (e.g. the centre of a sphere) gives +y rather than NaN.
-pub fn estimate(
-    tape: &Tape,
-    p: Vec3,
-    h: f32,
-    method: NormalMethod,
-    regs: &mut Registers,
-) -> (Vec3, f32) {
+pub fn estimate(field: &mut FieldCursor, p: Vec3, h: f32, method: NormalMethod) -> (Vec3, f32) {
     let g = match method {
-        NormalMethod::Central => central(tape, p, h, regs),
-        NormalMethod::Tetrahedral => tetrahedral(tape, p, h, regs),
+        NormalMethod::Central => central(field, p, h),
+        NormalMethod::Tetrahedral => tetrahedral(field, p, h),
     };
     (g.try_normalize().unwrap_or(Vec3::Y), g.length())
 }
 
 /// Central differences, 6 evaluations: ∇f ≈ (f(p+hx) − f(p−hx), …)/2h, second-order accurate.
-pub fn central(tape: &Tape, p: Vec3, h: f32, regs: &mut Registers) -> Vec3 {
-    let mut f = |q: Vec3| tape.eval_in(q, regs);
+pub fn central(field: &mut FieldCursor, p: Vec3, h: f32) -> Vec3 {
+    let mut f = |q: Vec3| field.eval(q);
     Vec3::new(
         f(p + Vec3::X * h) - f(p - Vec3::X * h),
         f(p + Vec3::Y * h) - f(p - Vec3::Y * h),
@@ -41,15 +35,36 @@ pub fn central(tape: &Tape, p: Vec3, h: f32, regs: &mut Registers) -> Vec3 {
 /// The tetrahedral 4-tap estimate (Quilez, "normals for an SDF"): with the four vertices
 /// k of a tetrahedron, Σ k·f(p + h·k) is proportional to ∇f to first order and costs 4
 /// evaluations instead of 6. Returned scaled to approximate ∇f (÷ 4h).
-pub fn tetrahedral(tape: &Tape, p: Vec3, h: f32, regs: &mut Registers) -> Vec3 {
+pub fn tetrahedral(field: &mut FieldCursor, p: Vec3, h: f32) -> Vec3 {
     const K: [Vec3; 4] = [
         Vec3::new(1.0, -1.0, -1.0),
         Vec3::new(-1.0, -1.0, 1.0),
         Vec3::new(-1.0, 1.0, -1.0),
         Vec3::new(1.0, 1.0, 1.0),
     ];
-    K.iter()
-        .map(|&k| k * tape.eval_in(p + k * h, regs))
-        .sum::<Vec3>()
-        / (4.0 * h)
+    K.iter().map(|&k| k * field.eval(p + k * h)).sum::<Vec3>() / (4.0 * h)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+    use crate::sdf::conformance::{distance_tape, parse_node};
+    use crate::sdf::tape::Registers;
+
+    #[test]
+    fn tetrahedral_and_central_normals_agree_on_a_sphere() {
+        let t = distance_tape(&parse_node("Sphere(radius: 1.0)"));
+        let mut rng = Rng::new(5);
+        let mut regs = Registers::new();
+        let mut field = FieldCursor::whole(&t, &mut regs);
+        for _ in 0..200 {
+            let n = rng.direction();
+            let p = n * 1.0;
+            let c = central(&mut field, p, 1e-3).normalize();
+            let k = tetrahedral(&mut field, p, 1e-3).normalize();
+            assert!((c - n).length() < 1e-3, "central {c} vs {n}");
+            assert!((k - n).length() < 1e-3, "tetrahedral {k} vs {n}");
+        }
+    }
 }

@@ -4,12 +4,11 @@
 //! Eurographics 2020; the enclosures come from [`crate::sdf::interval`].
 
 use super::crossing::{self, Candidate};
-use super::epsilon_at;
-use super::sphere::TraceResult;
+use super::step::{TraceResult, epsilon_at};
+use crate::accel::field::FieldCursor;
 use crate::geom::Ray;
 use crate::scene::TracerSettings;
 use crate::sdf::interval::{IntervalRegisters, Slope, eval_segment};
-use crate::sdf::tape::{Registers, Tape};
 use std::cell::RefCell;
 
 thread_local! {
@@ -42,25 +41,25 @@ const MAX_BACKOFF: u32 = 8;
 ///
 /// Where d < ε(t) the candidate is confirmed exactly as Hart's ([`crossing::confirm`]), so the
 /// hits agree up to where in the ε band each stepper arrives. Every segment evaluation counts
-/// as one evaluation in `steps` and in `intervals`.
+/// as one evaluation in `steps` and in `intervals`. Point samples use the field octree's leaf
+/// tapes; a segment inside one leaf is enclosed with that leaf's tape, any other with the
+/// whole tape.
 pub fn trace_segment(
-    tape: &Tape,
+    field: &mut FieldCursor,
     ray: &Ray,
     t0: f32,
     t1: f32,
     s: &TracerSettings,
-    regs: &mut Registers,
 ) -> TraceResult {
-    SLOPE_REGS.with(|sr| march(tape, ray, t0, t1, s, regs, &mut sr.borrow_mut()))
+    SLOPE_REGS.with(|sr| march(field, ray, t0, t1, s, &mut sr.borrow_mut()))
 }
 
 fn march(
-    tape: &Tape,
+    field: &mut FieldCursor,
     ray: &Ray,
     t0: f32,
     t1: f32,
     s: &TracerSettings,
-    regs: &mut Registers,
     sregs: &mut IntervalRegisters<Slope>,
 ) -> TraceResult {
     let mut t = t0;
@@ -79,11 +78,13 @@ fn march(
         intervals,
     };
     while steps < s.max_steps {
-        let d = tape.eval_in(ray.at(t), regs);
+        let p = ray.at(t);
+        let region = field.region(p);
+        let d = region.tape.eval_in(p, field.regs);
         steps += 1;
         let eps = epsilon_at(s, t);
         if d < eps {
-            match crossing::confirm(tape, ray, t, d, t1, s, regs, &mut steps) {
+            match crossing::confirm(field, ray, t, d, t1, s, &mut steps) {
                 Candidate::Hit(t) => return result(Some(t), steps, intervals),
                 Candidate::Continue(next) => {
                     t = next;
@@ -106,7 +107,12 @@ fn march(
             seg = seg.max(2.0 * d);
             continue;
         }
-        let g = eval_segment(tape, ray.at(t), ray.at(t + len), ray.direction, sregs);
+        let end = ray.at(t + len);
+        let tape = match region.cell {
+            Some(c) if c.contains(p) && c.contains(end) => c.tape,
+            _ => field.whole_tape(),
+        };
+        let g = eval_segment(tape, p, end, ray.direction, sregs);
         steps += 1;
         intervals += 1;
         // Rounding of the sample positions and of the tape's own evaluation: keep a fraction
@@ -138,7 +144,9 @@ fn march(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::{Scene, Stepper};
+    use crate::scene::Scene;
+    use crate::scene::Stepper;
+    use crate::sdf::tape::{Registers, Tape};
     use crate::trace::sphere::trace_hart;
     use glam::Vec3;
     use proptest::prelude::*;
@@ -172,8 +180,15 @@ mod tests {
                         continue;
                     };
                     let tape = &object.lowered.distance;
-                    let hart = trace_hart(tape, ray, t0, t1, &scene.tracer, &mut regs);
-                    let seg = trace_segment(tape, ray, t0, t1, &s, &mut regs);
+                    let hart = trace_hart(
+                        &mut FieldCursor::whole(tape, &mut regs),
+                        ray,
+                        t0,
+                        t1,
+                        &scene.tracer,
+                    );
+                    let seg =
+                        trace_segment(&mut FieldCursor::whole(tape, &mut regs), ray, t0, t1, &s);
                     assert!(seg.intervals <= seg.steps && seg.steps <= s.max_steps);
                     match (seg.t, hart.t) {
                         (Some(a), Some(b)) => {
@@ -260,7 +275,7 @@ mod tests {
                 }
                 depth = depth.max(-f);
             }
-            let seg = trace_segment(tape, &ray, t0, t1, &s, &mut regs);
+            let seg = trace_segment(&mut FieldCursor::whole(tape, &mut regs), &ray, t0, t1, &s);
             if depth > 4.0 * epsilon_at(&s, t1) {
                 let entry = entry.unwrap();
                 let t = seg.t;

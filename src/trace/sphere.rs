@@ -1,79 +1,49 @@
 //! Hart's sphere tracing (J. C. Hart, "Sphere tracing: a geometric method for the antialiased
-//! ray tracing of implicit surfaces", The Visual Computer 12, 1996, §2), and the opt-in
-//! over-relaxed stepper of Keinert et al. 2014 ("Enhanced Sphere Tracing", STAG 2014, §3.1).
+//! ray tracing of implicit surfaces", The Visual Computer 12, 1996, §2), the opt-in
+//! over-relaxed steppers of Keinert et al. 2014 ("Enhanced Sphere Tracing", STAG 2014, §3.1),
+//! soft-shadow penumbrae and exits, all over an object's field octree
+//! ([`crate::accel::field`]): every sample is evaluated with the tape specialised to the leaf
+//! holding it, and leaves proven empty are skipped without an evaluation.
 
 use super::crossing::{self, Candidate};
-use super::epsilon_at;
+use super::step::{MAX_SKIPS, Marching, TraceResult, epsilon_at, is, region_at, safe_step};
+use crate::accel::field::FieldCursor;
 use crate::geom::Ray;
-use crate::scene::{Stepper, TracerSettings};
-use crate::sdf::tape::{Registers, Tape};
-
-/// Outcome of tracing one ray against one tape.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct TraceResult {
-    /// Hit distance, if the ray came within ε(t) of the surface inside the interval.
-    pub t: Option<f32>,
-    /// Distance evaluations spent, point and interval ones alike.
-    pub steps: u32,
-    /// Of `steps`, the interval (segment) evaluations of [`super::segment::trace_segment`].
-    pub intervals: u32,
-}
-
-impl TraceResult {
-    /// The outcome of a stepper that evaluates the field at points only.
-    fn of_points(t: Option<f32>, steps: u32) -> Self {
-        TraceResult {
-            t,
-            steps,
-            intervals: 0,
-        }
-    }
-}
-
-/// Marches from t0 towards t1 with the scene's stepper (`tracer.stepper`): [`trace_hart`] by
-/// default, [`trace_relaxed`], [`trace_adaptive`] or [`super::segment::trace_segment`] when
-/// asked for.
-pub fn trace(
-    tape: &Tape,
-    ray: &Ray,
-    t0: f32,
-    t1: f32,
-    s: &TracerSettings,
-    regs: &mut Registers,
-) -> TraceResult {
-    match s.stepper {
-        Stepper::Hart => trace_hart(tape, ray, t0, t1, s, regs),
-        Stepper::Relaxed(omega) => trace_relaxed(tape, ray, t0, t1, s, omega, regs),
-        Stepper::Adaptive => trace_adaptive(tape, ray, t0, t1, s, regs),
-        Stepper::Segment => super::segment::trace_segment(tape, ray, t0, t1, s, regs),
-    }
-}
+use crate::scene::TracerSettings;
+use crate::sdf::simplify::Verdict;
 
 /// Marches from t0 towards t1 by the field value: the field is 1-Lipschitz (every node of the
 /// lowered tape is step-corrected), so an unbounding sphere of radius f(p) around p contains no
-/// surface and the step never skips one (Hart 1996, Theorem 1). Where f < ε(t) the candidate
-/// is confirmed by a sign change and placed at the crossing ([`crossing::confirm`]); a miss
-/// past t1 or after `max_steps` evaluations.
+/// surface and the step never skips one (Hart 1996, Theorem 1); inside a leaf with a smaller
+/// Lipschitz bound L the step is f/L, and an empty leaf is left at once. Where f < ε(t) the
+/// candidate is confirmed by a sign change and placed at the crossing ([`crossing::confirm`]);
+/// a miss past t1 or after `max_steps` evaluations.
 pub fn trace_hart(
-    tape: &Tape,
+    field: &mut FieldCursor,
     ray: &Ray,
     t0: f32,
     t1: f32,
     s: &TracerSettings,
-    regs: &mut Registers,
 ) -> TraceResult {
+    let m = Marching::new(ray);
     let mut t = t0;
-    let mut steps = 0;
-    while steps < s.max_steps {
-        let d = tape.eval_in(ray.at(t), regs);
-        steps += 1;
-        if d < epsilon_at(s, t) {
-            match crossing::confirm(tape, ray, t, d, t1, s, regs, &mut steps) {
-                Candidate::Hit(t) => return TraceResult::of_points(Some(t), steps),
-                Candidate::Continue(next) => t = next,
-            }
+    let (mut steps, mut skips) = (0, 0);
+    while steps < s.max_steps && skips < MAX_SKIPS {
+        let (p, region) = region_at(field, &m, t);
+        if is(&region, Verdict::Empty) {
+            t = m.past(&region.cell.expect("a leaf"), t);
+            skips += 1;
         } else {
-            t += d;
+            let d = region.tape.eval_in(p, field.regs);
+            steps += 1;
+            if d < epsilon_at(s, t) {
+                match crossing::confirm(field, ray, t, d, t1, s, &mut steps) {
+                    Candidate::Hit(t) => return TraceResult::of_points(Some(t), steps),
+                    Candidate::Continue(next) => t = next,
+                }
+            } else {
+                t += safe_step(d, &region, &m, t);
+            }
         }
         if t > t1 {
             break;
@@ -102,15 +72,14 @@ enum Relaxation {
 /// ε band they stop. Relaxed steps are clamped to t1 so that the check also covers the end of
 /// the interval.
 pub fn trace_relaxed(
-    tape: &Tape,
+    field: &mut FieldCursor,
     ray: &Ray,
     t0: f32,
     t1: f32,
     s: &TracerSettings,
     omega: f32,
-    regs: &mut Registers,
 ) -> TraceResult {
-    trace_over_relaxed(tape, ray, t0, t1, s, Relaxation::Fixed(omega), regs)
+    trace_over_relaxed(field, ray, t0, t1, s, Relaxation::Fixed(omega))
 }
 
 /// Largest relaxation [`trace_adaptive`] uses: below 2, where the overlap test stops being
@@ -128,43 +97,53 @@ const MAX_ADAPTIVE_OMEGA: f32 = 1.9;
 /// failed one falls back to Hart's step from the last verified sample, as in
 /// [`trace_relaxed`]; the next step is then Hart's too.
 pub fn trace_adaptive(
-    tape: &Tape,
+    field: &mut FieldCursor,
     ray: &Ray,
     t0: f32,
     t1: f32,
     s: &TracerSettings,
-    regs: &mut Registers,
 ) -> TraceResult {
-    trace_over_relaxed(tape, ray, t0, t1, s, Relaxation::Slope, regs)
+    trace_over_relaxed(field, ray, t0, t1, s, Relaxation::Slope)
 }
 
 /// The march shared by [`trace_relaxed`] and [`trace_adaptive`]: relaxed steps verified by the
 /// overlap test, a failed one replaced by Hart's step from the last verified sample, and
 /// candidates confirmed as Hart's are ([`crossing::confirm`]; a near miss counts as a failure).
+/// A verified sample in an empty leaf leaves it at once, as Hart's march does.
 fn trace_over_relaxed(
-    tape: &Tape,
+    field: &mut FieldCursor,
     ray: &Ray,
     t0: f32,
     t1: f32,
     s: &TracerSettings,
     relaxation: Relaxation,
-    regs: &mut Registers,
 ) -> TraceResult {
+    let m = Marching::new(ray);
     let mut relaxation = relaxation;
     let mut t = t0;
-    let mut steps = 0;
+    let (mut steps, mut skips) = (0, 0);
     // The last verified sample, whether the step from it to t is relaxed (unverified), whether
     // there is a sample before it to take the slope from, and whether t was reached by a
     // fallback (then the next step is Hart's).
     let (mut prev_t, mut prev_d) = (t0, 0.0f32);
     let (mut unverified, mut have_prev, mut fell_back) = (false, false, false);
-    while steps < s.max_steps {
-        let d = tape.eval_in(ray.at(t), regs);
+    while steps < s.max_steps && skips < MAX_SKIPS {
+        let (p, region) = region_at(field, &m, t);
+        if !unverified && is(&region, Verdict::Empty) {
+            t = m.past(&region.cell.expect("a leaf"), t);
+            skips += 1;
+            have_prev = false;
+            if t > t1 {
+                break;
+            }
+            continue;
+        }
+        let d = region.tape.eval_in(p, field.regs);
         steps += 1;
         let failed = unverified && prev_d + d.abs() < t - prev_t;
         let near_miss = !failed
             && d < epsilon_at(s, t)
-            && match crossing::confirm(tape, ray, t, d, t1, s, regs, &mut steps) {
+            && match crossing::confirm(field, ray, t, d, t1, s, &mut steps) {
                 Candidate::Hit(t) => return TraceResult::of_points(Some(t), steps),
                 Candidate::Continue(next) => {
                     t = next;
@@ -207,29 +186,33 @@ fn trace_over_relaxed(
     TraceResult::of_points(None, steps)
 }
 
-/// Light visibility along a shadow ray through one tape, from Quilez's penumbra estimate
+/// Light visibility along a shadow ray through one object, from Quilez's penumbra estimate
 /// ("soft shadows in raymarched SDFs", 2010): the smallest k·h/t met along the ray, where h is
 /// the field and t the distance travelled, approximates the fraction of a light cone of
 /// half-angle ~1/k left unblocked. The `improved` variant estimates the closest approach
 /// between the last two samples (y = h²/(2h'), d = √(h² − y²), k·d/(t − y)), which removes
 /// the banding of the plain estimate. Returns 1 (lit) down to 0 (blocked); a sample within
-/// ε(t) of the surface is a hit and returns 0.
+/// ε(t) of the surface is a hit and returns 0. Every sample is taken where the whole tape's
+/// march takes it (no leaf is skipped: the estimate is a minimum over the samples, and other
+/// samples would give another minimum), with the leaves' shorter tapes, which return the
+/// whole tape's values there.
 #[allow(clippy::too_many_arguments)]
 pub fn penumbra(
-    tape: &Tape,
+    field: &mut FieldCursor,
     ray: &Ray,
     t0: f32,
     t1: f32,
     s: &TracerSettings,
     k: f32,
     improved: bool,
-    regs: &mut Registers,
 ) -> f32 {
+    let m = Marching::new(ray);
     let mut res: f32 = 1.0;
     let mut previous = f32::INFINITY;
     let mut t = t0;
     for _ in 0..s.max_steps {
-        let h = tape.eval_in(ray.at(t), regs);
+        let (p, region) = region_at(field, &m, t);
+        let h = region.tape.eval_in(p, field.regs);
         if h < epsilon_at(s, t) {
             return 0.0;
         }
@@ -257,23 +240,31 @@ pub fn penumbra(
 
 /// Marches from inside a solid to where the ray leaves it: inside, −f bounds the distance to
 /// the surface, so steps of 0.9·|f| (a step scale below 1 for bound fields whose interior
-/// values are less reliable) never cross it. Returns the exit distance, or `None` if the ray
-/// is still inside after `max_steps` or t1.
+/// values are less reliable) never cross it; a leaf proven full is left at once. Returns the
+/// exit distance, or `None` if the ray is still inside after `max_steps` or t1.
 pub fn exit(
-    tape: &Tape,
+    field: &mut FieldCursor,
     ray: &Ray,
     t0: f32,
     t1: f32,
     s: &TracerSettings,
-    regs: &mut Registers,
 ) -> Option<f32> {
+    let m = Marching::new(ray);
     let mut t = t0;
-    for _ in 0..s.max_steps {
-        let d = -tape.eval_in(ray.at(t), regs);
-        if d < epsilon_at(s, t) {
-            return Some(t);
+    let (mut steps, mut skips) = (0, 0);
+    while steps < s.max_steps && skips < MAX_SKIPS {
+        let (p, region) = region_at(field, &m, t);
+        if is(&region, Verdict::Full) {
+            t = m.past(&region.cell.expect("a leaf"), t);
+            skips += 1;
+        } else {
+            let d = -region.tape.eval_in(p, field.regs);
+            steps += 1;
+            if d < epsilon_at(s, t) {
+                return Some(t);
+            }
+            t += 0.9 * d;
         }
-        t += 0.9 * d;
         if t > t1 {
             return None;
         }
@@ -285,6 +276,8 @@ pub fn exit(
 mod tests {
     use super::*;
     use crate::scene::Scene;
+    use crate::scene::Stepper;
+    use crate::sdf::tape::Registers;
     use crate::trace::epsilon_at;
     use glam::Vec3;
     use std::path::Path;
@@ -325,13 +318,25 @@ mod tests {
             let ray = Ray::new(o, target - o);
             for object in &scene.objects {
                 let tape = &object.lowered.distance;
-                let hart = trace_hart(tape, &ray, 0.0, 40.0, &scene.tracer, &mut regs);
+                let hart = trace_hart(
+                    &mut FieldCursor::whole(tape, &mut regs),
+                    &ray,
+                    0.0,
+                    40.0,
+                    &scene.tracer,
+                );
                 for st in steppers {
                     let s = TracerSettings {
                         stepper: st,
                         ..scene.tracer
                     };
-                    let r = trace(tape, &ray, 0.0, 40.0, &s, &mut regs);
+                    let r = crate::trace::trace(
+                        &mut FieldCursor::whole(tape, &mut regs),
+                        &ray,
+                        0.0,
+                        40.0,
+                        &s,
+                    );
                     if r.t.is_some() != hart.t.is_some() {
                         // Only two things may tell them apart: the step budget (Hart runs out
                         // of steps on grazing rays sooner), or a ray that comes within ε of
@@ -406,17 +411,31 @@ mod tests {
         let tape = &scene.objects[2].lowered.distance;
         let mut regs = Registers::new();
         let ray = Ray::new(Vec3::new(0.0, 1.3, 6.0), -Vec3::Z);
-        let hart = trace_hart(tape, &ray, 0.0, 5.96, &scene.tracer, &mut regs);
+        let hart = trace_hart(
+            &mut FieldCursor::whole(tape, &mut regs),
+            &ray,
+            0.0,
+            5.96,
+            &scene.tracer,
+        );
         assert!(hart.t.is_some());
         for st in [Stepper::Relaxed(1.9), Stepper::Adaptive, Stepper::Segment] {
             let s = TracerSettings {
                 stepper: st,
                 ..scene.tracer
             };
-            let r = trace(tape, &ray, 0.0, 5.96, &s, &mut regs);
+            let r = crate::trace::trace(
+                &mut FieldCursor::whole(tape, &mut regs),
+                &ray,
+                0.0,
+                5.96,
+                &s,
+            );
             assert!(r.t.is_some(), "{st:?}");
             assert!(
-                trace(tape, &ray, 0.0, 5.9, &s, &mut regs).t.is_none(),
+                crate::trace::trace(&mut FieldCursor::whole(tape, &mut regs), &ray, 0.0, 5.9, &s)
+                    .t
+                    .is_none(),
                 "{st:?}"
             );
         }

@@ -1,0 +1,591 @@
+//! The tape in SSA form: what lowering emits, what region specialisation rewrites, and the
+//! register allocator that turns it into a runnable [`Tape`].
+//!
+//! Every [`SsaOp`] defines one value, numbered by its position; the first three are the
+//! sample point's coordinates. [`Builder`] appends operations with constant folding (through
+//! [`crate::sdf::tape::apply`], so a folded constant has the bits the interpreter would have
+//! computed), exact identities (x + 0, x·1, −(−x), min(x, x)…) and hash-consing of repeated
+//! subexpressions. [`SsaTape::compile`] removes dead code and assigns registers by a linear
+//! scan that frees a register after its last reader (fidget and libfive do the same).
+
+use crate::sdf::tape::{Instr, MAX_MATERIAL_REGISTERS, MAX_REGISTERS, Op, Shape, Tape, apply};
+use rustc_hash::FxHashMap as HashMap;
+
+/// A value: the number of the operation that defines it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct V(pub u32);
+
+/// A material value (defined by `MatLoad` or `MatMix`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct M(pub u32);
+
+/// One SSA operation. Operands name earlier values; unused ones are 0. `c` is the condition
+/// of `Select` and the weight of `MatMix`; `imm` holds the immediate's bits, the axis of
+/// `Input` or the material number of `MatLoad`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct SsaOp {
+    /// The operation.
+    pub op: Op,
+    /// First operand.
+    pub a: u32,
+    /// Second operand.
+    pub b: u32,
+    /// Third operand.
+    pub c: u32,
+    /// Immediate bits.
+    pub imm: u32,
+}
+
+impl SsaOp {
+    /// The immediate as a float.
+    pub fn imm(&self) -> f32 {
+        f32::from_bits(self.imm)
+    }
+
+    /// Calls `f` with every value operand (materials excluded).
+    #[inline]
+    pub fn for_each_value_operand(&self, mut f: impl FnMut(u32)) {
+        match self.op.shape() {
+            Shape::Nullary | Shape::MatLoad => {}
+            Shape::Unary | Shape::WithImm => f(self.a),
+            Shape::Binary => {
+                f(self.a);
+                f(self.b);
+            }
+            Shape::Ternary => {
+                f(self.a);
+                f(self.b);
+                f(self.c);
+            }
+            Shape::MatMix => f(self.c),
+        }
+    }
+}
+
+/// A program in SSA form with its results.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SsaTape {
+    /// The operations; the first three are `Input` 0, 1, 2.
+    pub ops: Vec<SsaOp>,
+    /// The distance.
+    pub result: u32,
+    /// The blended material (shading programs only).
+    pub material: Option<u32>,
+}
+
+/// Appends operations with folding, identities and hash-consing.
+#[derive(Debug, Clone)]
+pub struct Builder {
+    ops: Vec<SsaOp>,
+    memo: HashMap<SsaOp, u32>,
+    share: bool,
+}
+
+impl Default for Builder {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Builder {
+    /// A builder holding the three inputs.
+    pub fn new() -> Self {
+        let mut b = Builder {
+            ops: Vec::new(),
+            memo: HashMap::default(),
+            share: true,
+        };
+        for axis in 0..3 {
+            b.ops.push(SsaOp {
+                op: Op::Input,
+                a: 0,
+                b: 0,
+                c: 0,
+                imm: axis,
+            });
+        }
+        b
+    }
+
+    /// A builder that folds but does not look for repeated subexpressions: what rebuilding an
+    /// already shared program needs (specialisation only removes operations).
+    pub fn without_sharing(capacity: usize) -> Self {
+        let mut b = Self::new();
+        b.share = false;
+        b.ops.reserve(capacity);
+        b
+    }
+
+    /// The sample point's coordinates.
+    pub fn point(&self) -> [V; 3] {
+        [V(0), V(1), V(2)]
+    }
+
+    /// Operations so far.
+    pub fn len(&self) -> usize {
+        self.ops.len()
+    }
+
+    /// Whether only the inputs are there.
+    pub fn is_empty(&self) -> bool {
+        self.ops.len() <= 3
+    }
+
+    /// The constant a value holds, if it is one.
+    pub fn constant(&self, v: V) -> Option<f32> {
+        let o = &self.ops[v.0 as usize];
+        (o.op == Op::Const).then(|| o.imm())
+    }
+
+    /// The operation defining v.
+    pub fn def(&self, v: V) -> &SsaOp {
+        &self.ops[v.0 as usize]
+    }
+
+    /// The finished program.
+    pub fn finish(self, result: V, material: Option<M>) -> SsaTape {
+        SsaTape {
+            ops: self.ops,
+            result: result.0,
+            material: material.map(|m| m.0),
+        }
+    }
+
+    fn raw(&mut self, op: SsaOp) -> u32 {
+        if !self.share {
+            self.ops.push(op);
+            return self.ops.len() as u32 - 1;
+        }
+        if let Some(&v) = self.memo.get(&op) {
+            return v;
+        }
+        let v = self.ops.len() as u32;
+        self.ops.push(op);
+        self.memo.insert(op, v);
+        v
+    }
+
+    /// A constant.
+    pub fn konst(&mut self, x: f32) -> V {
+        V(self.raw(SsaOp {
+            op: Op::Const,
+            a: 0,
+            b: 0,
+            c: 0,
+            imm: x.to_bits(),
+        }))
+    }
+
+    /// A unary operation.
+    pub fn unary(&mut self, op: Op, a: V) -> V {
+        debug_assert_eq!(op.shape(), Shape::Unary);
+        if let Some(x) = self.constant(a) {
+            return self.konst(apply::<f32>(op, x, 0.0, 0.0, 0.0));
+        }
+        let da = *self.def(a);
+        match (op, da.op) {
+            (Op::Copy, _) => return a,
+            (Op::Neg, Op::Neg) => return V(da.a),
+            (Op::Abs, Op::Abs) => return a,
+            (Op::Abs | Op::Square, Op::Neg) => return self.unary(op, V(da.a)),
+            _ => {}
+        }
+        V(self.raw(SsaOp {
+            op,
+            a: a.0,
+            b: 0,
+            c: 0,
+            imm: 0,
+        }))
+    }
+
+    /// A binary operation on two values; a constant operand becomes an immediate.
+    pub fn binary(&mut self, op: Op, a: V, b: V) -> V {
+        debug_assert_eq!(op.shape(), Shape::Binary);
+        match (self.constant(a), self.constant(b)) {
+            (Some(x), Some(y)) => return self.konst(apply::<f32>(op, x, y, 0.0, 0.0)),
+            (None, Some(k)) => {
+                let imm_op = match op {
+                    Op::Add => Some(Op::AddImm),
+                    Op::Sub => Some(Op::SubImm),
+                    Op::Mul => Some(Op::MulImm),
+                    Op::Div => Some(Op::DivImm),
+                    Op::Min => Some(Op::MinImm),
+                    Op::Max => Some(Op::MaxImm),
+                    Op::Pow => Some(Op::PowImm),
+                    _ => None,
+                };
+                if let Some(imm_op) = imm_op {
+                    return self.with_imm(imm_op, a, k);
+                }
+            }
+            (Some(k), None) => {
+                let imm_op = match op {
+                    Op::Add => Some(Op::AddImm),
+                    Op::Sub => Some(Op::RsubImm),
+                    Op::Mul => Some(Op::MulImm),
+                    Op::Div => Some(Op::RdivImm),
+                    Op::Min => Some(Op::MinImm),
+                    Op::Max => Some(Op::MaxImm),
+                    _ => None,
+                };
+                if let Some(imm_op) = imm_op {
+                    return self.with_imm(imm_op, b, k);
+                }
+            }
+            (None, None) => {}
+        }
+        match op {
+            Op::Min | Op::Max if a == b => return a,
+            Op::Mul if a == b => return self.unary(Op::Square, a),
+            _ => {}
+        }
+        // Commutative operations in a canonical order, so that hash-consing finds a + b and
+        // b + a alike.
+        let (a, b) = if matches!(op, Op::Add | Op::Mul | Op::Min | Op::Max | Op::Hypot) && b < a {
+            (b, a)
+        } else {
+            (a, b)
+        };
+        V(self.raw(SsaOp {
+            op,
+            a: a.0,
+            b: b.0,
+            c: 0,
+            imm: 0,
+        }))
+    }
+
+    /// An operation of a value and an immediate.
+    pub fn with_imm(&mut self, op: Op, a: V, k: f32) -> V {
+        debug_assert_eq!(op.shape(), Shape::WithImm);
+        if let Some(x) = self.constant(a) {
+            return self.konst(apply::<f32>(op, x, 0.0, 0.0, k));
+        }
+        match op {
+            Op::AddImm | Op::SubImm if k == 0.0 => return a,
+            Op::MulImm | Op::DivImm if k == 1.0 => return a,
+            Op::MulImm if k == -1.0 => return self.unary(Op::Neg, a),
+            _ => {}
+        }
+        V(self.raw(SsaOp {
+            op,
+            a: a.0,
+            b: 0,
+            c: 0,
+            imm: k.to_bits(),
+        }))
+    }
+
+    /// `c > 0 ? a : b`.
+    pub fn select(&mut self, c: V, a: V, b: V) -> V {
+        if a == b {
+            return a;
+        }
+        if let Some(x) = self.constant(c) {
+            return if x > 0.0 { a } else { b };
+        }
+        V(self.raw(SsaOp {
+            op: Op::Select,
+            a: a.0,
+            b: b.0,
+            c: c.0,
+            imm: 0,
+        }))
+    }
+
+    /// √(a² + b² + c²).
+    pub fn hypot3(&mut self, a: V, b: V, c: V) -> V {
+        if let (Some(x), Some(y), Some(z)) = (self.constant(a), self.constant(b), self.constant(c))
+        {
+            return self.konst(apply::<f32>(Op::Hypot3, x, y, z, 0.0));
+        }
+        V(self.raw(SsaOp {
+            op: Op::Hypot3,
+            a: a.0,
+            b: b.0,
+            c: c.0,
+            imm: 0,
+        }))
+    }
+
+    /// The scene material number `index`.
+    pub fn mat_load(&mut self, index: u32) -> M {
+        M(self.raw(SsaOp {
+            op: Op::MatLoad,
+            a: 0,
+            b: 0,
+            c: 0,
+            imm: index,
+        }))
+    }
+
+    /// mix(a, b, h).
+    pub fn mat_mix(&mut self, a: M, b: M, h: V) -> M {
+        if a == b {
+            return a;
+        }
+        match self.constant(h) {
+            Some(0.0) => return a,
+            Some(1.0) => return b,
+            _ => {}
+        }
+        M(self.raw(SsaOp {
+            op: Op::MatMix,
+            a: a.0,
+            b: b.0,
+            c: h.0,
+            imm: 0,
+        }))
+    }
+
+    /// Appends `op` with its operands renamed by `map` (values and materials alike), through
+    /// the folding above: how a simplified program is rebuilt.
+    pub fn rebuild(&mut self, op: &SsaOp, map: impl Fn(u32) -> u32) -> u32 {
+        match op.op.shape() {
+            Shape::Nullary => match op.op {
+                Op::Input => op.imm,
+                _ => self.konst(op.imm()).0,
+            },
+            Shape::Unary => self.unary(op.op, V(map(op.a))).0,
+            Shape::Binary => self.binary(op.op, V(map(op.a)), V(map(op.b))).0,
+            Shape::WithImm => self.with_imm(op.op, V(map(op.a)), op.imm()).0,
+            Shape::Ternary if op.op == Op::Hypot3 => {
+                self.hypot3(V(map(op.a)), V(map(op.b)), V(map(op.c))).0
+            }
+            Shape::Ternary => self.select(V(map(op.c)), V(map(op.a)), V(map(op.b))).0,
+            Shape::MatLoad => self.mat_load(op.imm).0,
+            Shape::MatMix => self.mat_mix(M(map(op.a)), M(map(op.b)), V(map(op.c))).0,
+        }
+    }
+}
+
+impl SsaTape {
+    /// Which operations the results depend on.
+    pub fn live(&self) -> Vec<bool> {
+        let mut live = vec![false; self.ops.len()];
+        live[self.result as usize] = true;
+        if let Some(m) = self.material {
+            live[m as usize] = true;
+        }
+        for i in (0..self.ops.len()).rev() {
+            if !live[i] {
+                continue;
+            }
+            let op = &self.ops[i];
+            op.for_each_value_operand(|v| live[v as usize] = true);
+            if op.op == Op::MatMix {
+                live[op.a as usize] = true;
+                live[op.b as usize] = true;
+            }
+        }
+        live
+    }
+
+    /// Number of operations the results depend on, inputs excluded.
+    pub fn live_len(&self) -> usize {
+        self.live()
+            .iter()
+            .zip(&self.ops)
+            .filter(|(l, o)| **l && o.op != Op::Input)
+            .count()
+    }
+
+    /// The program without its material part (what tracing evaluates).
+    pub fn distance_only(&self) -> SsaTape {
+        SsaTape {
+            ops: self.ops.clone(),
+            result: self.result,
+            material: None,
+        }
+    }
+
+    /// Dead-code elimination and linear-scan register allocation into a [`Tape`]. Fails when
+    /// the program needs more than [`MAX_REGISTERS`] values (or [`MAX_MATERIAL_REGISTERS`]
+    /// materials) alive at once.
+    pub fn compile(&self) -> Result<Tape, String> {
+        let n = self.ops.len();
+        let live = self.live();
+        // Last reader of every value among the live operations; results stay to the end.
+        let mut last = vec![0usize; n];
+        for (i, op) in self.ops.iter().enumerate() {
+            if !live[i] {
+                continue;
+            }
+            op.for_each_value_operand(|v| last[v as usize] = i);
+            if op.op == Op::MatMix {
+                last[op.a as usize] = i;
+                last[op.b as usize] = i;
+            }
+        }
+        last[self.result as usize] = usize::MAX;
+        if let Some(m) = self.material {
+            last[m as usize] = usize::MAX;
+        }
+        let mut values = FreeRegisters::new(MAX_REGISTERS);
+        let mut materials = FreeRegisters::new(MAX_MATERIAL_REGISTERS);
+        let mut reg = vec![0u8; n];
+        let (mut used_v, mut used_m) = (3usize, 0usize);
+        for axis in 0..3 {
+            reg[axis] = values.take_specific(axis as u8);
+            if !live[axis] || self.ops[axis].op != Op::Input {
+                values.give(axis as u8);
+            }
+        }
+        let mut instrs = Vec::new();
+        for (i, op) in self.ops.iter().enumerate() {
+            if !live[i] || op.op == Op::Input {
+                continue;
+            }
+            // Operands whose last reader this is free their registers before the destination
+            // is chosen: interpreters read every operand before writing.
+            op.for_each_value_operand(|v| {
+                if last[v as usize] == i {
+                    values.give(reg[v as usize]);
+                }
+            });
+            if op.op == Op::MatMix {
+                for m in [op.a, op.b] {
+                    if last[m as usize] == i {
+                        materials.give(reg[m as usize]);
+                    }
+                }
+            }
+            let out = if op.op.is_material() {
+                let r = materials.take().ok_or_else(|| {
+                    format!(
+                        "too complex: needs more than {MAX_MATERIAL_REGISTERS} material registers"
+                    )
+                })?;
+                used_m = used_m.max(r as usize + 1);
+                r
+            } else {
+                let r = values.take().ok_or_else(|| {
+                    format!("too complex: needs more than {MAX_REGISTERS} registers")
+                })?;
+                used_v = used_v.max(r as usize + 1);
+                r
+            };
+            reg[i] = out;
+            let r = |v: u32| reg[v as usize];
+            let ins = match op.op.shape() {
+                Shape::Nullary => Instr::new(op.op, out, 0, 0, op.imm),
+                Shape::Unary => Instr::new(op.op, out, r(op.a), 0, 0),
+                Shape::Binary => Instr::new(op.op, out, r(op.a), r(op.b), 0),
+                Shape::WithImm => Instr::new(op.op, out, r(op.a), 0, op.imm),
+                Shape::Ternary => Instr::new(op.op, out, r(op.a), r(op.b), r(op.c) as u32),
+                Shape::MatLoad => Instr::new(op.op, out, 0, 0, op.imm),
+                Shape::MatMix => Instr::new(op.op, out, r(op.a), r(op.b), r(op.c) as u32),
+            };
+            instrs.push(ins);
+        }
+        Ok(Tape {
+            instrs,
+            result: reg[self.result as usize],
+            material_result: self.material.map(|m| reg[m as usize]),
+            registers: used_v,
+            material_registers: used_m,
+        })
+    }
+}
+
+/// A set of free registers; the lowest is taken first, so allocation is deterministic.
+struct FreeRegisters {
+    words: [u64; MAX_REGISTERS / 64],
+}
+
+impl FreeRegisters {
+    fn new(count: usize) -> Self {
+        let mut words = [0u64; MAX_REGISTERS / 64];
+        for i in 0..count {
+            words[i / 64] |= 1 << (i % 64);
+        }
+        FreeRegisters { words }
+    }
+
+    fn take(&mut self) -> Option<u8> {
+        for (w, word) in self.words.iter_mut().enumerate() {
+            if *word != 0 {
+                let bit = word.trailing_zeros() as usize;
+                *word &= !(1 << bit);
+                return Some((w * 64 + bit) as u8);
+            }
+        }
+        None
+    }
+
+    fn take_specific(&mut self, r: u8) -> u8 {
+        self.words[r as usize / 64] &= !(1 << (r % 64));
+        r
+    }
+
+    fn give(&mut self, r: u8) {
+        self.words[r as usize / 64] |= 1 << (r % 64);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    #[test]
+    fn folding_identities_and_sharing() {
+        let mut b = Builder::new();
+        let [x, y, _] = b.point();
+        let two = b.konst(2.0);
+        let three = b.konst(3.0);
+        let six = b.binary(Op::Mul, two, three);
+        assert_eq!(b.constant(six), Some(6.0));
+        let s1 = b.binary(Op::Add, x, y);
+        let s2 = b.binary(Op::Add, y, x);
+        assert_eq!(s1, s2, "a + b and b + a are one value");
+        let n = b.unary(Op::Neg, s1);
+        assert_eq!(b.unary(Op::Neg, n), s1);
+        let zero = b.konst(0.0);
+        assert_eq!(b.binary(Op::Add, s1, zero), s1);
+        let k = b.binary(Op::Sub, six, x);
+        assert_eq!(b.def(k).op, Op::RsubImm);
+        assert_eq!(b.binary(Op::Min, k, k), k);
+        let prog = b.finish(k, None);
+        let tape = prog.compile().unwrap();
+        assert_eq!(tape.len(), 1, "{:?}", tape.instrs());
+        assert_eq!(tape.eval(Vec3::new(1.5, 0.0, 0.0)), 4.5);
+    }
+
+    #[test]
+    fn registers_are_reused_after_the_last_reader() {
+        // a long chain x + 1 + 1 + … needs one register beyond the inputs
+        let mut b = Builder::new();
+        let [x, y, z] = b.point();
+        let mut v = b.binary(Op::Add, x, y);
+        for _ in 0..1000 {
+            v = b.with_imm(Op::AddImm, v, 1.0);
+            v = b.binary(Op::Max, v, z);
+        }
+        let tape = b.finish(v, None).compile().unwrap();
+        assert!(tape.registers() <= 4, "{}", tape.registers());
+        assert_eq!(tape.eval(Vec3::new(1.0, 2.0, 0.0)), 1003.0);
+    }
+
+    #[test]
+    fn too_many_live_values_is_an_error() {
+        let mut b = Builder::new();
+        let [x, ..] = b.point();
+        let vals: Vec<V> = (0..300)
+            .map(|i| b.with_imm(Op::AddImm, x, i as f32 + 0.5))
+            .collect();
+        let mut acc = vals[0];
+        for v in &vals[1..] {
+            acc = b.binary(Op::Mul, acc, *v);
+        }
+        // every value is live until the chain reaches it: more than 256 at once
+        let mut acc2 = vals[299];
+        for v in vals.iter().rev().skip(1) {
+            acc2 = b.binary(Op::Add, acc2, *v);
+        }
+        let r = b.binary(Op::Add, acc, acc2);
+        let e = b.finish(r, None).compile().unwrap_err();
+        assert!(e.contains("256 registers"), "{e}");
+    }
+}
