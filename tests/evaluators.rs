@@ -331,7 +331,7 @@ fn octrees_of_the_shipped_scenes_match_the_whole_tape_at_every_leaf() {
             s.centre - Vec3::splat(s.reach),
             s.centre + Vec3::splat(s.reach),
         );
-        let Some(octree) = FieldOctree::build(&s.program, region) else {
+        let Some(octree) = FieldOctree::build(&s.program, region, false) else {
             continue;
         };
         for _ in 0..4000 {
@@ -350,6 +350,75 @@ fn octrees_of_the_shipped_scenes_match_the_whole_tape_at_every_leaf() {
                 "{} at {p}: {:?} leaf, f = {b}",
                 s.name, cell.leaf.verdict
             );
+        }
+    }
+}
+
+#[test]
+fn packets_give_each_ray_its_own_answer_on_every_shipped_object() {
+    use hytrace::trace::packet::{Lane, PacketScratch, trace_hart_packet};
+    use hytrace::trace::{SceneTracer, TraceResult, sphere::trace_hart};
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/scenes");
+    let mut rng = Rng::new(21);
+    for file in scene_files(&dir).unwrap() {
+        let scene = Scene::load(&file).unwrap_or_else(|e| panic!("{e}"));
+        let tracer = SceneTracer::new(&scene);
+        let (w, h) = (48u32, 36u32);
+        let aspect = w as f32 / h as f32;
+        // camera rays in row order (coherent), and some scattered ones (incoherent)
+        let mut rays: Vec<hytrace::geom::Ray> = (0..w * h)
+            .map(|k| {
+                let (x, y) = ((k % w) as f32 + 0.5, (k / w) as f32 + 0.5);
+                scene.camera.ray(x / w as f32, y / h as f32, aspect)
+            })
+            .collect();
+        let b = scene.finite_bounds();
+        for _ in 0..256 {
+            let o = rng.in_box(b.min - Vec3::splat(1.0), b.max + Vec3::splat(1.0));
+            rays.push(hytrace::geom::Ray::new(o, rng.direction()));
+        }
+        for level in levels() {
+            let mut scratch = PacketScratch::with_level(level);
+            let mut regs = hytrace::sdf::tape::Registers::new();
+            for (i, (object, field)) in scene.objects.iter().zip(tracer.fields()).enumerate() {
+                let lanes: Vec<Lane> = rays
+                    .iter()
+                    .filter_map(|r| {
+                        let (t0, t1) =
+                            object
+                                .bounds()
+                                .ray_interval(r, 0.0, scene.tracer.max_distance)?;
+                        Some(Lane { ray: *r, t0, t1 })
+                    })
+                    .collect();
+                for chunk in lanes.chunks(8) {
+                    let mut out = [TraceResult::of_points(None, 0); 8];
+                    trace_hart_packet(
+                        field,
+                        chunk,
+                        &scene.tracer,
+                        &mut scratch,
+                        &mut out[..chunk.len()],
+                    );
+                    for (lane, got) in chunk.iter().zip(&out) {
+                        let alone = trace_hart(
+                            &mut tracer.cursor(i, &mut regs),
+                            &lane.ray,
+                            lane.t0,
+                            lane.t1,
+                            &scene.tracer,
+                        );
+                        assert!(
+                            got.t.map(f32::to_bits) == alone.t.map(f32::to_bits)
+                                && got.steps == alone.steps,
+                            "{}/{} {level:?}: packet {got:?} vs alone {alone:?} for {:?}",
+                            file.display(),
+                            object.name,
+                            lane.ray
+                        );
+                    }
+                }
+            }
         }
     }
 }

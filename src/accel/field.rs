@@ -20,6 +20,7 @@
 //! with its own tape.
 
 use crate::geom::{Aabb, Ray};
+use crate::sdf::LoweredSdf;
 use crate::sdf::simplify::{Simplifier, Specialised, Verdict};
 use crate::sdf::ssa::SsaTape;
 use crate::sdf::tape::{Registers, Tape};
@@ -93,6 +94,48 @@ impl Cell<'_> {
     }
 }
 
+/// One node of a lookup path, with its box.
+#[derive(Debug, Clone, Copy)]
+struct PathEntry {
+    node: Node,
+    lo: Vec3,
+    hi: Vec3,
+}
+
+impl PathEntry {
+    #[inline]
+    fn holds(&self, p: Vec3) -> bool {
+        p.cmpge(self.lo).all() && p.cmple(self.hi).all()
+    }
+}
+
+/// The nodes from the root to the last leaf found, for [`FieldOctree::locate_along`].
+#[derive(Debug, Clone, Copy)]
+pub struct Path {
+    entries: [PathEntry; MAX_DEPTH as usize + 1],
+    len: usize,
+}
+
+impl Default for Path {
+    fn default() -> Self {
+        Path {
+            entries: [PathEntry {
+                node: Node(0),
+                lo: Vec3::ZERO,
+                hi: Vec3::ZERO,
+            }; MAX_DEPTH as usize + 1],
+            len: 0,
+        }
+    }
+}
+
+impl Path {
+    #[inline]
+    fn top(&self) -> &PathEntry {
+        &self.entries[self.len - 1]
+    }
+}
+
 /// A node: the first of its eight children, or (top bit set) a leaf.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct Node(u32);
@@ -142,7 +185,9 @@ enum Built {
 }
 
 struct LeafBuild {
-    program: SsaTape,
+    tape: Tape,
+    /// The shading tape of a crossed leaf (hits lie there; others use the whole one).
+    shading: Option<Tape>,
     verdict: Verdict,
     lipschitz: f32,
     min_value: f32,
@@ -163,9 +208,11 @@ impl Budget {
 }
 
 impl FieldOctree {
-    /// Builds the octree of `program` (an object's distance program) over `region`; `None`
+    /// Builds the octree of `program` (an object's shading program) over `region`; `None`
     /// when specialisation cannot pay (a tiny tape, or an empty or unbounded region).
-    pub fn build(program: &SsaTape, region: Aabb) -> Option<FieldOctree> {
+    /// `unit_gradient` says that the field's gradient has unit length almost everywhere, so
+    /// that no leaf needs a Lipschitz bound.
+    pub fn build(program: &SsaTape, region: Aabb, unit_gradient: bool) -> Option<FieldOctree> {
         let whole_len = program.live_len();
         if whole_len < MIN_TAPE
             || !region.min.is_finite()
@@ -181,9 +228,13 @@ impl FieldOctree {
             nodes: AtomicUsize::new(1),
             instructions: AtomicUsize::new(0),
         };
+        let cx = Context {
+            budget: &budget,
+            lipschitz: !unit_gradient,
+        };
         let mut simplifier = Simplifier::new();
         let sp = simplifier.specialise(program, lo, hi);
-        let root = build_node(sp, lo, hi, 0, &budget, &mut simplifier);
+        let root = build_node(&cx, sp, lo, hi, 0, &mut simplifier);
         let mut tree = FieldOctree {
             lo,
             hi,
@@ -194,6 +245,11 @@ impl FieldOctree {
             whole_len,
         };
         let mut dedup = [Dedup::default(), Dedup::default()];
+        // shading tape 0 is the whole one, for the leaves that are not crossed
+        let whole_shading = program
+            .compile()
+            .expect("the source program compiles (it was lowered)");
+        dedup[1].add(&mut tree.shading, whole_shading);
         tree.nodes.push(Node(0));
         tree.flatten(root, 0, &mut dedup);
         Some(tree)
@@ -202,12 +258,11 @@ impl FieldOctree {
     fn flatten(&mut self, built: Built, at: usize, dedup: &mut [Dedup; 2]) {
         match built {
             Built::Leaf(l) => {
-                let compile = |p: &SsaTape| {
-                    p.compile()
-                        .expect("a specialised program needs no more registers than its source")
+                let tape = dedup[0].add(&mut self.tapes, l.tape);
+                let shading = match l.shading {
+                    Some(s) => dedup[1].add(&mut self.shading, s),
+                    None => 0,
                 };
-                let tape = dedup[0].add(&mut self.tapes, compile(&l.program.distance_only()));
-                let shading = dedup[1].add(&mut self.shading, compile(&l.program));
                 self.nodes[at] = Node(LEAF_BIT | self.leaves.len() as u32);
                 self.leaves.push(Leaf {
                     tape,
@@ -237,24 +292,48 @@ impl FieldOctree {
     /// The leaf holding p, with its box; `None` outside the tree's box.
     #[inline]
     pub fn locate(&self, p: Vec3) -> Option<Cell<'_>> {
-        if !(p.cmpge(self.lo).all() && p.cmple(self.hi).all()) {
-            return None;
+        let mut path = Path::default();
+        self.locate_along(p, &mut path)
+    }
+
+    /// [`Self::locate`] starting from the deepest node of `path` (the last lookup's) that
+    /// holds p, and leaving the new path there: consecutive points of a ray mostly lie in one
+    /// leaf or its neighbours, which share all but the last levels.
+    #[inline]
+    pub fn locate_along(&self, p: Vec3, path: &mut Path) -> Option<Cell<'_>> {
+        while path.len > 1 && !path.top().holds(p) {
+            path.len -= 1;
         }
-        let (mut lo, mut hi) = (self.lo, self.hi);
-        let mut node = self.nodes[0];
-        while node.0 & LEAF_BIT == 0 {
-            let mid = 0.5 * (lo + hi);
+        if path.len <= 1 {
+            if !(p.cmpge(self.lo).all() && p.cmple(self.hi).all()) {
+                path.len = 0;
+                return None;
+            }
+            path.len = 1;
+            path.entries[0] = PathEntry {
+                node: self.nodes[0],
+                lo: self.lo,
+                hi: self.hi,
+            };
+        }
+        let mut e = *path.top();
+        while e.node.0 & LEAF_BIT == 0 {
+            let mid = 0.5 * (e.lo + e.hi);
             let up = p.cmpge(mid);
             let octant = up.bitmask() as usize;
-            lo = Vec3::select(up, mid, lo);
-            hi = Vec3::select(up, hi, mid);
-            node = self.nodes[node.0 as usize + octant];
+            e = PathEntry {
+                node: self.nodes[e.node.0 as usize + octant],
+                lo: Vec3::select(up, mid, e.lo),
+                hi: Vec3::select(up, e.hi, mid),
+            };
+            path.entries[path.len] = e;
+            path.len += 1;
         }
-        let leaf = &self.leaves[(node.0 & !LEAF_BIT) as usize];
+        let leaf = &self.leaves[(e.node.0 & !LEAF_BIT) as usize];
         Some(Cell {
             leaf,
-            lo,
-            hi,
+            lo: e.lo,
+            hi: e.hi,
             tape: &self.tapes[leaf.tape as usize],
             shading: &self.shading[leaf.shading as usize],
         })
@@ -330,18 +409,35 @@ fn child_box(lo: Vec3, hi: Vec3, i: usize) -> (Vec3, Vec3) {
     (Vec3::select(up, mid, lo), Vec3::select(up, hi, mid))
 }
 
+/// What the whole build shares.
+struct Context<'a> {
+    budget: &'a Budget,
+    /// Whether leaves should look for a Lipschitz bound below 1 (not for fields whose
+    /// gradient has unit length almost everywhere).
+    lipschitz: bool,
+}
+
 /// A leaf for a box whose program is specialised.
-fn make_leaf(simplifier: &mut Simplifier, sp: Specialised, lo: Vec3, hi: Vec3) -> Built {
-    let lipschitz = if sp.verdict == Verdict::Surface {
+fn make_leaf(
+    cx: &Context,
+    simplifier: &mut Simplifier,
+    sp: Specialised,
+    lo: Vec3,
+    hi: Vec3,
+) -> Built {
+    let surface = sp.verdict == Verdict::Surface;
+    let lipschitz = if surface && cx.lipschitz {
         simplifier.lipschitz(&sp.program, lo, hi).min(1.0)
     } else {
         1.0
     };
+    const FITS: &str = "a specialised program needs no more registers than its source";
     Built::Leaf(LeafBuild {
+        tape: sp.program.compile_distance().expect(FITS),
+        shading: surface.then(|| sp.program.compile().expect(FITS)),
         verdict: sp.verdict,
         lipschitz,
         min_value: sp.value.lo,
-        program: sp.program,
     })
 }
 
@@ -349,16 +445,16 @@ fn make_leaf(simplifier: &mut Simplifier, sp: Specialised, lo: Vec3, hi: Vec3) -
 /// specialised first, and the box is split only if they gain (one level of look-ahead: a
 /// subtree is never built to be thrown away).
 fn build_node(
+    cx: &Context,
     sp: Specialised,
     lo: Vec3,
     hi: Vec3,
     depth: u32,
-    budget: &Budget,
     simplifier: &mut Simplifier,
 ) -> Built {
     let len = sp.len;
     if sp.verdict != Verdict::Surface || depth >= MAX_DEPTH || len < MIN_TAPE {
-        return make_leaf(simplifier, sp, lo, hi);
+        return make_leaf(cx, simplifier, sp, lo, hi);
     }
     let children: Vec<Specialised> = (0..8)
         .map(|i| {
@@ -387,8 +483,8 @@ fn build_node(
     // folded one shape at a time keeps every shape over an eighth of a spiral of spheres),
     // and their children would not show the gain their grandchildren have.
     let top = depth < CULL_DEPTH;
-    if !(shorter || top) || !budget.take(8, children.iter().map(|c| c.len).sum()) {
-        return make_leaf(simplifier, sp, lo, hi);
+    if !(shorter || top) || !cx.budget.take(8, children.iter().map(|c| c.len).sum()) {
+        return make_leaf(cx, simplifier, sp, lo, hi);
     }
     let built: Vec<Built> = if depth < PARALLEL_DEPTH {
         children
@@ -396,7 +492,7 @@ fn build_node(
             .enumerate()
             .map(|(i, c)| {
                 let (clo, chi) = child_box(lo, hi, i);
-                build_node(c, clo, chi, depth + 1, budget, &mut Simplifier::new())
+                build_node(cx, c, clo, chi, depth + 1, &mut Simplifier::new())
             })
             .collect()
     } else {
@@ -405,10 +501,33 @@ fn build_node(
             .enumerate()
             .map(|(i, c)| {
                 let (clo, chi) = child_box(lo, hi, i);
-                build_node(c, clo, chi, depth + 1, budget, simplifier)
+                build_node(cx, c, clo, chi, depth + 1, simplifier)
             })
             .collect()
     };
+    // Eight empty (or eight full) leaves are one: a ray passes the box at once.
+    for kind in [Verdict::Empty, Verdict::Full] {
+        if built
+            .iter()
+            .all(|c| matches!(c, Built::Leaf(l) if l.verdict == kind))
+        {
+            let min_value = built
+                .iter()
+                .map(|c| match c {
+                    Built::Leaf(l) => l.min_value,
+                    Built::Inner(_) => unreachable!("all leaves"),
+                })
+                .fold(f32::INFINITY, f32::min);
+            const FITS: &str = "a specialised program needs no more registers than its source";
+            return Built::Leaf(LeafBuild {
+                tape: sp.program.compile_distance().expect(FITS),
+                shading: None,
+                verdict: kind,
+                lipschitz: 1.0,
+                min_value,
+            });
+        }
+    }
     let built: [Built; 8] = built
         .try_into()
         .unwrap_or_else(|_| unreachable!("eight children"));
@@ -421,6 +540,7 @@ pub struct FieldCursor<'f, 'r> {
     octree: Option<&'f FieldOctree>,
     whole: &'f Tape,
     cell: Option<Cell<'f>>,
+    path: Path,
     /// Scalar registers.
     pub regs: &'r mut Registers,
 }
@@ -446,13 +566,13 @@ pub struct Region<'a> {
 }
 
 impl ObjectField {
-    /// The field of an object from its shading program and tapes: an octree over `region`
-    /// (the object's bounds, clipped to a finite box for unbounded objects) when one pays.
-    pub fn build(program: &SsaTape, whole: &Tape, whole_shading: &Tape, region: Aabb) -> Self {
+    /// The field of an object from its lowering: an octree over `region` (the object's
+    /// bounds, clipped to a finite box for unbounded objects) when one pays.
+    pub fn build(lowered: &LoweredSdf, region: Aabb) -> Self {
         ObjectField {
-            octree: FieldOctree::build(program, region),
-            whole: whole.clone(),
-            whole_shading: whole_shading.clone(),
+            octree: FieldOctree::build(&lowered.program, region, lowered.unit_gradient),
+            whole: lowered.distance.clone(),
+            whole_shading: lowered.shading.clone(),
         }
     }
 
@@ -479,6 +599,7 @@ impl ObjectField {
             octree: self.octree.as_ref(),
             whole: &self.whole,
             cell: None,
+            path: Path::default(),
             regs,
         }
     }
@@ -491,6 +612,7 @@ impl<'f, 'r> FieldCursor<'f, 'r> {
             octree: None,
             whole: tape,
             cell: None,
+            path: Path::default(),
             regs,
         }
     }
@@ -498,6 +620,11 @@ impl<'f, 'r> FieldCursor<'f, 'r> {
     /// The whole tape.
     pub fn whole_tape(&self) -> &'f Tape {
         self.whole
+    }
+
+    /// The octree, if the field has one.
+    pub fn octree(&self) -> Option<&'f FieldOctree> {
+        self.octree
     }
 
     /// The region holding p: the cached leaf if p is still in it.
@@ -511,7 +638,11 @@ impl<'f, 'r> FieldCursor<'f, 'r> {
                 };
             }
         }
-        match self.octree.and_then(|o| o.locate(p)) {
+        let found = match self.octree {
+            Some(o) => o.locate_along(p, &mut self.path),
+            None => None,
+        };
+        match found {
             Some(c) => {
                 self.cell = Some(c);
                 Region {
@@ -532,4 +663,188 @@ impl<'f, 'r> FieldCursor<'f, 'r> {
         let tape = self.region(p).tape;
         tape.eval_in(p, self.regs)
     }
+}
+
+/// A leaf met by a ray, with the parameters where the ray enters and leaves its box.
+#[derive(Debug, Clone, Copy)]
+pub struct Crossed<'a> {
+    /// The leaf and its box.
+    pub cell: Cell<'a>,
+    /// Where the ray enters the box.
+    pub enter: f32,
+    /// Where it leaves.
+    pub exit: f32,
+}
+
+/// One level of the walk: a node's slab parameters and the next child to visit.
+#[derive(Debug, Clone, Copy)]
+struct Frame {
+    node: Node,
+    lo: Vec3,
+    hi: Vec3,
+    t0: Vec3,
+    t1: Vec3,
+    next: u8,
+}
+
+/// The leaves a ray crosses, front to back: the parametric octree traversal of Revelles,
+/// Ureña & Lastra ("An efficient parametric algorithm for octree traversal", WSCG 2000). The
+/// ray is mirrored so that every direction component is positive (child numbers are mirrored
+/// with it), each node's slab parameters are halved into its children's, and the next child
+/// is the one across the nearest exit plane: every node on the ray's path is visited once,
+/// with a few additions and comparisons, and no point is ever located.
+pub struct RayWalk<'a> {
+    tree: &'a FieldOctree,
+    mirror: usize,
+    stack: [Frame; MAX_DEPTH as usize + 1],
+    len: usize,
+    from: f32,
+    to: f32,
+}
+
+/// A direction component this small counts as this (after mirroring, so positive): the slab
+/// parameters of a ray parallel to a slab stay finite, and their midpoints defined.
+const TINY_DIRECTION: f32 = 1e-20;
+
+impl<'a> RayWalk<'a> {
+    /// The walk over the leaves the ray crosses within [from, to].
+    pub fn new(tree: &'a FieldOctree, ray: &Ray, from: f32, to: f32) -> Self {
+        let mut mirror = 0usize;
+        let mut o = ray.origin;
+        let mut d = ray.direction;
+        for axis in 0..3 {
+            if d[axis] < 0.0 {
+                o[axis] = tree.lo[axis] + tree.hi[axis] - o[axis];
+                d[axis] = -d[axis];
+                mirror |= 1 << axis;
+            }
+            d[axis] = d[axis].max(TINY_DIRECTION);
+        }
+        let inv = d.recip();
+        let t0 = (tree.lo - o) * inv;
+        let t1 = (tree.hi - o) * inv;
+        let mut walk = RayWalk {
+            tree,
+            mirror,
+            stack: [Frame {
+                node: Node(0),
+                lo: tree.lo,
+                hi: tree.hi,
+                t0,
+                t1,
+                next: 0,
+            }; MAX_DEPTH as usize + 1],
+            len: 0,
+            from,
+            to,
+        };
+        if t0.max_element() < t1.min_element() && t1.min_element() >= from {
+            walk.push(tree.nodes[0], tree.lo, tree.hi, t0, t1);
+        }
+        walk
+    }
+
+    fn push(&mut self, node: Node, lo: Vec3, hi: Vec3, t0: Vec3, t1: Vec3) {
+        let tm = 0.5 * (t0 + t1);
+        self.stack[self.len] = Frame {
+            node,
+            lo,
+            hi,
+            t0,
+            t1,
+            next: first_child(t0, tm),
+        };
+        self.len += 1;
+    }
+
+    /// The next leaf along the ray, or `None` past `to` or the tree.
+    #[inline]
+    pub fn next_leaf(&mut self) -> Option<Crossed<'a>> {
+        while self.len > 0 {
+            let top = self.len - 1;
+            let f = self.stack[top];
+            if f.node.0 & LEAF_BIT != 0 {
+                self.len -= 1;
+                let enter = f.t0.max_element();
+                if enter > self.to {
+                    self.len = 0;
+                    return None;
+                }
+                let leaf = &self.tree.leaves[(f.node.0 & !LEAF_BIT) as usize];
+                return Some(Crossed {
+                    cell: Cell {
+                        leaf,
+                        lo: f.lo,
+                        hi: f.hi,
+                        tape: &self.tree.tapes[leaf.tape as usize],
+                        shading: &self.tree.shading[leaf.shading as usize],
+                    },
+                    enter,
+                    exit: f.t1.min_element(),
+                });
+            }
+            if f.next >= 8 {
+                self.len -= 1;
+                continue;
+            }
+            // Child `c` in the mirrored frame: bit 0 = x, 1 = y, 2 = z, as stored.
+            let c = f.next as usize;
+            let tm = 0.5 * (f.t0 + f.t1);
+            let up = glam::BVec3::new(c & 1 != 0, c & 2 != 0, c & 4 != 0);
+            let ct0 = Vec3::select(up, tm, f.t0);
+            let ct1 = Vec3::select(up, f.t1, tm);
+            // the next sibling: across the nearest exit plane of this child, if it is inside
+            let exit_axis = if ct1.x <= ct1.y && ct1.x <= ct1.z {
+                0
+            } else if ct1.y <= ct1.z {
+                1
+            } else {
+                2
+            };
+            self.stack[top].next = if c & (1 << exit_axis) != 0 {
+                8
+            } else {
+                (c | (1 << exit_axis)) as u8
+            };
+            if ct1.min_element() < self.from || ct0.max_element() > self.to {
+                continue;
+            }
+            // the child's box in real space: mirrored axes take the other half
+            let real = c ^ self.mirror;
+            let mid = 0.5 * (f.lo + f.hi);
+            let rup = glam::BVec3::new(real & 1 != 0, real & 2 != 0, real & 4 != 0);
+            let lo = Vec3::select(rup, mid, f.lo);
+            let hi = Vec3::select(rup, f.hi, mid);
+            let child = self.tree.nodes[f.node.0 as usize + real];
+            if child.0 & LEAF_BIT != 0 {
+                self.stack[self.len] = Frame {
+                    node: child,
+                    lo,
+                    hi,
+                    t0: ct0,
+                    t1: ct1,
+                    next: 0,
+                };
+                self.len += 1;
+            } else {
+                self.push(child, lo, hi, ct0, ct1);
+            }
+        }
+        None
+    }
+}
+
+/// The first child a ray enters (Revelles et al., Table 1, in our bit order): across the entry
+/// plane (the largest of the entry parameters), the halves whose midplane is crossed before
+/// entering.
+#[inline]
+fn first_child(t0: Vec3, tm: Vec3) -> u8 {
+    let entry = t0.max_element();
+    let mut c = 0u8;
+    for axis in 0..3 {
+        if tm[axis] < entry {
+            c |= 1 << axis;
+        }
+    }
+    c
 }

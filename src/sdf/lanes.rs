@@ -93,9 +93,17 @@ impl Lanes for f32 {
     fn sqrt(self) -> Self {
         f32::sqrt(self)
     }
+    // `f32::floor` is a library call on baseline x86-64 (no SSE4.1 rounding instruction):
+    // truncation, corrected below and at zero, as the SSE2 lanes do it.
     #[inline(always)]
     fn floor(self) -> Self {
-        f32::floor(self)
+        // |x| ≥ 2²³ is an integer already; NaN and ±∞ stay (written so that NaN takes it)
+        if self.abs().partial_cmp(&8_388_608.0) != Some(std::cmp::Ordering::Less) {
+            return self;
+        }
+        let t = self as i32 as f32;
+        let r = if t > self { t - 1.0 } else { t };
+        if r == 0.0 { 0.0f32.copysign(self) } else { r }
     }
     #[inline(always)]
     fn select_pos(c: Self, a: Self, b: Self) -> Self {
@@ -183,7 +191,7 @@ impl Lanes for Array8 {
     }
     #[inline(always)]
     fn floor(self) -> Self {
-        self.map(f32::floor)
+        self.map(<f32 as Lanes>::floor)
     }
     #[inline(always)]
     fn select_pos(c: Self, a: Self, b: Self) -> Self {

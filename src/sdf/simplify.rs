@@ -16,7 +16,6 @@
 //! than its global bound allows for.
 
 use crate::sdf::interval::{Domain, Interval, Slope, apply_domain};
-use crate::sdf::lower::compact;
 use crate::sdf::ssa::{Builder, M, SsaTape, V};
 use crate::sdf::tape::{Op, Shape};
 use glam::Vec3;
@@ -206,18 +205,12 @@ impl Simplifier {
         let result = V(self.map[program.result as usize]);
         let material = program.material.map(|m| M(self.map[m as usize]));
         let program = b.finish(result, material);
-        // folding may leave an operation unused (an identity made it redundant): drop those
-        let program = if program.live_len() + 3 < program.ops.len() {
-            compact(&program)
-        } else {
-            program
-        };
+        // Folding may leave an operation unused (an identity made it redundant); the
+        // operations are not renumbered (the next specialisation and the register allocator
+        // skip dead ones), only counted.
+        let len = program.live_into(false, &mut self.live);
         Specialised {
-            len: if program.material.is_some() {
-                program.distance_only().live_len()
-            } else {
-                program.ops.len() - 3
-            },
+            len,
             program,
             value,
             verdict,

@@ -363,23 +363,36 @@ impl Builder {
 impl SsaTape {
     /// Which operations the results depend on.
     pub fn live(&self) -> Vec<bool> {
-        let mut live = vec![false; self.ops.len()];
+        let mut live = Vec::new();
+        self.live_into(true, &mut live);
+        live
+    }
+
+    /// Marks in `live` the operations the distance (and, with `material`, the material)
+    /// depends on; returns how many there are, inputs excluded.
+    pub fn live_into(&self, material: bool, live: &mut Vec<bool>) -> usize {
+        live.clear();
+        live.resize(self.ops.len(), false);
         live[self.result as usize] = true;
-        if let Some(m) = self.material {
+        if let (true, Some(m)) = (material, self.material) {
             live[m as usize] = true;
         }
+        let mut count = 0;
         for i in (0..self.ops.len()).rev() {
             if !live[i] {
                 continue;
             }
             let op = &self.ops[i];
+            if op.op != Op::Input {
+                count += 1;
+            }
             op.for_each_value_operand(|v| live[v as usize] = true);
             if op.op == Op::MatMix {
                 live[op.a as usize] = true;
                 live[op.b as usize] = true;
             }
         }
-        live
+        count
     }
 
     /// Number of operations the results depend on, inputs excluded.
@@ -404,8 +417,19 @@ impl SsaTape {
     /// the program needs more than [`MAX_REGISTERS`] values (or [`MAX_MATERIAL_REGISTERS`]
     /// materials) alive at once.
     pub fn compile(&self) -> Result<Tape, String> {
+        self.compile_part(true)
+    }
+
+    /// [`Self::compile`] of the distance alone (the material operations dropped).
+    pub fn compile_distance(&self) -> Result<Tape, String> {
+        self.compile_part(false)
+    }
+
+    fn compile_part(&self, with_material: bool) -> Result<Tape, String> {
         let n = self.ops.len();
-        let live = self.live();
+        let mut live = Vec::new();
+        self.live_into(with_material, &mut live);
+        let material = self.material.filter(|_| with_material);
         // Last reader of every value among the live operations; results stay to the end.
         let mut last = vec![0usize; n];
         for (i, op) in self.ops.iter().enumerate() {
@@ -419,7 +443,7 @@ impl SsaTape {
             }
         }
         last[self.result as usize] = usize::MAX;
-        if let Some(m) = self.material {
+        if let Some(m) = material {
             last[m as usize] = usize::MAX;
         }
         let mut values = FreeRegisters::new(MAX_REGISTERS);
@@ -482,7 +506,7 @@ impl SsaTape {
         Ok(Tape {
             instrs,
             result: reg[self.result as usize],
-            material_result: self.material.map(|m| reg[m as usize]),
+            material_result: material.map(|m| reg[m as usize]),
             registers: used_v,
             material_registers: used_m,
         })

@@ -3,6 +3,7 @@
 
 pub mod crossing;
 pub mod normal;
+pub mod packet;
 pub mod segment;
 pub mod sphere;
 pub mod step;
@@ -86,6 +87,9 @@ pub struct AccelOptions {
     /// An octree of region-specialised tapes per SDF object (else every sample evaluates the
     /// whole tape, the reference the octree is tested against).
     pub specialise: bool,
+    /// Coherent rays ([`SceneTracer::closest_hits`]) marched in SIMD packets (else one by
+    /// one, which gives the same answers).
+    pub packets: bool,
 }
 
 impl Default for AccelOptions {
@@ -94,6 +98,7 @@ impl Default for AccelOptions {
             sdf_bvh: true,
             mesh_quality: BuildQuality::Medium,
             specialise: true,
+            packets: true,
         }
     }
 }
@@ -122,12 +127,7 @@ pub fn build_fields(scene: &Scene, specialise: bool) -> Vec<ObjectField> {
         .map(|o| {
             let l = &o.lowered;
             if specialise {
-                ObjectField::build(
-                    &l.program,
-                    &l.distance,
-                    &l.shading,
-                    field_region(o, &scene_box),
-                )
+                ObjectField::build(l, field_region(o, &scene_box))
             } else {
                 ObjectField::whole(&l.distance, &l.shading)
             }
@@ -142,6 +142,13 @@ pub struct SceneTracer<'a> {
     meshes: MeshAccel,
     fields: Vec<ObjectField>,
     field_build_time: std::time::Duration,
+    packets: bool,
+}
+
+thread_local! {
+    /// Packet scratch (8 KiB of SIMD registers) kept per thread.
+    static PACKET_SCRATCH: std::cell::RefCell<packet::PacketScratch> =
+        std::cell::RefCell::new(packet::PacketScratch::new());
 }
 
 impl<'a> SceneTracer<'a> {
@@ -154,6 +161,7 @@ impl<'a> SceneTracer<'a> {
                 sdf_bvh: true,
                 mesh_quality: scene.tracer.bvh,
                 specialise: true,
+                packets: true,
             },
         )
     }
@@ -173,6 +181,7 @@ impl<'a> SceneTracer<'a> {
             meshes: MeshAccel::new(&scene.meshes, options.mesh_quality),
             fields,
             field_build_time,
+            packets: options.packets,
         }
     }
 
@@ -236,8 +245,105 @@ impl<'a> SceneTracer<'a> {
                 .tlas
                 .closest_hits(&self.meshes.blas, rays, tmin, &limits, &mut mesh_hits);
         }
-        for ((ray, mesh_hit), out) in rays.iter().zip(mesh_hits).zip(out) {
-            *out = self.closest_hit_after_meshes(ray, tmin, limit, mesh_hit);
+        if self.scene.tracer.stepper != Stepper::Hart || !self.packets {
+            for ((ray, mesh_hit), out) in rays.iter().zip(mesh_hits).zip(out) {
+                *out = self.closest_hit_after_meshes(ray, tmin, limit, mesh_hit);
+            }
+            return;
+        }
+        PACKET_SCRATCH.with(|scratch| {
+            self.sdf_hits_in_packets(
+                rays,
+                tmin,
+                limit,
+                &mesh_hits,
+                &mut scratch.borrow_mut(),
+                out,
+            )
+        });
+    }
+
+    /// The SDF part of [`Self::closest_hits`] with Hart's stepper, rays marched in packets of
+    /// eight per object ([`packet::trace_hart_packet`]). Every ray visits its objects in the
+    /// order its own BVH walk would, each within the limit its nearer hits leave (the walk's
+    /// pruning, applied to the list of every object its bounds reach), so each ray's answer is
+    /// the one [`Self::closest_hit`] gives it.
+    fn sdf_hits_in_packets(
+        &self,
+        rays: &[Ray],
+        tmin: f32,
+        limit: f32,
+        mesh_hits: &[Option<crate::accel::bvh::InstanceHit>],
+        scratch: &mut packet::PacketScratch,
+        out: &mut [Option<Hit>],
+    ) {
+        let s = &self.scene.tracer;
+        let n = rays.len();
+        let mut limits: Vec<f32> = mesh_hits
+            .iter()
+            .map(|h| h.as_ref().map_or(limit, |h| h.t))
+            .collect();
+        let mut lists: Vec<Vec<(usize, f32, f32)>> = Vec::with_capacity(n);
+        for (ray, &l) in rays.iter().zip(&limits) {
+            let mut list = Vec::new();
+            let mut l = l;
+            self.accel.visit(ray, tmin, &mut l, |i, t0, t1, _| {
+                list.push((i, t0, t1));
+                ControlFlow::Continue(())
+            });
+            lists.push(list);
+        }
+        let mut next = vec![0usize; n];
+        let mut best: Vec<Option<(f32, usize)>> = vec![None; n];
+        let mut steps = vec![0u32; n];
+        let mut pending: Vec<(usize, usize, f32, f32)> = Vec::with_capacity(n);
+        let mut lanes = Vec::with_capacity(packet::PACKET);
+        let mut who = Vec::with_capacity(packet::PACKET);
+        let mut results = [TraceResult::of_points(None, 0); packet::PACKET];
+        loop {
+            // each ray's next object its walk would still visit
+            pending.clear();
+            for r in 0..n {
+                while let Some(&(i, t0, t1)) = lists[r].get(next[r]) {
+                    next[r] += 1;
+                    if t0 <= limits[r] {
+                        pending.push((i, r, t0, t1.min(limits[r])));
+                        break;
+                    }
+                }
+            }
+            if pending.is_empty() {
+                break;
+            }
+            pending.sort_by_key(|&(i, r, _, _)| (i, r));
+            for group in pending.chunk_by(|a, b| a.0 == b.0) {
+                let object = group[0].0;
+                for chunk in group.chunks(packet::PACKET) {
+                    lanes.clear();
+                    who.clear();
+                    for &(_, r, t0, t1) in chunk {
+                        lanes.push(packet::Lane {
+                            ray: rays[r],
+                            t0,
+                            t1,
+                        });
+                        who.push(r);
+                    }
+                    let res = &mut results[..lanes.len()];
+                    packet::trace_hart_packet(&self.fields[object], &lanes, s, scratch, res);
+                    for (&r, res) in who.iter().zip(res.iter()) {
+                        steps[r] += res.steps;
+                        if let Some(t) = res.t {
+                            best[r] = Some((t, object));
+                            limits[r] = t;
+                        }
+                    }
+                }
+            }
+        }
+        let mut regs = Registers::new();
+        for r in 0..n {
+            out[r] = self.finish_hit(&rays[r], best[r], steps[r], mesh_hits[r], &mut regs);
         }
     }
 
@@ -267,10 +373,24 @@ impl<'a> SceneTracer<'a> {
             }
             ControlFlow::Continue(())
         });
+        self.finish_hit(ray, best, steps, mesh_hit, &mut regs)
+    }
+
+    /// The hit a closest-hit query reports: the nearest SDF hit with its normal, else the
+    /// mesh hit with its surface.
+    fn finish_hit(
+        &self,
+        ray: &Ray,
+        best: Option<(f32, usize)>,
+        steps: u32,
+        mesh_hit: Option<crate::accel::bvh::InstanceHit>,
+        regs: &mut Registers,
+    ) -> Option<Hit> {
+        let s = &self.scene.tracer;
         if let Some((t, object)) = best {
             let p = ray.at(t);
             let h = normal::step_for(s, t);
-            let mut field = self.fields[object].cursor(&mut regs);
+            let mut field = self.fields[object].cursor(regs);
             let (n, gradient) = normal::estimate(&mut field, p, h, s.normals);
             return Some(Hit {
                 t,

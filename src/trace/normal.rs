@@ -4,7 +4,42 @@ use super::step::epsilon_at;
 use crate::accel::field::FieldCursor;
 use crate::scene::TracerSettings;
 use crate::scene::file::NormalMethod;
+use crate::sdf::simd::{PacketRegisters, SimdLevel, eval8};
 use glam::Vec3;
+use std::cell::RefCell;
+
+thread_local! {
+    /// SIMD registers for the stencils, kept per thread.
+    static STENCIL: RefCell<PacketRegisters> = RefCell::new(PacketRegisters::new());
+}
+
+/// The field at up to 8 points: one SIMD pass when they share a tape (the stencil around a
+/// hit mostly lies in one leaf), else point by point — the same values either way.
+fn values<const N: usize>(field: &mut FieldCursor, points: [Vec3; N]) -> [f32; N] {
+    const { assert!(N <= 8) };
+    let tapes = points.map(|q| field.region(q).tape);
+    if tapes.iter().all(|t| std::ptr::eq(*t, tapes[0])) {
+        let mut xyz = [[0.0f32; 8]; 3];
+        for i in 0..8 {
+            let q = points[i.min(N - 1)];
+            for a in 0..3 {
+                xyz[a][i] = q[a];
+            }
+        }
+        let d = STENCIL.with(|r| {
+            eval8(
+                SimdLevel::detect(),
+                tapes[0],
+                &xyz[0],
+                &xyz[1],
+                &xyz[2],
+                &mut r.borrow_mut(),
+            )
+        });
+        return std::array::from_fn(|i| d[i]);
+    }
+    points.map(|q| field.eval(q))
+}
 
 /// The finite-difference step at distance t: a few ε(t), so the stencil straddles the
 /// ε-shell the tracer stopped in, but never below 1e-4 where f32 cancellation dominates.
@@ -24,12 +59,18 @@ pub fn estimate(field: &mut FieldCursor, p: Vec3, h: f32, method: NormalMethod) 
 
 /// Central differences, 6 evaluations: ∇f ≈ (f(p+hx) − f(p−hx), …)/2h, second-order accurate.
 pub fn central(field: &mut FieldCursor, p: Vec3, h: f32) -> Vec3 {
-    let mut f = |q: Vec3| field.eval(q);
-    Vec3::new(
-        f(p + Vec3::X * h) - f(p - Vec3::X * h),
-        f(p + Vec3::Y * h) - f(p - Vec3::Y * h),
-        f(p + Vec3::Z * h) - f(p - Vec3::Z * h),
-    ) / (2.0 * h)
+    let f = values(
+        field,
+        [
+            p + Vec3::X * h,
+            p - Vec3::X * h,
+            p + Vec3::Y * h,
+            p - Vec3::Y * h,
+            p + Vec3::Z * h,
+            p - Vec3::Z * h,
+        ],
+    );
+    Vec3::new(f[0] - f[1], f[2] - f[3], f[4] - f[5]) / (2.0 * h)
 }
 
 /// The tetrahedral 4-tap estimate (Quilez, "normals for an SDF"): with the four vertices
@@ -42,7 +83,8 @@ pub fn tetrahedral(field: &mut FieldCursor, p: Vec3, h: f32) -> Vec3 {
         Vec3::new(-1.0, 1.0, -1.0),
         Vec3::new(1.0, 1.0, 1.0),
     ];
-    K.iter().map(|&k| k * field.eval(p + k * h)).sum::<Vec3>() / (4.0 * h)
+    let f = values(field, K.map(|k| p + k * h));
+    K.iter().zip(f).map(|(&k, f)| k * f).sum::<Vec3>() / (4.0 * h)
 }
 
 #[cfg(test)]

@@ -6,18 +6,20 @@
 //! holding it, and leaves proven empty are skipped without an evaluation.
 
 use super::crossing::{self, Candidate};
-use super::step::{MAX_SKIPS, Marching, TraceResult, epsilon_at, is, region_at, safe_step};
-use crate::accel::field::FieldCursor;
+use super::step::{MAX_SKIPS, Marching, TraceResult, epsilon_at, is, region_at};
+use crate::accel::field::{Crossed, FieldCursor, RayWalk};
 use crate::geom::Ray;
 use crate::scene::TracerSettings;
 use crate::sdf::simplify::Verdict;
+use crate::sdf::tape::Tape;
 
 /// Marches from t0 towards t1 by the field value: the field is 1-Lipschitz (every node of the
 /// lowered tape is step-corrected), so an unbounding sphere of radius f(p) around p contains no
-/// surface and the step never skips one (Hart 1996, Theorem 1); inside a leaf with a smaller
-/// Lipschitz bound L the step is f/L, and an empty leaf is left at once. Where f < ε(t) the
-/// candidate is confirmed by a sign change and placed at the crossing ([`crossing::confirm`]);
-/// a miss past t1 or after `max_steps` evaluations.
+/// surface and the step never skips one (Hart 1996, Theorem 1). Over an octree the march walks
+/// the leaves along the ray ([`RayWalk`]): empty leaves are passed without an evaluation, each
+/// other leaf is marched with its own tape, by f/L where its Lipschitz bound L < 1 allows (up
+/// to its exit). Where f < ε(t) the candidate is confirmed by a sign change and placed at the
+/// crossing ([`crossing::confirm`]); a miss past t1 or after `max_steps` evaluations.
 pub fn trace_hart(
     field: &mut FieldCursor,
     ray: &Ray,
@@ -25,31 +27,256 @@ pub fn trace_hart(
     t1: f32,
     s: &TracerSettings,
 ) -> TraceResult {
-    let m = Marching::new(ray);
-    let mut t = t0;
-    let (mut steps, mut skips) = (0, 0);
-    while steps < s.max_steps && skips < MAX_SKIPS {
-        let (p, region) = region_at(field, &m, t);
-        if is(&region, Verdict::Empty) {
-            t = m.past(&region.cell.expect("a leaf"), t);
-            skips += 1;
-        } else {
-            let d = region.tape.eval_in(p, field.regs);
-            steps += 1;
-            if d < epsilon_at(s, t) {
-                match crossing::confirm(field, ray, t, d, t1, s, &mut steps) {
-                    Candidate::Hit(t) => return TraceResult::of_points(Some(t), steps),
-                    Candidate::Continue(next) => t = next,
-                }
-            } else {
-                t += safe_step(d, &region, &m, t);
+    let mut steps = 0;
+    let outcome = hart(field, ray, t0, t1, s, &mut steps);
+    TraceResult::of_points(outcome, steps)
+}
+
+/// How a march over one stretch of the ray ended.
+pub(crate) enum Stretch {
+    /// A confirmed hit.
+    Hit(f32),
+    /// Past the stretch's end, at this t.
+    Left(f32),
+    /// The step budget is spent.
+    Spent,
+}
+
+/// A part of a ray marched with one tape: a leaf's, or the whole tape's outside the tree.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Part<'f> {
+    /// The tape valid there.
+    pub tape: &'f Tape,
+    /// The field's Lipschitz bound there (1 outside leaves with a better one).
+    pub lipschitz: f32,
+    /// Where the march starts (the current t, or the part's start if later).
+    pub start: f32,
+    /// Where it ends.
+    pub end: f32,
+}
+
+/// The parts of [t0, t1] a ray is marched over, in order, given the march's current t: the
+/// whole tape before the tree's box (an unbounded object clipped to the scene), the leaves of
+/// the walk that are not empty, the whole tape beyond the box.
+pub(crate) struct Parts<'f> {
+    whole: &'f Tape,
+    walk: Option<RayWalk<'f>>,
+    phase: Phase,
+    t1: f32,
+    enter: f32,
+    leave: f32,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Phase {
+    /// One whole-tape part over [t0, t1] (no tree, or the ray misses its box).
+    Whole,
+    /// The whole tape up to the tree's box.
+    Before,
+    /// The leaves.
+    Walk,
+    /// The whole tape after the box.
+    After,
+    /// Nothing left.
+    Done,
+}
+
+impl<'f> Parts<'f> {
+    /// The parts of [t0, t1] along `ray` for the field of `cursor`.
+    pub fn new(cursor: &FieldCursor<'f, '_>, ray: &Ray, t0: f32, t1: f32) -> Self {
+        let whole = cursor.whole_tape();
+        let mut parts = Parts {
+            whole,
+            walk: None,
+            phase: Phase::Whole,
+            t1,
+            enter: t0,
+            leave: t1,
+        };
+        if let Some(tree) = cursor.octree() {
+            if let Some((enter, leave)) = tree.bounds().ray_interval(ray, t0, t1) {
+                parts.walk = Some(RayWalk::new(tree, ray, t0, leave));
+                parts.phase = if t0 < enter {
+                    Phase::Before
+                } else {
+                    Phase::Walk
+                };
+                parts.enter = enter;
+                parts.leave = leave;
             }
         }
-        if t > t1 {
-            break;
+        parts
+    }
+
+    /// The next part for a march now at t, or `None` when nothing is left before t1.
+    #[inline]
+    pub fn next(&mut self, t: f32) -> Option<Part<'f>> {
+        loop {
+            match self.phase {
+                Phase::Whole => {
+                    self.phase = Phase::Done;
+                    return Some(self.whole_part(t, self.t1));
+                }
+                Phase::Before => {
+                    self.phase = Phase::Walk;
+                    return Some(self.whole_part(t, self.enter));
+                }
+                Phase::Walk => {
+                    let walk = self.walk.as_mut().expect("a walk in the walk phase");
+                    match walk.next_leaf() {
+                        Some(x) if x.exit < t || x.cell.leaf.verdict == Verdict::Empty => {}
+                        Some(x) => {
+                            return Some(Part {
+                                tape: x.cell.tape,
+                                lipschitz: x.cell.leaf.lipschitz,
+                                start: t.max(x.enter),
+                                end: x.exit.min(self.t1),
+                            });
+                        }
+                        None => self.phase = Phase::After,
+                    }
+                }
+                Phase::After => {
+                    self.phase = Phase::Done;
+                    if self.leave < self.t1 {
+                        return Some(self.whole_part(t.max(next_up(self.leave)), self.t1));
+                    }
+                }
+                Phase::Done => return None,
+            }
         }
     }
-    TraceResult::of_points(None, steps)
+
+    fn whole_part(&self, start: f32, end: f32) -> Part<'f> {
+        Part {
+            tape: self.whole,
+            lipschitz: 1.0,
+            start,
+            end,
+        }
+    }
+}
+
+/// One Hart step from a sample of value d ≥ ε in `part`: d, or d/L within the part where its
+/// Lipschitz bound L < 1 (no surface lies within d/L inside the leaf; beyond it the global
+/// bound allows d).
+#[inline]
+pub(crate) fn hart_step(d: f32, part: &Part, t: f32) -> f32 {
+    if part.lipschitz < 1.0 {
+        d.max((d / part.lipschitz).min(part.end - t))
+    } else {
+        d
+    }
+}
+
+/// Hart's march over one part.
+#[inline]
+fn march_part(
+    field: &mut FieldCursor,
+    part: &Part,
+    ray: &Ray,
+    t1: f32,
+    s: &TracerSettings,
+    steps: &mut u32,
+) -> Stretch {
+    let mut t = part.start;
+    while t <= part.end {
+        if *steps >= s.max_steps {
+            return Stretch::Spent;
+        }
+        let d = part.tape.eval_in(ray.at(t), field.regs);
+        *steps += 1;
+        if d < epsilon_at(s, t) {
+            match crossing::confirm(field, ray, t, d, t1, s, steps) {
+                Candidate::Hit(t) => return Stretch::Hit(t),
+                Candidate::Continue(next) => t = next,
+            }
+        } else {
+            t += hart_step(d, part, t);
+        }
+    }
+    Stretch::Left(t)
+}
+
+fn hart(
+    field: &mut FieldCursor,
+    ray: &Ray,
+    t0: f32,
+    t1: f32,
+    s: &TracerSettings,
+    steps: &mut u32,
+) -> Option<f32> {
+    let mut parts = Parts::new(field, ray, t0, t1);
+    let mut t = t0;
+    while let Some(part) = parts.next(t) {
+        match march_part(field, &part, ray, t1, s, steps) {
+            Stretch::Hit(t) => return Some(t),
+            Stretch::Spent => return None,
+            Stretch::Left(next) => t = next,
+        }
+        if t > t1 {
+            return None;
+        }
+    }
+    None
+}
+
+/// The next float above x ≥ 0.
+#[inline]
+pub(crate) fn next_up(x: f32) -> f32 {
+    f32::from_bits(x.max(0.0).to_bits() + 1)
+}
+
+/// The tape valid at increasing parameters t along a ray: the leaves of the walk, the whole
+/// tape outside the tree's box.
+struct Along<'f> {
+    walk: Option<RayWalk<'f>>,
+    current: Option<Crossed<'f>>,
+    whole: &'f Tape,
+}
+
+impl<'f> Along<'f> {
+    fn new(field: &FieldCursor<'f, '_>, ray: &Ray, t0: f32, t1: f32) -> Self {
+        Along {
+            walk: field.octree().map(|tree| RayWalk::new(tree, ray, t0, t1)),
+            current: None,
+            whole: field.whole_tape(),
+        }
+    }
+
+    /// The leaf at t (t never decreasing between calls), or `None` outside the tree.
+    #[inline]
+    fn at(&mut self, t: f32) -> Option<Crossed<'f>> {
+        if let Some(c) = self.current {
+            if t <= c.exit {
+                return (t >= c.enter).then_some(c);
+            }
+        }
+        let walk = self.walk.as_mut()?;
+        loop {
+            match walk.next_leaf() {
+                Some(c) if c.exit < t => continue,
+                Some(c) => {
+                    self.current = Some(c);
+                    return (t >= c.enter).then_some(c);
+                }
+                None => {
+                    self.walk = None;
+                    self.current = None;
+                    return None;
+                }
+            }
+        }
+    }
+
+    /// The tape valid at t.
+    #[inline]
+    fn tape(&mut self, t: f32) -> &'f Tape {
+        match self.at(t) {
+            Some(c) => c.cell.tape,
+            None => self.whole,
+        }
+    }
 }
 
 /// How an over-relaxed march chooses ω.
@@ -206,13 +433,12 @@ pub fn penumbra(
     k: f32,
     improved: bool,
 ) -> f32 {
-    let m = Marching::new(ray);
+    let mut along = Along::new(field, ray, t0, t1);
     let mut res: f32 = 1.0;
     let mut previous = f32::INFINITY;
     let mut t = t0;
     for _ in 0..s.max_steps {
-        let (p, region) = region_at(field, &m, t);
-        let h = region.tape.eval_in(p, field.regs);
+        let h = along.tape(t).eval_in(ray.at(t), field.regs);
         if h < epsilon_at(s, t) {
             return 0.0;
         }
@@ -249,22 +475,29 @@ pub fn exit(
     t1: f32,
     s: &TracerSettings,
 ) -> Option<f32> {
-    let m = Marching::new(ray);
+    let mut along = Along::new(field, ray, t0, t1);
     let mut t = t0;
     let (mut steps, mut skips) = (0, 0);
     while steps < s.max_steps && skips < MAX_SKIPS {
-        let (p, region) = region_at(field, &m, t);
-        if is(&region, Verdict::Full) {
-            t = m.past(&region.cell.expect("a leaf"), t);
-            skips += 1;
-        } else {
-            let d = -region.tape.eval_in(p, field.regs);
-            steps += 1;
-            if d < epsilon_at(s, t) {
-                return Some(t);
+        let tape = match along.at(t) {
+            Some(c) if c.cell.leaf.verdict == Verdict::Full => {
+                // inside at every point of the leaf: on to just past where the ray leaves it
+                t = next_up(t.max(c.exit));
+                skips += 1;
+                if t > t1 {
+                    return None;
+                }
+                continue;
             }
-            t += 0.9 * d;
+            Some(c) => c.cell.tape,
+            None => along.whole,
+        };
+        let d = -tape.eval_in(ray.at(t), field.regs);
+        steps += 1;
+        if d < epsilon_at(s, t) {
+            return Some(t);
         }
+        t += 0.9 * d;
         if t > t1 {
             return None;
         }

@@ -86,6 +86,26 @@ pub struct LoweredSdf {
     pub program: SsaTape,
     /// Conservative object-space bounds of the surface (may be infinite).
     pub bounds: Aabb,
+    /// Whether |∇f| = 1 almost everywhere (primitives and sharp CSG of them, rigid and
+    /// uniformly scaled, rounded, shelled, repeated): no region has a Lipschitz bound below
+    /// 1, so region specialisation need not look for one.
+    pub unit_gradient: bool,
+}
+
+/// Whether a tree's field has |∇f| = 1 almost everywhere: no node divides by a Lipschitz
+/// bound or blends (implicits, twist, bend, non-uniform scale, smooth CSG, the ellipsoid's
+/// bound).
+pub fn unit_gradient(node: &SdfNode) -> bool {
+    use SdfNode::*;
+    let own = match node {
+        Ellipsoid { .. } | Implicit { .. } | Twist { .. } | Bend { .. } => false,
+        Scale { factors, .. } => factors.0.min_element() == factors.0.max_element(),
+        SmoothUnion { k, .. } | SmoothIntersection { k, .. } | SmoothSubtraction { k, .. } => {
+            k.0 <= 0.0
+        }
+        _ => true,
+    };
+    own && node.children().into_iter().all(unit_gradient)
 }
 
 /// Lowers `node` with the object-to-world transform already folded in by the caller (use
@@ -112,6 +132,7 @@ pub fn lower(
         shading,
         program,
         bounds,
+        unit_gradient: unit_gradient(node),
     })
 }
 

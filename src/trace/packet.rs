@@ -1,0 +1,192 @@
+//! Coherent rays marched together: up to eight rays of a tile row sphere-traced through one
+//! object at once, every sample of the rays that stand in the same leaf evaluated by one pass
+//! of that leaf's tape on SIMD lanes ([`crate::sdf::simd`]).
+//!
+//! Each ray keeps its own march — its parts ([`super::sphere`]'s leaves and whole-tape
+//! stretches), its t, its step count — and takes exactly the steps [`super::sphere::trace_hart`]
+//! takes alone: the lanes give the scalar interpreter's bits, a candidate hit is confirmed by
+//! the scalar code, and so every ray's answer is the one it gets alone (tested). The packet
+//! only shares the interpreter's dispatch: a tape's instruction is decoded once for the rays
+//! in its leaf, which is where a single ray's march spends its time (one point per pass keeps
+//! the interpreter waiting on its register file; eight keep it busy).
+
+use super::crossing::{self, Candidate};
+use super::sphere::{Part, Parts, hart_step};
+use super::step::{TraceResult, epsilon_at};
+use crate::accel::field::ObjectField;
+use crate::geom::Ray;
+use crate::scene::TracerSettings;
+use crate::sdf::simd::{PacketRegisters, SimdLevel, eval8};
+use crate::sdf::tape::Registers;
+use arrayvec::ArrayVec;
+
+/// Rays per packet: the AVX2 lane count.
+pub const PACKET: usize = 8;
+
+/// One ray of a packet: what it marches over, and its answer when done.
+#[derive(Debug, Clone, Copy)]
+pub struct Lane {
+    /// The ray.
+    pub ray: Ray,
+    /// Start of its interval.
+    pub t0: f32,
+    /// End of its interval.
+    pub t1: f32,
+}
+
+/// Scratch reused across packets.
+pub struct PacketScratch {
+    simd: PacketRegisters,
+    regs: Registers,
+    level: SimdLevel,
+}
+
+impl PacketScratch {
+    /// Scratch for the SIMD level this CPU runs.
+    pub fn new() -> Self {
+        Self::with_level(SimdLevel::detect())
+    }
+
+    /// Scratch for a given level (tests compare them).
+    pub fn with_level(level: SimdLevel) -> Self {
+        PacketScratch {
+            simd: PacketRegisters::new(),
+            regs: Registers::new(),
+            level,
+        }
+    }
+}
+
+impl Default for PacketScratch {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Where one lane's march stands.
+struct State<'f> {
+    parts: Parts<'f>,
+    part: Option<Part<'f>>,
+    t: f32,
+    steps: u32,
+    done: Option<Option<f32>>,
+}
+
+/// Hart's march of up to [`PACKET`] rays through one object's field; `out[i]` is what
+/// [`super::sphere::trace_hart`] returns for `lanes[i]` alone.
+pub fn trace_hart_packet(
+    field: &ObjectField,
+    lanes: &[Lane],
+    s: &TracerSettings,
+    scratch: &mut PacketScratch,
+    out: &mut [TraceResult],
+) {
+    assert!(lanes.len() <= PACKET && out.len() == lanes.len());
+    let PacketScratch { simd, regs, level } = scratch;
+    let mut states: ArrayVec<State, PACKET> = {
+        let cursor = field.cursor(regs);
+        lanes
+            .iter()
+            .map(|l| State {
+                parts: Parts::new(&cursor, &l.ray, l.t0, l.t1),
+                part: None,
+                t: l.t0,
+                steps: 0,
+                done: None,
+            })
+            .collect()
+    };
+    loop {
+        // Every unfinished lane at the part that holds its t (the next one once past it).
+        let mut active = 0u32;
+        for (i, st) in states.iter_mut().enumerate() {
+            if st.done.is_some() {
+                continue;
+            }
+            loop {
+                match st.part {
+                    Some(p) if st.t <= p.end => break,
+                    Some(_) if st.t > lanes[i].t1 => {
+                        st.done = Some(None);
+                        break;
+                    }
+                    _ => match st.parts.next(st.t) {
+                        Some(p) => {
+                            st.t = p.start;
+                            st.part = Some(p);
+                        }
+                        None => {
+                            st.done = Some(None);
+                            break;
+                        }
+                    },
+                }
+            }
+            if st.done.is_none() {
+                if st.steps >= s.max_steps {
+                    st.done = Some(None);
+                } else {
+                    active |= 1 << i;
+                }
+            }
+        }
+        if active == 0 {
+            break;
+        }
+        // One pass per tape among the active lanes: lanes in one leaf share it.
+        while active != 0 {
+            let first = active.trailing_zeros() as usize;
+            let tape = states[first].part.expect("an active lane has a part").tape;
+            let mut group = 0u32;
+            let mut xyz = [[0.0f32; PACKET]; 3];
+            for i in 0..lanes.len() {
+                let p = if active & (1 << i) != 0
+                    && std::ptr::eq(states[i].part.expect("active").tape, tape)
+                {
+                    group |= 1 << i;
+                    lanes[i].ray.at(states[i].t)
+                } else {
+                    // a lane outside the group evaluates the first lane's point, unused
+                    lanes[first].ray.at(states[first].t)
+                };
+                for a in 0..3 {
+                    xyz[a][i] = p[a];
+                }
+            }
+            for axis in xyz.iter_mut() {
+                let v = axis[first];
+                axis[lanes.len()..].fill(v);
+            }
+            let d = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
+            active &= !group;
+            for (i, st) in states.iter_mut().enumerate() {
+                if group & (1 << i) == 0 {
+                    continue;
+                }
+                st.steps += 1;
+                let part = st.part.expect("active");
+                let (ray, t) = (&lanes[i].ray, st.t);
+                if d[i] < epsilon_at(s, t) {
+                    let mut cursor = field.cursor(regs);
+                    match crossing::confirm(
+                        &mut cursor,
+                        ray,
+                        t,
+                        d[i],
+                        lanes[i].t1,
+                        s,
+                        &mut st.steps,
+                    ) {
+                        Candidate::Hit(t) => st.done = Some(Some(t)),
+                        Candidate::Continue(next) => st.t = next,
+                    }
+                } else {
+                    st.t = t + hart_step(d[i], &part, t);
+                }
+            }
+        }
+    }
+    for (o, st) in out.iter_mut().zip(&states) {
+        *o = TraceResult::of_points(st.done.flatten(), st.steps);
+    }
+}
