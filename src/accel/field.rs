@@ -137,10 +137,13 @@ impl Path {
 }
 
 /// A node: the first of its eight children, or (top bit set) a leaf.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(transparent)]
 struct Node(u32);
 
-const LEAF_BIT: u32 = 1 << 31;
+/// The bit of a raw node that marks a leaf ([`FieldOctree::raw_nodes`]).
+pub const LEAF: u32 = 1 << 31;
+const LEAF_BIT: u32 = LEAF;
 
 /// The octree of one object.
 #[derive(Debug, Clone)]
@@ -287,6 +290,18 @@ impl FieldOctree {
     /// The box the tree covers.
     pub fn bounds(&self) -> Aabb {
         Aabb::new(self.lo, self.hi)
+    }
+
+    /// The nodes as stored, for backends that walk the tree themselves (the GPU): node 0 is
+    /// the root; a node is the index of the first of its eight children (octant order: bit 0
+    /// x, bit 1 y, bit 2 z, set for the upper half), or [`LEAF`] | a leaf index.
+    pub fn raw_nodes(&self) -> &[u32] {
+        bytemuck::cast_slice(&self.nodes)
+    }
+
+    /// The leaves, indexed by the nodes.
+    pub fn leaves(&self) -> &[Leaf] {
+        &self.leaves
     }
 
     /// The leaf holding p, with its box; `None` outside the tree's box.
