@@ -16,7 +16,17 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> anyhow::Result<Framebuffer
         .num_threads(opts.threads.unwrap_or(0))
         .build()?;
     let tracer = SceneTracer::new(scene);
-    let materials = scene.material_table();
+    render_with(&pool, &tracer, opts)
+}
+
+/// [`render`] on `pool` with a tracer built before (`opts.threads` is not used): what a
+/// second frame of the same scene costs (the bench's steady-state frame).
+pub fn render_with(
+    pool: &rayon::ThreadPool,
+    tracer: &SceneTracer,
+    opts: &RenderOptions,
+) -> anyhow::Result<Framebuffer> {
+    let materials = tracer.scene().material_table();
     let all = tiles(opts.width, opts.height);
     let bar = if opts.progress {
         let b = ProgressBar::new(all.len() as u64);
@@ -33,7 +43,7 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> anyhow::Result<Framebuffer
     let done: Vec<(Tile, Vec<Vec<CameraSample>>)> = pool.install(|| {
         all.par_iter()
             .map(|&tile| {
-                let px = render_tile(&tracer, &materials, opts, tile);
+                let px = render_tile(tracer, &materials, opts, tile);
                 bar.inc(1);
                 (tile, px)
             })
