@@ -6,7 +6,8 @@
 # Stages: scripts/setup.sh (Debian packages, Embree 4), then
 #   cargo test --release --features embree --no-fail-fast [ARGS...]
 #   cargo clippy --all-targets --features embree -- -D warnings
-#   cargo check --release --bins (default features, then --no-default-features)
+#   cargo check --release --bins (default features, then --no-default-features, then with the
+#     bench's optional `fidget` peer)
 #   cargo fmt --all -- --check
 # and stops at the first that fails. Tests find the shared test models through HYTRACE_ASSETS
 # (default: ../shared/assets beside the checkout), exported here as an absolute path; under
@@ -99,10 +100,11 @@ cargo clippy --all-targets --features embree -- -D warnings
 end_stage
 
 # The renderer must build without Embree (and without the GPU backend): the render command's
-# build, and the leanest one.
-start_stage "cargo check --release --bins (default features; --no-default-features)"
+# build, and the leanest one. The bench's fidget peer is optional and must not rot either.
+start_stage "cargo check --release --bins (default features; --no-default-features; --features fidget)"
 cargo check --release --bins
 cargo check --release --bins --no-default-features
+cargo check --release --features fidget --bins
 end_stage
 
 start_stage "cargo fmt --all -- --check"

@@ -24,12 +24,15 @@ fn worst(tape: &SsaTape, points: &[[f32; 3]]) -> (f32, [f32; 3], f32, f32) {
         let (b, _) = eval
             .eval(&fidget_tape, p[0], p[1], p[2])
             .expect("evaluates");
+        // NaN on one side only counts as the worst error.
         let err = if a.is_nan() && b.is_nan() || a == b {
             0.0
+        } else if a.is_nan() || b.is_nan() {
+            f32::INFINITY
         } else {
             (a - b).abs() / (1.0 + a.abs())
         };
-        if !(err <= worst.0) {
+        if err > worst.0 {
             worst = (err, p, a, b);
         }
     }

@@ -156,20 +156,53 @@ pub fn lower_objects(nodes: &[(String, SdfNode)]) -> anyhow::Result<Vec<SdfObjec
         .collect()
 }
 
+/// An object more than this many times larger (largest side of its bounds) than all the others
+/// together is a ground (a huge sphere or slab under the scene) and is left out: framing it
+/// would shrink the rest to a few pixels.
+pub const GROUND_RATIO: f32 = 10.0;
+
 /// The peer version of `scene` at `size`²: its finite SDF objects (infinite ones, such as
-/// planes, and meshes are left out and named in `left_out`), the orthographic view of their
-/// bounding cube, one directional light, no shadows, no bounces, the default material. `None`
-/// when no finite SDF object is left.
+/// planes, a ground per [`GROUND_RATIO`] and meshes are left out and named in `left_out`), the
+/// orthographic view of their bounding cube, one directional light, no shadows, no bounces, the
+/// default material. `None` when no finite SDF object is left.
 pub fn peer_model(name: &str, scene: &Scene, size: u32) -> anyhow::Result<Option<PeerModel>> {
     let mut left = Vec::new();
-    let mut nodes = Vec::new();
+    let mut kept: Vec<&SdfObject> = Vec::new();
     for o in &scene.objects {
         if o.bounds().is_finite() && !o.bounds().is_empty() {
-            nodes.push((o.name.clone(), o.node.clone()));
+            kept.push(o);
         } else {
             left.push(format!("{} (infinite)", o.name));
         }
     }
+    let side = |b: crate::geom::Aabb| (b.max - b.min).max_element();
+    if kept.len() >= 2 {
+        let largest = (0..kept.len())
+            .max_by(|&a, &b| side(kept[a].bounds()).total_cmp(&side(kept[b].bounds())))
+            .unwrap_or(0);
+        let rest = kept
+            .iter()
+            .enumerate()
+            .filter(|&(i, _)| i != largest)
+            .fold(crate::geom::Aabb::EMPTY, |acc, (_, o)| {
+                acc.union(&o.bounds())
+            });
+        let ratio = side(kept[largest].bounds()) / side(rest);
+        if ratio > GROUND_RATIO {
+            left.push(format!(
+                "{} (ground, {ratio:.0}× the rest)",
+                kept[largest].name
+            ));
+            kept.remove(largest);
+        }
+    }
+    let bounds = kept
+        .iter()
+        .fold(crate::geom::Aabb::EMPTY, |acc, o| acc.union(&o.bounds()));
+    let nodes: Vec<(String, SdfNode)> = kept
+        .iter()
+        .map(|o| (o.name.clone(), o.node.clone()))
+        .collect();
     let meshes = scene.meshes.instances.len();
     if meshes > 0 {
         left.push(format!(
@@ -180,7 +213,6 @@ pub fn peer_model(name: &str, scene: &Scene, size: u32) -> anyhow::Result<Option
     if nodes.is_empty() {
         return Ok(None);
     }
-    let bounds = scene.finite_bounds();
     let half = 0.5 * (bounds.max - bounds.min).max_element() * 1.02;
     let view = View {
         center: bounds.center(),
@@ -209,6 +241,8 @@ pub fn peer_model(name: &str, scene: &Scene, size: u32) -> anyhow::Result<Option
         shadow: Shadow::None,
     }];
     peer.tracer.shadows = false;
+    // The camera sits 2·half in front of the centre: rays must reach the back of the cube.
+    peer.tracer.max_distance = peer.tracer.max_distance.max(4.0 * view.half);
     peer.shading.ambient_occlusion = None;
     peer.shading.max_bounces = 0;
     let empty = peer.clone();
@@ -535,6 +569,11 @@ pub fn run(opts: &super::BenchOptions, scenes: &[(String, Scene)]) -> anyhow::Re
 /// A frame: seconds and hit mask, or None when it was cancelled at the frame limit.
 type Frame = anyhow::Result<Option<(f64, Vec<bool>)>>;
 
+/// What [`alternate_frames`] measured, per backend: the timed seconds and the warm-up's hit
+/// mask, both None for a backend over the frame limit.
+#[cfg(feature = "fidget")]
+type Timed<const N: usize> = ([Option<Vec<f64>>; N], [Option<Vec<bool>>; N]);
+
 #[cfg(feature = "fidget")]
 fn run_with_fidget(
     opts: &super::BenchOptions,
@@ -665,7 +704,7 @@ fn run_with_fidget(
 fn alternate_frames<const N: usize>(
     opts: &super::BenchOptions,
     backends: &[&dyn Fn() -> Frame; N],
-) -> anyhow::Result<([Option<Vec<f64>>; N], [Option<Vec<bool>>; N])> {
+) -> anyhow::Result<Timed<N>> {
     let mut masks: [Option<Vec<bool>>; N] = std::array::from_fn(|_| None);
     let mut times: [Option<Vec<f64>>; N] = std::array::from_fn(|_| None);
     for ((b, m), t) in backends.iter().zip(&mut masks).zip(&mut times) {
@@ -798,6 +837,11 @@ fn gpu_row(opts: &super::BenchOptions, model: &PeerModel, workers: &super::Worke
     row
 }
 
+/// `text`, or a dash for nothing.
+fn or_dash(text: &str) -> &str {
+    if text.is_empty() { "—" } else { text }
+}
+
 fn pct(x: Option<f64>) -> String {
     match x {
         Some(x) if x.is_finite() => format!("{:.3}%", 100.0 * x),
@@ -861,11 +905,7 @@ impl PeerReport {
                 m.model,
                 m.objects,
                 m.ops,
-                if m.left_out.is_empty() {
-                    "—"
-                } else {
-                    &m.left_out
-                },
+                or_dash(&m.left_out),
                 m.fidget_vm_build_ms,
                 m.fidget_jit_build_ms,
                 m.truth.stride,
@@ -885,11 +925,7 @@ impl PeerReport {
                 g.model,
                 g.size,
                 g.size,
-                if g.adapter.is_empty() {
-                    "none"
-                } else {
-                    &g.adapter
-                }
+                or_dash(&g.adapter)
             );
             let _ = writeln!(
                 s,
