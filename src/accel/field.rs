@@ -2,10 +2,11 @@
 //!
 //! Each leaf of the octree over the object's bounds holds the tape specialised to its box
 //! ([`crate::sdf::simplify`]), whether the box is empty, full or crossed by the surface, and,
-//! for a crossed box, a bound on |∇f| there. A point is evaluated with the tape of the leaf
-//! that holds it, which gives the whole tape's value at a fraction of its cost; a ray skips
-//! empty leaves without evaluating anything; steps inside a leaf may be scaled by its
-//! Lipschitz bound. Outside the octree's box the whole tape is used. The structure depends
+//! for a crossed box, interval enclosures of ∂f/∂x, ∂f/∂y, ∂f/∂z there. A point is evaluated
+//! with the tape of the leaf that holds it, which gives the whole tape's value at a fraction of
+//! its cost; a ray skips empty leaves without evaluating anything; steps inside a leaf may be
+//! lengthened by how slowly the field can fall along the ray there ([`Leaf::fall`]). Outside
+//! the octree's box the whole tape is used. The structure depends
 //! only on the object, so camera, shadow, ambient-occlusion, penumbra, reflection and
 //! refraction rays share it (screen tiles would serve camera rays only).
 //!
@@ -16,8 +17,10 @@
 //! (sphere-tracing steps there are short anyway) and cost it lookups, so emptiness alone
 //! stops counting below the top levels. Memory is bounded: at most [`MAX_NODES`] nodes and
 //! [`MAX_INSTRUCTIONS`] specialised instructions per object, counted before identical tapes
-//! are merged (so at most 16 + 64 MiB); a split that would exceed them leaves the box a leaf
-//! with its own tape.
+//! are merged (so at most 8 MiB of nodes, 80 MiB of 40-byte leaf records and 64 MiB of tapes); a
+//! split that would exceed them leaves the box a leaf with its own tape. The budget is shared
+//! among subtrees in proportion to their tapes before they are built in parallel, so the tree
+//! does not depend on the thread count.
 
 use crate::geom::{Aabb, Ray};
 use crate::sdf::LoweredSdf;
@@ -31,7 +34,7 @@ use rustc_hash::FxHashMap as HashMap;
 /// Deepest subdivision: cells of 1/256 of the box along each axis.
 pub const MAX_DEPTH: u32 = 8;
 
-/// Most nodes per object (4 bytes each, plus 16 per leaf): 32 MiB at most.
+/// Most nodes per object (4 bytes each, plus a 40-byte [`Leaf`] per leaf): 88 MiB at most.
 pub const MAX_NODES: usize = 1 << 21;
 
 /// Most instructions over an object's distinct specialised tapes (8 bytes each): 64 MiB.
@@ -74,6 +77,9 @@ impl Leaf {
         (f + f.abs() * 4.0 * f32::EPSILON).max(0.0)
     }
 }
+
+// The memory bound above counts 40 bytes per leaf.
+const _: () = assert!(std::mem::size_of::<Leaf>() == 40);
 
 /// A located leaf with its box.
 #[derive(Debug, Clone, Copy)]

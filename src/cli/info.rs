@@ -84,8 +84,72 @@ pub fn run(args: InfoArgs) -> Result<()> {
         tracer.sdf_accel().node_count(),
         total.as_secs_f64()
     );
+    print_fields(&scene, &tracer);
     for w in &m.warnings {
         println!("warning      {w}");
     }
     Ok(())
+}
+
+/// Most objects listed one by one; the rest only count in the total.
+const LISTED_OBJECTS: usize = 12;
+
+/// One line per SDF object (up to [`LISTED_OBJECTS`]) about its octree of specialised tapes,
+/// then the totals.
+fn print_fields(scene: &hytrace::scene::Scene, tracer: &SceneTracer) {
+    use hytrace::accel::field::OctreeStats;
+    let mut total = OctreeStats::default();
+    let mut trees = 0;
+    for (i, (object, field)) in scene.objects.iter().zip(tracer.fields()).enumerate() {
+        let whole = field.whole.len();
+        let Some(tree) = &field.octree else {
+            if i < LISTED_OBJECTS {
+                println!("SDF octree   {}: none (whole tape of {whole})", object.name);
+            }
+            continue;
+        };
+        let st = tree.stats();
+        trees += 1;
+        total.nodes += st.nodes;
+        total.leaves += st.leaves;
+        total.empty += st.empty;
+        total.full += st.full;
+        total.tapes += st.tapes;
+        total.instructions += st.instructions;
+        total.bytes += st.bytes;
+        if i < LISTED_OBJECTS {
+            println!(
+                "SDF octree   {}: {} nodes, {} leaves ({} empty, {} full, {} crossed), {} tapes, \
+                 crossed leaves' tapes {:.1} of {whole} instructions on average, {:.1} KiB",
+                object.name,
+                st.nodes,
+                st.leaves,
+                st.empty,
+                st.full,
+                st.leaves - st.empty - st.full,
+                st.tapes,
+                st.mean_surface_tape,
+                st.bytes as f64 / 1024.0
+            );
+        }
+    }
+    if scene.objects.len() > LISTED_OBJECTS {
+        println!(
+            "SDF octree   … {} more objects",
+            scene.objects.len() - LISTED_OBJECTS
+        );
+    }
+    if trees > 0 {
+        println!(
+            "SDF octrees  {trees}: {} nodes, {} tapes, {} instructions, {:.2} MiB, built in {:.3} s \
+             (at most {} nodes and {} instructions per object)",
+            total.nodes,
+            total.tapes,
+            total.instructions,
+            total.bytes as f64 / (1024.0 * 1024.0),
+            tracer.field_build_time().as_secs_f64(),
+            hytrace::accel::field::MAX_NODES,
+            hytrace::accel::field::MAX_INSTRUCTIONS
+        );
+    }
 }
