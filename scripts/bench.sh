@@ -2,7 +2,8 @@
 # Runs hytrace's benchmarks from a fresh clone: installs what they need (scripts/setup.sh: Embree 4
 # and the Debian packages), then `hytrace bench` with Embree built in. Extra arguments go to
 # `hytrace bench` (e.g. --quick, --runs 3, --only mesh). Writes bench.json beside the tables
-# unless --json is given.
+# unless --json is given. Built with the `fidget` feature, so the peer section (our SDF renderer
+# against fidget's) runs too.
 set -euo pipefail
 REPO_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd -P)"
 cd "$REPO_ROOT"
@@ -15,4 +16,4 @@ if [[ " ${args[*]-} " != *" --json "* ]]; then
     args+=(--json bench.json)
 fi
 # The `benchmark` profile: release with fat LTO and one codegen unit (Cargo.toml).
-exec cargo run --profile benchmark --features embree -- bench "${args[@]}"
+exec cargo run --profile benchmark --features embree,fidget -- bench "${args[@]}"

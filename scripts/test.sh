@@ -4,8 +4,8 @@
 #   scripts/test.sh [ARGS...]    ARGS go to `cargo test`, e.g. `scripts/test.sh embree_smoke`
 #
 # Stages: scripts/setup.sh (Debian packages, Embree 4), then
-#   cargo test --release --features embree --no-fail-fast [ARGS...]
-#   cargo clippy --all-targets --features embree -- -D warnings
+#   cargo test --release --features embree,fidget --no-fail-fast [ARGS...]
+#   cargo clippy --all-targets --features embree,fidget -- -D warnings
 #   cargo check --release --bins (default features, then --no-default-features)
 #   cargo fmt --all -- --check
 # and stops at the first that fails. Tests find the shared test models through HYTRACE_ASSETS
@@ -90,12 +90,13 @@ echo "HYTRACE_ASSETS=$HYTRACE_ASSETS"
 end_stage
 
 # --no-fail-fast: run every test binary and report all failures, not just the first binary's.
-start_stage "cargo test --release --features embree --no-fail-fast${*:+ $*}"
-cargo test --release --features embree --no-fail-fast "$@" 2>&1 | tee "$test_log"
+# With the bench's fidget peer: its tape conversion and the peer section are tested too.
+start_stage "cargo test --release --features embree,fidget --no-fail-fast${*:+ $*}"
+cargo test --release --features embree,fidget --no-fail-fast "$@" 2>&1 | tee "$test_log"
 end_stage
 
-start_stage "cargo clippy --all-targets --features embree -- -D warnings"
-cargo clippy --all-targets --features embree -- -D warnings
+start_stage "cargo clippy --all-targets --features embree,fidget -- -D warnings"
+cargo clippy --all-targets --features embree,fidget -- -D warnings
 end_stage
 
 # The renderer must build without Embree (and without the GPU backend): the render command's

@@ -1,4 +1,5 @@
-//! `hytrace bench --quick` runs and writes well-formed tables and JSON with agreement figures.
+//! `hytrace bench --quick` runs and writes well-formed tables and JSON with agreement figures
+//! (the peer section's too when built with the `fidget` feature).
 //! Only the shape of the report is checked, never a time (speed is measured, not tested).
 
 use std::path::PathBuf;
@@ -99,6 +100,66 @@ fn quick_bench_writes_tables_and_json() {
         "2 sizes × BVH on/off"
     );
     assert!(!scaling["mesh"].as_array().unwrap().is_empty());
+    for r in sdf_rows {
+        assert!(r["ms_per_frame"].as_f64().unwrap() > 0.0, "{r}");
+    }
+    check_peer(&stdout, &v["peer"]);
+}
+
+/// The peer section: skipped with a clear line without the `fidget` feature; with it, a timing
+/// row per model and thread count and an agreement row per model.
+fn check_peer(stdout: &str, peer: &serde_json::Value) {
+    assert!(stdout.contains("## SDF peer: fidget"), "{stdout}");
+    if !cfg!(feature = "fidget") {
+        assert!(
+            stdout.contains("Skipped: needs the `fidget` feature"),
+            "{stdout}"
+        );
+        assert!(peer["skipped"].is_string(), "{peer}");
+        return;
+    }
+    assert!(peer["skipped"].is_null(), "{peer}");
+    let models = peer["models"].as_array().expect("peer models");
+    let names: Vec<&str> = models
+        .iter()
+        .map(|m| m["model"].as_str().unwrap())
+        .collect();
+    for n in [
+        "gyroid sphere",
+        "400 spheres",
+        "smooth chain (60 links)",
+        "twisted + bent",
+        "showcase.ron",
+    ] {
+        assert!(names.contains(&n), "{names:?}");
+    }
+    assert_eq!(peer["rows"].as_array().unwrap().len(), 2 * models.len());
+    for m in models {
+        // At 64² fidget's 64 voxels along a ray miss some of the gyroid's thin walls: the
+        // figures only have to be fractions here.
+        for key in [
+            "fidget_vm_agreement",
+            "fidget_jit_agreement",
+            "hytrace_agreement",
+        ] {
+            let a = m[key].as_f64().unwrap_or_else(|| panic!("{key} in {m}"));
+            assert!((0.9..=1.0).contains(&a), "{key}: {m}");
+        }
+        assert!(m["truth"]["count"].as_u64().unwrap() > 0, "{m}");
+    }
+    for r in peer["rows"].as_array().unwrap() {
+        for key in ["fidget_vm", "fidget_jit", "hytrace_first", "hytrace_steady"] {
+            assert!(r[key]["median_ms"].as_f64().unwrap() > 0.0, "{key}: {r}");
+        }
+        assert!(r["steady_ratio"].as_f64().unwrap() > 0.0, "{r}");
+    }
+    let rows = stdout
+        .lines()
+        .filter(|l| l.starts_with("| gyroid sphere | ") && l.matches('|').count() == 10)
+        .count();
+    assert_eq!(rows, 2, "a timing row per thread count:\n{stdout}");
+    // The GPU row is there; its figures depend on an adapter being found.
+    assert!(peer["gpu"].is_object(), "{peer}");
 }
 
 #[test]
@@ -106,6 +167,7 @@ fn bad_bench_arguments_are_errors() {
     for args in [
         vec!["bench", "--quick", "--size", "0x10"],
         vec!["bench", "--quick", "--only", "everything"],
+        vec!["bench", "--quick", "--only", "peer", "--peer-size", "0"],
         vec![
             "bench",
             "--quick",

@@ -331,7 +331,7 @@ fn octrees_of_the_shipped_scenes_match_the_whole_tape_at_every_leaf() {
             s.centre - Vec3::splat(s.reach),
             s.centre + Vec3::splat(s.reach),
         );
-        let Some(octree) = FieldOctree::build(&s.program, region, false) else {
+        let Some(octree) = FieldOctree::build(&s.program, region) else {
             continue;
         };
         for _ in 0..4000 {

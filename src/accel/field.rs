@@ -27,7 +27,6 @@ use crate::sdf::tape::{Registers, Tape};
 use glam::Vec3;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap as HashMap;
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Deepest subdivision: cells of 1/256 of the box along each axis.
 pub const MAX_DEPTH: u32 = 8;
@@ -38,8 +37,7 @@ pub const MAX_NODES: usize = 1 << 21;
 /// Most instructions over an object's distinct specialised tapes (8 bytes each): 64 MiB.
 pub const MAX_INSTRUCTIONS: usize = 1 << 23;
 
-/// Tapes shorter than this gain too little from specialisation to pay for a tree, or for a
-/// further split.
+/// Tapes shorter than this gain too little from specialisation to pay for a split.
 pub const MIN_TAPE: usize = 12;
 
 /// Levels split regardless of what their children gain.
@@ -54,10 +52,27 @@ pub struct Leaf {
     pub shading: u32,
     /// Empty, full or crossed.
     pub verdict: Verdict,
-    /// An upper bound on |∇f| over the box, at most 1 (the field's global bound).
-    pub lipschitz: f32,
+    /// Enclosures of ∂f/∂x, ∂f/∂y, ∂f/∂z over the box (lower then upper ends), for crossed
+    /// leaves whose field intervals can differentiate; the whole line otherwise.
+    pub gradient: [[f32; 3]; 2],
     /// A lower bound on f over the box (the interval enclosure's lower end).
     pub min_value: f32,
+}
+
+impl Leaf {
+    /// How fast the field may fall along the unit direction d inside the leaf: the largest
+    /// −d·g over its gradient enclosure, at least 0 (1, the global bound, without one).
+    #[inline]
+    pub fn fall(&self, d: Vec3) -> f32 {
+        if self.gradient[0][0] == f32::NEG_INFINITY {
+            return 1.0;
+        }
+        let lo = Vec3::from_array(self.gradient[0]) * d;
+        let hi = Vec3::from_array(self.gradient[1]) * d;
+        // −min over the box of d·g; rounded up, so the bound may only grow
+        let f = -lo.min(hi).element_sum();
+        (f + f.abs() * 4.0 * f32::EPSILON).max(0.0)
+    }
 }
 
 /// A located leaf with its box.
@@ -192,52 +207,63 @@ struct LeafBuild {
     /// The shading tape of a crossed leaf (hits lie there; others use the whole one).
     shading: Option<Tape>,
     verdict: Verdict,
-    lipschitz: f32,
+    gradient: [[f32; 3]; 2],
     min_value: f32,
 }
 
-/// Shared budgets while building.
+/// What a subtree may still spend. Subtrees built in parallel get fixed shares (in proportion
+/// to their tapes), so the tree does not depend on which thread runs ahead.
+#[derive(Debug, Clone, Copy)]
 struct Budget {
-    nodes: AtomicUsize,
-    instructions: AtomicUsize,
+    nodes: usize,
+    instructions: usize,
 }
 
 impl Budget {
-    fn take(&self, nodes: usize, instructions: usize) -> bool {
-        let n = self.nodes.fetch_add(nodes, Ordering::Relaxed);
-        let i = self.instructions.fetch_add(instructions, Ordering::Relaxed);
-        n + nodes <= MAX_NODES && i + instructions <= MAX_INSTRUCTIONS
+    /// Takes what splitting a leaf of tape length `own` into eight children of tape lengths
+    /// `lens` adds to the leaves' instructions (distance and shading tapes, at most as long as
+    /// the program), if it is left.
+    fn take(&mut self, own: usize, lens: &[usize]) -> bool {
+        let instructions = 2 * lens.iter().sum::<usize>().saturating_sub(own);
+        if self.nodes < 8 || self.instructions < instructions {
+            return false;
+        }
+        self.nodes -= 8;
+        self.instructions -= instructions;
+        true
+    }
+
+    /// The share of child `i` among children of tape lengths `lens`: its own leaf (already
+    /// counted) and a part of what is left, in proportion to its tape.
+    fn share(&self, lens: &[usize], i: usize) -> Budget {
+        let total = lens.iter().sum::<usize>().max(1) as u128;
+        let part = (self.instructions as u128 * lens[i] as u128 / total) as usize;
+        Budget {
+            nodes: self.nodes / 8,
+            instructions: part,
+        }
     }
 }
 
 impl FieldOctree {
     /// Builds the octree of `program` (an object's shading program) over `region`; `None`
-    /// when specialisation cannot pay (a tiny tape, or an empty or unbounded region).
-    /// `unit_gradient` says that the field's gradient has unit length almost everywhere, so
-    /// that no leaf needs a Lipschitz bound.
-    pub fn build(program: &SsaTape, region: Aabb, unit_gradient: bool) -> Option<FieldOctree> {
-        let whole_len = program.live_len();
-        if whole_len < MIN_TAPE
-            || !region.min.is_finite()
-            || !region.max.is_finite()
-            || region.is_empty()
-        {
+    /// for an empty or unbounded region. A short tape gets a single leaf: its gradient bound
+    /// still shortens the steps (to one step on a plane).
+    pub fn build(program: &SsaTape, region: Aabb) -> Option<FieldOctree> {
+        let whole_len = program.distance_only().live_len();
+        if !region.min.is_finite() || !region.max.is_finite() || region.is_empty() {
             return None;
         }
         // A little room around the bounds, so that surface points on them are inside.
         let pad = 1e-4 * (region.max - region.min).max_element() + 1e-6;
         let (lo, hi) = (region.min - Vec3::splat(pad), region.max + Vec3::splat(pad));
-        let budget = Budget {
-            nodes: AtomicUsize::new(1),
-            instructions: AtomicUsize::new(0),
-        };
-        let cx = Context {
-            budget: &budget,
-            lipschitz: !unit_gradient,
-        };
         let mut simplifier = Simplifier::new();
         let sp = simplifier.specialise(program, lo, hi);
-        let root = build_node(&cx, sp, lo, hi, 0, &mut simplifier);
+        let mut budget = Budget {
+            nodes: MAX_NODES - 1,
+            instructions: MAX_INSTRUCTIONS.saturating_sub(2 * sp.len),
+        };
+        let root = build_node(sp, lo, hi, 0, &mut budget, &mut simplifier);
         let mut tree = FieldOctree {
             lo,
             hi,
@@ -271,7 +297,7 @@ impl FieldOctree {
                     tape,
                     shading,
                     verdict: l.verdict,
-                    lipschitz: l.lipschitz,
+                    gradient: l.gradient,
                     min_value: l.min_value,
                 });
             }
@@ -424,34 +450,22 @@ fn child_box(lo: Vec3, hi: Vec3, i: usize) -> (Vec3, Vec3) {
     (Vec3::select(up, mid, lo), Vec3::select(up, hi, mid))
 }
 
-/// What the whole build shares.
-struct Context<'a> {
-    budget: &'a Budget,
-    /// Whether leaves should look for a Lipschitz bound below 1 (not for fields whose
-    /// gradient has unit length almost everywhere).
-    lipschitz: bool,
-}
+/// A gradient enclosure that says nothing.
+pub const ANY_GRADIENT: [[f32; 3]; 2] = [[f32::NEG_INFINITY; 3], [f32::INFINITY; 3]];
 
 /// A leaf for a box whose program is specialised.
-fn make_leaf(
-    cx: &Context,
-    simplifier: &mut Simplifier,
-    sp: Specialised,
-    lo: Vec3,
-    hi: Vec3,
-) -> Built {
+fn make_leaf(simplifier: &mut Simplifier, sp: Specialised, lo: Vec3, hi: Vec3) -> Built {
     let surface = sp.verdict == Verdict::Surface;
-    let lipschitz = if surface && cx.lipschitz {
-        simplifier.lipschitz(&sp.program, lo, hi).min(1.0)
-    } else {
-        1.0
-    };
+    let gradient = surface
+        .then(|| simplifier.gradient(&sp.program, lo, hi))
+        .flatten()
+        .map_or(ANY_GRADIENT, |g| [g.map(|d| d.lo), g.map(|d| d.hi)]);
     const FITS: &str = "a specialised program needs no more registers than its source";
     Built::Leaf(LeafBuild {
         tape: sp.program.compile_distance().expect(FITS),
         shading: surface.then(|| sp.program.compile().expect(FITS)),
         verdict: sp.verdict,
-        lipschitz,
+        gradient,
         min_value: sp.value.lo,
     })
 }
@@ -460,16 +474,16 @@ fn make_leaf(
 /// specialised first, and the box is split only if they gain (one level of look-ahead: a
 /// subtree is never built to be thrown away).
 fn build_node(
-    cx: &Context,
     sp: Specialised,
     lo: Vec3,
     hi: Vec3,
     depth: u32,
+    budget: &mut Budget,
     simplifier: &mut Simplifier,
 ) -> Built {
     let len = sp.len;
     if sp.verdict != Verdict::Surface || depth >= MAX_DEPTH || len < MIN_TAPE {
-        return make_leaf(cx, simplifier, sp, lo, hi);
+        return make_leaf(simplifier, sp, lo, hi);
     }
     let children: Vec<Specialised> = (0..8)
         .map(|i| {
@@ -498,16 +512,19 @@ fn build_node(
     // folded one shape at a time keeps every shape over an eighth of a spiral of spheres),
     // and their children would not show the gain their grandchildren have.
     let top = depth < CULL_DEPTH;
-    if !(shorter || top) || !cx.budget.take(8, children.iter().map(|c| c.len).sum()) {
-        return make_leaf(cx, simplifier, sp, lo, hi);
+    let lens: Vec<usize> = children.iter().map(|c| c.len).collect();
+    if !(shorter || top) || !budget.take(len, &lens) {
+        return make_leaf(simplifier, sp, lo, hi);
     }
     let built: Vec<Built> = if depth < PARALLEL_DEPTH {
+        let shares: Vec<Budget> = (0..8).map(|i| budget.share(&lens, i)).collect();
         children
             .into_par_iter()
+            .zip(shares)
             .enumerate()
-            .map(|(i, c)| {
+            .map(|(i, (c, mut share))| {
                 let (clo, chi) = child_box(lo, hi, i);
-                build_node(cx, c, clo, chi, depth + 1, &mut Simplifier::new())
+                build_node(c, clo, chi, depth + 1, &mut share, &mut Simplifier::new())
             })
             .collect()
     } else {
@@ -516,7 +533,7 @@ fn build_node(
             .enumerate()
             .map(|(i, c)| {
                 let (clo, chi) = child_box(lo, hi, i);
-                build_node(cx, c, clo, chi, depth + 1, simplifier)
+                build_node(c, clo, chi, depth + 1, budget, simplifier)
             })
             .collect()
     };
@@ -538,7 +555,7 @@ fn build_node(
                 tape: sp.program.compile_distance().expect(FITS),
                 shading: None,
                 verdict: kind,
-                lipschitz: 1.0,
+                gradient: ANY_GRADIENT,
                 min_value,
             });
         }
@@ -585,7 +602,7 @@ impl ObjectField {
     /// bounds, clipped to a finite box for unbounded objects) when one pays.
     pub fn build(lowered: &LoweredSdf, region: Aabb) -> Self {
         ObjectField {
-            octree: FieldOctree::build(&lowered.program, region, lowered.unit_gradient),
+            octree: FieldOctree::build(&lowered.program, region),
             whole: lowered.distance.clone(),
             whole_shading: lowered.shading.clone(),
         }
@@ -683,20 +700,21 @@ impl<'f, 'r> FieldCursor<'f, 'r> {
 /// A leaf met by a ray, with the parameters where the ray enters and leaves its box.
 #[derive(Debug, Clone, Copy)]
 pub struct Crossed<'a> {
-    /// The leaf and its box.
-    pub cell: Cell<'a>,
+    /// The leaf.
+    pub leaf: &'a Leaf,
+    /// Its distance tape.
+    pub tape: &'a Tape,
     /// Where the ray enters the box.
     pub enter: f32,
     /// Where it leaves.
     pub exit: f32,
 }
 
-/// One level of the walk: a node's slab parameters and the next child to visit.
+/// One level of the walk: a node's slab parameters and the next child to visit (32 bytes:
+/// a walk is copied with the march that owns it, so it is kept small; boxes are not needed).
 #[derive(Debug, Clone, Copy)]
 struct Frame {
     node: Node,
-    lo: Vec3,
-    hi: Vec3,
     t0: Vec3,
     t1: Vec3,
     next: u8,
@@ -708,13 +726,14 @@ struct Frame {
 /// with it), each node's slab parameters are halved into its children's, and the next child
 /// is the one across the nearest exit plane: every node on the ray's path is visited once,
 /// with a few additions and comparisons, and no point is ever located.
+#[derive(Clone)]
 pub struct RayWalk<'a> {
     tree: &'a FieldOctree,
-    mirror: usize,
-    stack: [Frame; MAX_DEPTH as usize + 1],
-    len: usize,
+    mirror: u8,
+    len: u8,
     from: f32,
     to: f32,
+    stack: [Frame; MAX_DEPTH as usize + 1],
 }
 
 /// A direction component this small counts as this (after mirroring, so positive): the slab
@@ -724,7 +743,7 @@ pub const TINY_DIRECTION: f32 = 1e-20;
 impl<'a> RayWalk<'a> {
     /// The walk over the leaves the ray crosses within [from, to].
     pub fn new(tree: &'a FieldOctree, ray: &Ray, from: f32, to: f32) -> Self {
-        let mut mirror = 0usize;
+        let mut mirror = 0u8;
         let mut o = ray.origin;
         let mut d = ray.direction;
         for axis in 0..3 {
@@ -741,34 +760,30 @@ impl<'a> RayWalk<'a> {
         let mut walk = RayWalk {
             tree,
             mirror,
+            len: 0,
+            from,
+            to,
             stack: [Frame {
                 node: Node(0),
-                lo: tree.lo,
-                hi: tree.hi,
                 t0,
                 t1,
                 next: 0,
             }; MAX_DEPTH as usize + 1],
-            len: 0,
-            from,
-            to,
         };
         if t0.max_element() < t1.min_element() && t1.min_element() >= from {
-            walk.push(tree.nodes[0], tree.lo, tree.hi, t0, t1);
+            walk.push(tree.nodes[0], t0, t1);
         }
         walk
     }
 
-    fn push(&mut self, node: Node, lo: Vec3, hi: Vec3, t0: Vec3, t1: Vec3) {
-        let tm = 0.5 * (t0 + t1);
-        self.stack[self.len] = Frame {
-            node,
-            lo,
-            hi,
-            t0,
-            t1,
-            next: first_child(t0, tm),
+    #[inline]
+    fn push(&mut self, node: Node, t0: Vec3, t1: Vec3) {
+        let next = if node.0 & LEAF_BIT != 0 {
+            0
+        } else {
+            first_child(t0, 0.5 * (t0 + t1))
         };
+        self.stack[self.len as usize] = Frame { node, t0, t1, next };
         self.len += 1;
     }
 
@@ -776,7 +791,7 @@ impl<'a> RayWalk<'a> {
     #[inline]
     pub fn next_leaf(&mut self) -> Option<Crossed<'a>> {
         while self.len > 0 {
-            let top = self.len - 1;
+            let top = self.len as usize - 1;
             let f = self.stack[top];
             if f.node.0 & LEAF_BIT != 0 {
                 self.len -= 1;
@@ -787,13 +802,8 @@ impl<'a> RayWalk<'a> {
                 }
                 let leaf = &self.tree.leaves[(f.node.0 & !LEAF_BIT) as usize];
                 return Some(Crossed {
-                    cell: Cell {
-                        leaf,
-                        lo: f.lo,
-                        hi: f.hi,
-                        tape: &self.tree.tapes[leaf.tape as usize],
-                        shading: &self.tree.shading[leaf.shading as usize],
-                    },
+                    leaf,
+                    tape: &self.tree.tapes[leaf.tape as usize],
                     enter,
                     exit: f.t1.min_element(),
                 });
@@ -824,26 +834,9 @@ impl<'a> RayWalk<'a> {
             if ct1.min_element() < self.from || ct0.max_element() > self.to {
                 continue;
             }
-            // the child's box in real space: mirrored axes take the other half
-            let real = c ^ self.mirror;
-            let mid = 0.5 * (f.lo + f.hi);
-            let rup = glam::BVec3::new(real & 1 != 0, real & 2 != 0, real & 4 != 0);
-            let lo = Vec3::select(rup, mid, f.lo);
-            let hi = Vec3::select(rup, f.hi, mid);
-            let child = self.tree.nodes[f.node.0 as usize + real];
-            if child.0 & LEAF_BIT != 0 {
-                self.stack[self.len] = Frame {
-                    node: child,
-                    lo,
-                    hi,
-                    t0: ct0,
-                    t1: ct1,
-                    next: 0,
-                };
-                self.len += 1;
-            } else {
-                self.push(child, lo, hi, ct0, ct1);
-            }
+            // mirrored axes take the other half of the stored children
+            let real = c ^ self.mirror as usize;
+            self.push(self.tree.nodes[f.node.0 as usize + real], ct0, ct1);
         }
         None
     }

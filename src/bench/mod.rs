@@ -1,5 +1,6 @@
 //! Benchmarks (`hytrace bench`): our mesh traversal against Embree on identical rays, the SDF
-//! steppers against plain sphere tracing, and how frame times scale with scene size.
+//! steppers against plain sphere tracing, how frame times scale with scene size, and our SDF
+//! renderer against fidget's (`peer`).
 //!
 //! Method, shared by every section: inputs (rays, scenes) are built once before any timing;
 //! each measurement runs once untimed (warm-up), then at least `runs` times and until every
@@ -11,6 +12,7 @@
 //! answer. Nothing here asserts a speed.
 
 pub mod mesh;
+pub mod peer;
 pub mod rays;
 pub mod sdf;
 
@@ -50,6 +52,10 @@ pub struct BenchOptions {
     pub bvh: crate::accel::bvh::BuildQuality,
     /// Sections to run.
     pub sections: Sections,
+    /// Image side (pixels, square) of the peer section.
+    pub peer_size: u32,
+    /// Seconds after which the peer section cancels a fidget frame.
+    pub peer_frame_limit: f64,
 }
 
 /// Which sections run.
@@ -61,6 +67,8 @@ pub struct Sections {
     pub sdf: bool,
     /// Scaling with scene size.
     pub scaling: bool,
+    /// SDF renderer against fidget.
+    pub peer: bool,
 }
 
 /// The machine and build the figures come from.
@@ -157,6 +165,8 @@ pub struct Report {
     pub sdf: Option<sdf::SdfReport>,
     /// Scaling section.
     pub scaling: Option<Scaling>,
+    /// Peer section (fidget).
+    pub peer: Option<peer::PeerReport>,
 }
 
 /// Frame times against scene size.
@@ -170,7 +180,8 @@ pub struct Scaling {
     pub mesh: Vec<mesh::MeshScalingRow>,
 }
 
-/// Runs the sections asked for. `sdf_scenes` are (name, file) pairs for the SDF section.
+/// Runs the sections asked for. `sdf_scenes` are (name, file) pairs for the SDF and peer
+/// sections.
 pub fn run(
     opts: &BenchOptions,
     sdf_scenes: &[(String, crate::scene::Scene)],
@@ -202,6 +213,11 @@ pub fn run(
     } else {
         None
     };
+    let peer = if opts.sections.peer {
+        Some(peer::run(opts, sdf_scenes)?)
+    } else {
+        None
+    };
     Ok(Report {
         machine,
         quick: opts.quick,
@@ -210,6 +226,7 @@ pub fn run(
         mesh,
         sdf,
         scaling,
+        peer,
     })
 }
 
@@ -440,6 +457,9 @@ impl Report {
                 );
             }
             s.push('\n');
+        }
+        if let Some(peer) = &self.peer {
+            peer.markdown(&mut s);
         }
         s
     }

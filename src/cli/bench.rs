@@ -39,6 +39,14 @@ pub struct BenchArgs {
     /// Primary-ray image of the mesh section, WIDTHxHEIGHT.
     #[arg(long)]
     pub size: Option<String>,
+    /// Image side of the peer section in pixels (square images; default 1024, 64 with
+    /// --quick).
+    #[arg(long)]
+    pub peer_size: Option<u32>,
+    /// Seconds after which the peer section cancels a fidget frame (reported as over the
+    /// limit; default 30).
+    #[arg(long, default_value_t = 30.0)]
+    pub peer_frame_limit: f64,
     /// Incoherent rays per mesh scene.
     #[arg(long)]
     pub incoherent: Option<usize>,
@@ -46,7 +54,8 @@ pub struct BenchArgs {
     /// is our counterpart).
     #[arg(long, value_enum, default_value = "highest")]
     pub bvh: hytrace::accel::bvh::BuildQuality,
-    /// Sections to run, comma-separated: mesh, sdf, scaling (default all).
+    /// Sections to run, comma-separated: mesh, sdf, scaling, peer (default all; peer needs
+    /// the `fidget` feature).
     #[arg(long, value_delimiter = ',')]
     pub only: Vec<String>,
     /// Also write the report as JSON to this file.
@@ -91,19 +100,22 @@ pub fn run(args: BenchArgs) -> Result<()> {
         mesh: true,
         sdf: true,
         scaling: true,
+        peer: true,
     };
     if !args.only.is_empty() {
         sections = Sections {
             mesh: false,
             sdf: false,
             scaling: false,
+            peer: false,
         };
         for s in &args.only {
             match s.as_str() {
                 "mesh" => sections.mesh = true,
                 "sdf" => sections.sdf = true,
                 "scaling" => sections.scaling = true,
-                other => anyhow::bail!("--only {other}: expected mesh, sdf or scaling"),
+                "peer" => sections.peer = true,
+                other => anyhow::bail!("--only {other}: expected mesh, sdf, scaling or peer"),
             }
         }
     }
@@ -124,6 +136,16 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 hytrace::bench::mesh::RAY_SETS.join(", ")
             );
         }
+    }
+    let peer_size = args.peer_size.unwrap_or(if args.quick { 64 } else { 1024 });
+    if !(8..=4096).contains(&peer_size) {
+        anyhow::bail!("--peer-size {peer_size}: expected a side in 8..=4096 pixels");
+    }
+    if !(0.1..=3600.0).contains(&args.peer_frame_limit) {
+        anyhow::bail!(
+            "--peer-frame-limit {}: expected a number of seconds in 0.1..=3600",
+            args.peer_frame_limit
+        );
     }
     let min_seconds = args
         .min_seconds
@@ -146,8 +168,10 @@ pub fn run(args: BenchArgs) -> Result<()> {
             .unwrap_or(if args.quick { 2048 } else { 1 << 20 }),
         bvh: args.bvh,
         sections,
+        peer_size,
+        peer_frame_limit: args.peer_frame_limit,
     };
-    let sdf_scenes = if sections.sdf {
+    let sdf_scenes = if sections.sdf || sections.peer {
         load_scenes(&args.scenes, args.quick)?
     } else {
         Vec::new()

@@ -11,9 +11,10 @@
 //! the bits of the whole tape (up to the sign of a zero). An enclosure above zero proves the
 //! box empty, one below zero proves it full.
 //!
-//! [`Simplifier::lipschitz`] bounds |∇f| over a box from three slope enclosures (forward-mode
-//! differentiation on intervals), which lets a tracer step by f/L where the field is steeper
-//! than its global bound allows for.
+//! [`Simplifier::gradient`] encloses ∇f over a box (three slope enclosures, forward-mode
+//! differentiation on intervals): along a ray of direction d the field then falls by at most
+//! max over the box of −d·∇f per unit, which lets a tracer step farther than the global
+//! 1-Lipschitz bound allows — to the crossing at once on a plane.
 
 use crate::sdf::interval::{Domain, Interval, Slope, apply_domain};
 use crate::sdf::ssa::{Builder, M, SsaTape, V};
@@ -217,12 +218,12 @@ impl Simplifier {
         }
     }
 
-    /// An upper bound on |∇f| over the box (∞ where the field may jump there, as far as
-    /// intervals can tell), from enclosures of ∂f/∂x, ∂f/∂y and ∂f/∂z.
-    pub fn lipschitz(&mut self, program: &SsaTape, lo: Vec3, hi: Vec3) -> f32 {
+    /// Enclosures of ∂f/∂x, ∂f/∂y and ∂f/∂z over the box (forward-mode differentiation on
+    /// intervals), or `None` where the field may jump there as far as intervals can tell.
+    pub fn gradient(&mut self, program: &SsaTape, lo: Vec3, hi: Vec3) -> Option<[Interval; 3]> {
         let mut slopes = vec![Slope::constant(0.0); program.ops.len()];
-        let mut sum = 0.0f32;
-        for axis in 0..3 {
+        let mut out = [Interval::point(0.0); 3];
+        for (axis, o) in out.iter_mut().enumerate() {
             for (i, op) in program.ops.iter().enumerate() {
                 slopes[i] = match op.op {
                     Op::Input => {
@@ -241,11 +242,26 @@ impl Simplifier {
             }
             let d = slopes[program.result as usize].d;
             if !d.is_finite() {
-                return f32::INFINITY;
+                return None;
             }
-            let m = d.lo.abs().max(d.hi.abs());
-            sum += m * m;
+            *o = d;
         }
+        Some(out)
+    }
+
+    /// An upper bound on |∇f| over the box (∞ where the field may jump there), from
+    /// [`Self::gradient`].
+    pub fn lipschitz(&mut self, program: &SsaTape, lo: Vec3, hi: Vec3) -> f32 {
+        let Some(g) = self.gradient(program, lo, hi) else {
+            return f32::INFINITY;
+        };
+        let sum: f32 = g
+            .iter()
+            .map(|d| {
+                let m = d.lo.abs().max(d.hi.abs());
+                m * m
+            })
+            .sum();
         // rounded up: the bound may only grow
         let l = sum.sqrt();
         l + l * 4.0 * f32::EPSILON

@@ -15,7 +15,7 @@
 //! and paths beyond `shading.max_bounces`, are dropped.
 
 use super::optics::{reflect, refract, schlick};
-use super::{ShadingTracer, SurfacePoint, shade, surface_offset};
+use super::{ShadingTracer, SurfacePoint, shade, shade_with, surface_offset};
 use crate::geom::Ray;
 use crate::scene::MAX_BOUNCES;
 use crate::sdf::tape::MaterialVec;
@@ -62,14 +62,84 @@ pub fn trace_camera_ray<T: ShadingTracer + ?Sized>(
     trace_camera_ray_from(tracer, materials, ray, None)
 }
 
-/// [`trace_camera_ray`] when the caller has already found the camera ray's closest hit over
-/// `[0, ∞)` (`first_hit`, as `tracer.closest_hit` answers it): the CPU renderer traces a tile
-/// row's camera rays together (see [`crate::trace::SceneTracer::closest_hits`]).
+/// A surface point the path meets, with what the integrator needs there.
+#[derive(Debug, Clone, Copy)]
+pub struct Surfaced {
+    /// Position, normal on the side the ray arrives on, direction to the eye, material.
+    pub point: SurfacePoint,
+    /// Cosine between the normal and the reversed ray.
+    pub cos_i: f32,
+    /// Schlick reflectance of a mirror (0 where the material reflects nothing).
+    pub f_r: f32,
+    /// Schlick reflectance of a dielectric's surface (0 where it is opaque).
+    pub f_t: f32,
+    /// The weight of local shading: (1 − τ)(1 − F_r).
+    pub local_weight: f32,
+}
+
+/// What the integrator computes at a hit of `ray`.
+pub fn surfaced<T: ShadingTracer + ?Sized>(
+    tracer: &T,
+    materials: &[MaterialVec],
+    ray: &Ray,
+    hit: &Hit,
+) -> Surfaced {
+    let p = ray.at(hit.t);
+    let m = tracer.material_at(hit, p, materials);
+    let d = ray.direction;
+    // Shade the side the ray arrives on (rays can start inside a solid).
+    let n = if hit.normal.dot(d) > 0.0 {
+        -hit.normal
+    } else {
+        hit.normal
+    };
+    let cos_i = (-d.dot(n)).clamp(0.0, 1.0);
+    let f_r = if m.reflectivity > 0.0 {
+        m.reflectivity + (1.0 - m.reflectivity) * (1.0 - cos_i).powi(5)
+    } else {
+        0.0
+    };
+    let f_t = if m.transparency > 0.0 {
+        schlick(cos_i, 1.0, m.ior)
+    } else {
+        0.0
+    };
+    Surfaced {
+        point: SurfacePoint {
+            position: p,
+            normal: n,
+            to_eye: -d,
+            t: hit.t,
+            material: m,
+        },
+        cos_i,
+        f_r,
+        f_t,
+        local_weight: (1.0 - m.transparency) * (1.0 - f_r),
+    }
+}
+
+/// A camera ray's first hit found ahead by the caller, and, where the caller also computed
+/// it, the local shading's surface and the visibility of each light there (indexed by light;
+/// only the entries [`super::shadow_query`] asks for are read).
+#[derive(Debug, Clone, Copy)]
+pub struct Primary<'a> {
+    /// The closest hit over [0, ∞), as `tracer.closest_hit` answers it.
+    pub hit: Option<Hit>,
+    /// [`surfaced`] at the hit, with the lights' visibilities.
+    pub shading: Option<(Surfaced, &'a [f32])>,
+}
+
+/// [`trace_camera_ray`] when the caller has already found the camera ray's closest hit
+/// (and perhaps its lights' visibilities): the CPU renderer traces a tile row's camera rays
+/// and shadow rays together (see [`crate::trace::SceneTracer::closest_hits`] and
+/// [`crate::trace::SceneTracer::visibilities`]). The answers are those of tracing the ray
+/// alone.
 pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
     tracer: &T,
     materials: &[MaterialVec],
     ray: Ray,
-    mut first_hit: Option<Option<Hit>>,
+    mut first: Option<Primary>,
 ) -> CameraSample {
     let scene = tracer.scene();
     let max_bounces = scene.shading.max_bounces.min(MAX_BOUNCES);
@@ -128,9 +198,9 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
             );
             continue;
         }
-        let hit = match first_hit.take() {
-            Some(hit) if primary => hit,
-            _ => tracer.closest_hit(&item.ray, 0.0, f32::INFINITY),
+        let (hit, prepared) = match first.take() {
+            Some(f) if primary => (f.hit, f.shading),
+            _ => (tracer.closest_hit(&item.ray, 0.0, f32::INFINITY), None),
         };
         if primary {
             sample.steps = hit.map_or(0, |h| h.steps);
@@ -140,15 +210,12 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
             primary = false;
             continue;
         };
-        let p = item.ray.at(hit.t);
-        let m = tracer.material_at(&hit, p, materials);
-        let d = item.ray.direction;
-        // Shade the side the ray arrives on (rays can start inside a solid).
-        let n = if hit.normal.dot(d) > 0.0 {
-            -hit.normal
-        } else {
-            hit.normal
+        let (surf, visibility) = match prepared {
+            Some((surf, v)) => (surf, Some(v)),
+            None => (surfaced(tracer, materials, &item.ray, &hit), None),
         };
+        let (p, n, m) = (surf.point.position, surf.point.normal, surf.point.material);
+        let d = item.ray.direction;
         if primary {
             sample.depth = hit.t;
             sample.normal = n;
@@ -156,28 +223,14 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
             sample.gradient = hit.gradient;
             primary = false;
         }
-        let cos_i = (-d.dot(n)).clamp(0.0, 1.0);
-        let f_r = if m.reflectivity > 0.0 {
-            m.reflectivity + (1.0 - m.reflectivity) * (1.0 - cos_i).powi(5)
-        } else {
-            0.0
-        };
-        let f_t = if m.transparency > 0.0 {
-            schlick(cos_i, 1.0, m.ior)
-        } else {
-            0.0
-        };
+        let (f_r, f_t, local_weight) = (surf.f_r, surf.f_t, surf.local_weight);
         let opaque = 1.0 - m.transparency;
-        let local_weight = opaque * (1.0 - f_r);
         if local_weight > 0.0 {
-            let sp = SurfacePoint {
-                position: p,
-                normal: n,
-                to_eye: -d,
-                t: hit.t,
-                material: m,
+            let local = match visibility {
+                Some(v) => shade_with(tracer, &surf.point, |light, _| v[light]),
+                None => shade(tracer, &surf.point),
             };
-            sample.radiance += item.weight * local_weight * shade(tracer, &sp);
+            sample.radiance += item.weight * local_weight * local;
         }
         let offset = surface_offset(tracer, hit.t, p);
         let reflect_weight = opaque * f_r + m.transparency * f_t;

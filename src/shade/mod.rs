@@ -18,7 +18,7 @@ pub mod optics;
 use crate::geom::Ray;
 use crate::scene::{AmbientOcclusion, Light, Scene, Shadow, TracerSettings};
 use crate::sdf::tape::MaterialVec;
-use crate::trace::{Hit, SceneTracer, Surface, epsilon_at};
+use crate::trace::{Hit, SceneTracer, ShadowQuery, Surface, epsilon_at};
 use glam::Vec3;
 use material::MaterialParams;
 
@@ -96,48 +96,82 @@ pub fn offset_from_surface(settings: &TracerSettings, t: f32, p: Vec3) -> f32 {
 
 /// Local (direct) radiance from `sp` toward the eye.
 pub fn shade<T: ShadingTracer + ?Sized>(tracer: &T, sp: &SurfacePoint) -> Vec3 {
+    shade_with(tracer, sp, |_, q| {
+        tracer.visibility(&q.ray, q.tmin, q.tmax, q.shadow)
+    })
+}
+
+/// The shadow ray [`shade`] casts from `sp` toward light `light`, if it casts one (the light
+/// is not ambient, faces the surface, and shadows are on).
+pub fn shadow_query(scene: &Scene, sp: &SurfacePoint, light: usize) -> Option<ShadowQuery> {
+    if !scene.tracer.shadows {
+        return None;
+    }
+    let (l, dist, _, shadow) = light_at(&scene.lights[light], sp.position)?;
+    if sp.normal.dot(l) <= 0.0 {
+        return None;
+    }
+    let offset = offset_from_surface(&scene.tracer, sp.t, sp.position);
+    Some(ShadowQuery {
+        ray: Ray::new(sp.position + sp.normal * offset, l),
+        tmin: 0.0,
+        tmax: dist - offset,
+        shadow,
+    })
+}
+
+/// Direction to a point or directional light from p, its distance, the irradiance it brings
+/// and its shadow kind; `None` for ambient lights and a point light at p.
+fn light_at(light: &Light, p: Vec3) -> Option<(Vec3, f32, Vec3, Shadow)> {
+    match *light {
+        Light::Ambient { .. } => None,
+        Light::Point {
+            position,
+            radiance,
+            shadow,
+        } => {
+            let d = position - p;
+            let dist = d.length();
+            (dist > 0.0).then(|| (d / dist, dist, radiance / (dist * dist), shadow))
+        }
+        Light::Directional {
+            direction,
+            radiance,
+            shadow,
+        } => Some((-direction, f32::INFINITY, radiance, shadow)),
+    }
+}
+
+/// [`shade`] with the lights' visibilities from `visibility(light, query)`, called for the
+/// queries [`shadow_query`] gives (so a caller may have answered them ahead, in packets).
+pub fn shade_with<T: ShadingTracer + ?Sized>(
+    tracer: &T,
+    sp: &SurfacePoint,
+    mut visibility: impl FnMut(usize, &ShadowQuery) -> f32,
+) -> Vec3 {
     let scene = tracer.scene();
     let m = &sp.material;
     let n = sp.normal;
-    let offset = surface_offset(tracer, sp.t, sp.position);
-    let origin = sp.position + n * offset;
     let mut out = Vec3::ZERO;
-    for light in &scene.lights {
-        let (l, dist, irradiance, shadow) = match *light {
-            Light::Ambient { radiance } => {
-                let ao = scene
-                    .shading
-                    .ambient_occlusion
-                    .map_or(1.0, |a| ambient_occlusion(tracer, sp.position, n, &a));
-                out += m.color * m.diffuse * radiance * ao;
-                continue;
-            }
-            Light::Point {
-                position,
-                radiance,
-                shadow,
-            } => {
-                let d = position - sp.position;
-                let dist = d.length();
-                if dist <= 0.0 {
-                    continue;
-                }
-                (d / dist, dist, radiance / (dist * dist), shadow)
-            }
-            Light::Directional {
-                direction,
-                radiance,
-                shadow,
-            } => (-direction, f32::INFINITY, radiance, shadow),
+    for (i, light) in scene.lights.iter().enumerate() {
+        if let Light::Ambient { radiance } = *light {
+            let ao = scene
+                .shading
+                .ambient_occlusion
+                .map_or(1.0, |a| ambient_occlusion(tracer, sp.position, n, &a));
+            out += m.color * m.diffuse * radiance * ao;
+            continue;
+        }
+        let Some((l, _, irradiance, _)) = light_at(light, sp.position) else {
+            continue;
         };
         let ndl = n.dot(l);
         if ndl <= 0.0 {
             continue;
         }
-        let visibility = if scene.tracer.shadows {
-            tracer.visibility(&Ray::new(origin, l), 0.0, dist - offset, shadow)
-        } else {
-            1.0
+        let visibility = match shadow_query(scene, sp, i) {
+            Some(q) => visibility(i, &q),
+            None => 1.0,
         };
         if visibility <= 0.0 {
             continue;

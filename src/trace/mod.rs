@@ -283,55 +283,26 @@ impl<'a> SceneTracer<'a> {
             .iter()
             .map(|h| h.as_ref().map_or(limit, |h| h.t))
             .collect();
-        let mut lists: Vec<Vec<(usize, f32, f32)>> = Vec::with_capacity(n);
-        for (ray, &l) in rays.iter().zip(&limits) {
-            let mut list = Vec::new();
-            let mut l = l;
-            self.accel.visit(ray, tmin, &mut l, |i, t0, t1, _| {
-                list.push((i, t0, t1));
-                ControlFlow::Continue(())
-            });
-            lists.push(list);
-        }
-        let mut next = vec![0usize; n];
+        let mut candidates = Candidates::new(&self.accel, rays, tmin, &limits, |_| 0.0);
         let mut best: Vec<Option<(f32, usize)>> = vec![None; n];
         let mut steps = vec![0u32; n];
-        let mut pending: Vec<(usize, usize, f32, f32)> = Vec::with_capacity(n);
+        let mut pending = Vec::with_capacity(n);
         let mut lanes = Vec::with_capacity(packet::PACKET);
-        let mut who = Vec::with_capacity(packet::PACKET);
         let mut results = [TraceResult::of_points(None, 0); packet::PACKET];
-        loop {
-            // each ray's next object its walk would still visit
-            pending.clear();
-            for r in 0..n {
-                while let Some(&(i, t0, t1)) = lists[r].get(next[r]) {
-                    next[r] += 1;
-                    if t0 <= limits[r] {
-                        pending.push((i, r, t0, t1.min(limits[r])));
-                        break;
-                    }
-                }
-            }
-            if pending.is_empty() {
-                break;
-            }
-            pending.sort_by_key(|&(i, r, _, _)| (i, r));
+        // the walk's pruning: an object whose bounds start past the ray's nearest hit so far
+        while candidates.round(|r, t0| t0 <= limits[r], &mut pending) {
             for group in pending.chunk_by(|a, b| a.0 == b.0) {
                 let object = group[0].0;
                 for chunk in group.chunks(packet::PACKET) {
                     lanes.clear();
-                    who.clear();
-                    for &(_, r, t0, t1) in chunk {
-                        lanes.push(packet::Lane {
-                            ray: rays[r],
-                            t0,
-                            t1,
-                        });
-                        who.push(r);
-                    }
+                    lanes.extend(chunk.iter().map(|&(_, r, t0, t1)| packet::Lane {
+                        ray: rays[r],
+                        t0,
+                        t1: t1.min(limits[r]),
+                    }));
                     let res = &mut results[..lanes.len()];
                     packet::trace_hart_packet(&self.fields[object], &lanes, s, scratch, res);
-                    for (&r, res) in who.iter().zip(res.iter()) {
+                    for (&(_, r, _, _), res) in chunk.iter().zip(res.iter()) {
                         steps[r] += res.steps;
                         if let Some(t) = res.t {
                             best[r] = Some((t, object));
@@ -464,6 +435,129 @@ impl<'a> SceneTracer<'a> {
         res * res * (3.0 - 2.0 * res)
     }
 
+    /// [`Self::visibility`] of every query, into `out`: the same values, with coherent
+    /// queries (the shadow rays of a tile row toward one light) marched in SIMD packets, each
+    /// ray visiting its objects in its own BVH order.
+    ///
+    /// # Panics
+    /// When `queries` and `out` differ in length.
+    pub fn visibilities(&self, queries: &[ShadowQuery], out: &mut [f32]) {
+        assert_eq!(queries.len(), out.len());
+        let s = &self.scene.tracer;
+        if s.stepper != Stepper::Hart || !self.packets {
+            for (q, o) in queries.iter().zip(out.iter_mut()) {
+                *o = self.visibility(&q.ray, q.tmin, q.tmax, q.shadow);
+            }
+            return;
+        }
+        PACKET_SCRATCH.with(|scratch| {
+            let scratch = &mut *scratch.borrow_mut();
+            // queries of one shadow kind together, in their order
+            let mut order: Vec<usize> = (0..queries.len()).collect();
+            order.sort_by_key(|&i| shadow_key(queries[i].shadow));
+            for kind in order
+                .chunk_by(|&a, &b| shadow_key(queries[a].shadow) == shadow_key(queries[b].shadow))
+            {
+                match queries[kind[0]].shadow {
+                    Shadow::None => kind.iter().for_each(|&i| out[i] = 1.0),
+                    Shadow::Hard => self.hard_in_packets(queries, kind, scratch, out),
+                    Shadow::Soft(k) => self.soft_in_packets(queries, kind, k, false, scratch, out),
+                    Shadow::SoftImproved(k) => {
+                        self.soft_in_packets(queries, kind, k, true, scratch, out)
+                    }
+                }
+            }
+        });
+    }
+
+    /// Hard shadows of `which` queries: blocked by a mesh, or by the first object whose
+    /// march hits (any order gives the same answer: no limit shrinks).
+    fn hard_in_packets(
+        &self,
+        queries: &[ShadowQuery],
+        which: &[usize],
+        scratch: &mut packet::PacketScratch,
+        out: &mut [f32],
+    ) {
+        let s = &self.scene.tracer;
+        let (rays, tmins, limits) = gathered(queries, which, s.max_distance);
+        let mut blocked = vec![false; which.len()];
+        if !self.meshes.is_empty() {
+            for (k, &i) in which.iter().enumerate() {
+                blocked[k] = self.mesh_blocks(&rays[k], queries[i].tmin, queries[i].tmax);
+            }
+        }
+        let mut candidates = Candidates::with_tmins(&self.accel, &rays, &tmins, &limits, |_| 0.0);
+        let mut results = [TraceResult::of_points(None, 0); packet::PACKET];
+        candidates.in_packets(
+            &rays,
+            &mut blocked,
+            |blocked, r| !blocked[r],
+            |blocked, object, lanes, which| {
+                let res = &mut results[..lanes.len()];
+                packet::trace_hart_packet(&self.fields[object], lanes, s, scratch, res);
+                for (&r, res) in which.iter().zip(res.iter()) {
+                    blocked[r] |= res.t.is_some();
+                }
+            },
+        );
+        for (k, &i) in which.iter().enumerate() {
+            out[i] = if blocked[k] { 0.0 } else { 1.0 };
+        }
+    }
+
+    /// Soft shadows of `which` queries (all of penumbra sharpness k): blocked by a mesh, else
+    /// the minimum over the objects near the ray of their penumbrae, smoothed.
+    #[allow(clippy::too_many_arguments)]
+    fn soft_in_packets(
+        &self,
+        queries: &[ShadowQuery],
+        which: &[usize],
+        k: f32,
+        improved: bool,
+        scratch: &mut packet::PacketScratch,
+        out: &mut [f32],
+    ) {
+        let s = &self.scene.tracer;
+        let (rays, tmins, limits) = gathered(queries, which, s.max_distance);
+        let mut res: Vec<f32> = which
+            .iter()
+            .map(|&i| {
+                let q = &queries[i];
+                if self.mesh_blocks(&q.ray, q.tmin, q.tmax) {
+                    0.0
+                } else {
+                    1.0
+                }
+            })
+            .collect();
+        // k·h/t < 1 only where h < t/k ≤ limit/k: objects farther than that cannot darken
+        let mut candidates =
+            Candidates::with_tmins(&self.accel, &rays, &tmins, &limits, |r| limits[r] / k);
+        let mut values = [0.0f32; packet::PACKET];
+        candidates.in_packets(
+            &rays,
+            &mut res,
+            |res, r| res[r] > 0.0,
+            |res, object, lanes, which| {
+                let v = &mut values[..lanes.len()];
+                packet::penumbra_packet(&self.fields[object], lanes, s, k, improved, scratch, v);
+                for (&r, v) in which.iter().zip(v.iter()) {
+                    res[r] = res[r].min(*v);
+                }
+            },
+        );
+        for (k, &i) in which.iter().enumerate() {
+            let r = res[k];
+            // Quilez smooths the estimate with smoothstep to hide its piecewise-linear falloff
+            out[i] = if r <= 0.0 {
+                0.0
+            } else {
+                r * r * (3.0 - 2.0 * r)
+            };
+        }
+    }
+
     /// The scene's distance field at p (the minimum over objects), clamped to `reach`: only
     /// objects whose bounds grown by `reach` contain p are evaluated — found through the
     /// acceleration structure with a zero-length ray, so ambient occlusion costs the same with
@@ -566,4 +660,144 @@ impl<'a> SceneTracer<'a> {
         });
         blocked
     }
+}
+
+/// A shadow ray for [`SceneTracer::visibilities`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ShadowQuery {
+    /// The ray toward the light.
+    pub ray: Ray,
+    /// Start of the interval.
+    pub tmin: f32,
+    /// End (the light's distance).
+    pub tmax: f32,
+    /// What kind of shadow the light casts.
+    pub shadow: Shadow,
+}
+
+/// A key that groups queries of one shadow kind and sharpness.
+fn shadow_key(s: Shadow) -> (u8, u32) {
+    match s {
+        Shadow::None => (0, 0),
+        Shadow::Hard => (1, 0),
+        Shadow::Soft(k) => (2, k.to_bits()),
+        Shadow::SoftImproved(k) => (3, k.to_bits()),
+    }
+}
+
+/// Every ray's SDF objects in the order its own BVH walk visits them (with the interval its
+/// bounds give), taken a round at a time: the next object of each ray still marching, so that
+/// the rays at one object are marched as packets while each keeps its own order.
+struct Candidates {
+    starts: Vec<usize>,
+    items: Vec<(usize, f32, f32)>,
+    next: Vec<usize>,
+}
+
+impl Candidates {
+    fn new(
+        accel: &SdfAccel,
+        rays: &[Ray],
+        tmin: f32,
+        limits: &[f32],
+        margin: impl Fn(usize) -> f32,
+    ) -> Self {
+        Self::with_tmins(accel, rays, &vec![tmin; rays.len()], limits, margin)
+    }
+
+    fn with_tmins(
+        accel: &SdfAccel,
+        rays: &[Ray],
+        tmins: &[f32],
+        limits: &[f32],
+        margin: impl Fn(usize) -> f32,
+    ) -> Self {
+        let mut c = Candidates {
+            starts: Vec::with_capacity(rays.len() + 1),
+            items: Vec::new(),
+            next: Vec::with_capacity(rays.len()),
+        };
+        for (r, ray) in rays.iter().enumerate() {
+            c.starts.push(c.items.len());
+            c.next.push(c.items.len());
+            let mut limit = limits[r];
+            accel.visit_within(ray, tmins[r], &mut limit, margin(r), |i, t0, t1, _| {
+                c.items.push((i, t0, t1));
+                ControlFlow::Continue(())
+            });
+        }
+        c.starts.push(c.items.len());
+        c
+    }
+
+    /// Fills `pending` with (object, ray, t0, t1) for the next object of every ray for which
+    /// `keep(ray, t0)` holds (objects it refuses are passed over, as the walk prunes them),
+    /// sorted by object; false when none is left.
+    fn round(
+        &mut self,
+        keep: impl Fn(usize, f32) -> bool,
+        pending: &mut Vec<(usize, usize, f32, f32)>,
+    ) -> bool {
+        pending.clear();
+        for r in 0..self.next.len() {
+            while self.next[r] < self.starts[r + 1] {
+                let (i, t0, t1) = self.items[self.next[r]];
+                self.next[r] += 1;
+                if keep(r, t0) {
+                    pending.push((i, r, t0, t1));
+                    break;
+                }
+            }
+        }
+        pending.sort_by_key(|&(i, r, _, _)| (i, r));
+        !pending.is_empty()
+    }
+
+    /// Marches the candidates round after round while `keep(state, ray)` holds: each round's
+    /// (object, ray) pairs are grouped by object into packets of at most [`packet::PACKET`]
+    /// lanes and handed to `visit(state, object, lanes, rays of the lanes)`.
+    fn in_packets<S: ?Sized>(
+        &mut self,
+        rays: &[Ray],
+        state: &mut S,
+        keep: impl Fn(&S, usize) -> bool,
+        mut visit: impl FnMut(&mut S, usize, &[packet::Lane], &[usize]),
+    ) {
+        let mut pending = Vec::new();
+        let mut lanes = Vec::with_capacity(packet::PACKET);
+        let mut lane_rays = Vec::with_capacity(packet::PACKET);
+        while self.round(|r, _| keep(state, r), &mut pending) {
+            for group in pending.chunk_by(|a, b| a.0 == b.0) {
+                for chunk in group.chunks(packet::PACKET) {
+                    lanes.clear();
+                    lane_rays.clear();
+                    for &(_, r, t0, t1) in chunk {
+                        lanes.push(packet::Lane {
+                            ray: rays[r],
+                            t0,
+                            t1,
+                        });
+                        lane_rays.push(r);
+                    }
+                    visit(state, group[0].0, &lanes, &lane_rays);
+                }
+            }
+        }
+    }
+}
+
+/// The rays, start distances and limits (clamped to the tracer's range) of `which` queries,
+/// gathered for a batched walk.
+fn gathered(
+    queries: &[ShadowQuery],
+    which: &[usize],
+    max_distance: f32,
+) -> (Vec<Ray>, Vec<f32>, Vec<f32>) {
+    let rays = which.iter().map(|&i| queries[i].ray).collect();
+    let tmins = which.iter().map(|&i| queries[i].tmin).collect();
+    let limits = which
+        .iter()
+        .map(|&i| queries[i].tmax.min(max_distance))
+        .collect();
+    (rays, tmins, limits)
 }

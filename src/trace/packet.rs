@@ -11,7 +11,7 @@
 //! the interpreter waiting on its register file; eight keep it busy).
 
 use super::crossing::{self, Candidate};
-use super::sphere::{Part, Parts, hart_step};
+use super::sphere::{Along, Part, Parts, hart_step, penumbra_estimate};
 use super::step::{TraceResult, epsilon_at};
 use crate::accel::field::ObjectField;
 use crate::geom::Ray;
@@ -166,7 +166,8 @@ pub fn trace_hart_packet(
                 st.steps += 1;
                 let part = st.part.expect("active");
                 let (ray, t) = (&lanes[i].ray, st.t);
-                if d[i] < epsilon_at(s, t) {
+                let eps = epsilon_at(s, t);
+                if d[i] < eps {
                     let mut cursor = field.cursor(regs);
                     match crossing::confirm(
                         &mut cursor,
@@ -181,12 +182,112 @@ pub fn trace_hart_packet(
                         Candidate::Continue(next) => st.t = next,
                     }
                 } else {
-                    st.t = t + hart_step(d[i], &part, t);
+                    st.t = t + hart_step(d[i], &part, t, eps);
                 }
             }
         }
     }
     for (o, st) in out.iter_mut().zip(&states) {
         *o = TraceResult::of_points(st.done.flatten(), st.steps);
+    }
+}
+
+/// Where one lane's penumbra march stands.
+struct Shadowed<'f> {
+    along: Along<'f>,
+    res: f32,
+    previous: f32,
+    t: f32,
+    samples: u32,
+    done: bool,
+}
+
+/// Quilez's penumbra ([`super::sphere::penumbra`]) of up to [`PACKET`] shadow rays through
+/// one object, sampled where each ray alone samples it; `out[i]` is what the scalar march
+/// returns for `lanes[i]`.
+#[allow(clippy::too_many_arguments)]
+pub fn penumbra_packet(
+    field: &ObjectField,
+    lanes: &[Lane],
+    s: &TracerSettings,
+    k: f32,
+    improved: bool,
+    scratch: &mut PacketScratch,
+    out: &mut [f32],
+) {
+    assert!(lanes.len() <= PACKET && out.len() == lanes.len());
+    let PacketScratch { simd, regs, level } = scratch;
+    let mut states: ArrayVec<Shadowed, PACKET> = {
+        let cursor = field.cursor(regs);
+        lanes
+            .iter()
+            .map(|l| Shadowed {
+                along: Along::new(&cursor, &l.ray, l.t0, l.t1),
+                res: 1.0,
+                previous: f32::INFINITY,
+                t: l.t0,
+                samples: 0,
+                done: s.max_steps == 0,
+            })
+            .collect()
+    };
+    let mut tapes: [Option<&crate::sdf::tape::Tape>; PACKET] = [None; PACKET];
+    loop {
+        let mut active = 0u32;
+        for (i, st) in states.iter_mut().enumerate() {
+            if !st.done {
+                tapes[i] = Some(st.along.tape(st.t));
+                active |= 1 << i;
+            }
+        }
+        if active == 0 {
+            break;
+        }
+        while active != 0 {
+            let first = active.trailing_zeros() as usize;
+            let tape = tapes[first].expect("active");
+            let mut group = 0u32;
+            let mut xyz = [[0.0f32; PACKET]; 3];
+            let fallback = lanes[first].ray.at(states[first].t);
+            for i in 0..PACKET {
+                let p = if i < lanes.len()
+                    && active & (1 << i) != 0
+                    && std::ptr::eq(tapes[i].expect("active"), tape)
+                {
+                    group |= 1 << i;
+                    lanes[i].ray.at(states[i].t)
+                } else {
+                    fallback
+                };
+                for (axis, v) in xyz.iter_mut().zip(p.to_array()) {
+                    axis[i] = v;
+                }
+            }
+            let h = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
+            active &= !group;
+            for (i, st) in states.iter_mut().enumerate() {
+                if group & (1 << i) == 0 {
+                    continue;
+                }
+                let t = st.t;
+                st.samples += 1;
+                if h[i] < epsilon_at(s, t) {
+                    st.res = 0.0;
+                    st.done = true;
+                    continue;
+                }
+                st.res = st
+                    .res
+                    .min(penumbra_estimate(h[i], st.previous, t, k, improved));
+                st.previous = h[i];
+                st.t = t + h[i];
+                if st.t > lanes[i].t1 || st.res < 1e-4 || st.samples >= s.max_steps {
+                    st.done = true;
+                }
+            }
+        }
+    }
+    for (o, st) in out.iter_mut().zip(&states) {
+        *o = st.res.clamp(0.0, 1.0);
     }
 }

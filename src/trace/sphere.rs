@@ -12,6 +12,7 @@ use crate::geom::Ray;
 use crate::scene::TracerSettings;
 use crate::sdf::simplify::Verdict;
 use crate::sdf::tape::Tape;
+use glam::Vec3;
 
 /// Marches from t0 towards t1 by the field value: the field is 1-Lipschitz (every node of the
 /// lowered tape is step-corrected), so an unbounding sphere of radius f(p) around p contains no
@@ -47,8 +48,9 @@ pub(crate) enum Stretch {
 pub(crate) struct Part<'f> {
     /// The tape valid there.
     pub tape: &'f Tape,
-    /// The field's Lipschitz bound there (1 outside leaves with a better one).
-    pub lipschitz: f32,
+    /// How fast the field may fall along the ray there (1, the global bound, outside leaves
+    /// with a gradient enclosure).
+    pub fall: f32,
     /// Where the march starts (the current t, or the part's start if later).
     pub start: f32,
     /// Where it ends.
@@ -60,6 +62,7 @@ pub(crate) struct Part<'f> {
 /// the walk that are not empty, the whole tape beyond the box.
 pub(crate) struct Parts<'f> {
     whole: &'f Tape,
+    direction: Vec3,
     walk: Option<RayWalk<'f>>,
     phase: Phase,
     t1: f32,
@@ -87,6 +90,7 @@ impl<'f> Parts<'f> {
         let whole = cursor.whole_tape();
         let mut parts = Parts {
             whole,
+            direction: ray.direction,
             walk: None,
             phase: Phase::Whole,
             t1,
@@ -124,11 +128,11 @@ impl<'f> Parts<'f> {
                 Phase::Walk => {
                     let walk = self.walk.as_mut().expect("a walk in the walk phase");
                     match walk.next_leaf() {
-                        Some(x) if x.exit < t || x.cell.leaf.verdict == Verdict::Empty => {}
+                        Some(x) if x.exit < t || x.leaf.verdict == Verdict::Empty => {}
                         Some(x) => {
                             return Some(Part {
-                                tape: x.cell.tape,
-                                lipschitz: x.cell.leaf.lipschitz,
+                                tape: x.tape,
+                                fall: x.leaf.fall(self.direction),
                                 start: t.max(x.enter),
                                 end: x.exit.min(self.t1),
                             });
@@ -150,20 +154,23 @@ impl<'f> Parts<'f> {
     fn whole_part(&self, start: f32, end: f32) -> Part<'f> {
         Part {
             tape: self.whole,
-            lipschitz: 1.0,
+            fall: 1.0,
             start,
             end,
         }
     }
 }
 
-/// One Hart step from a sample of value d ≥ ε in `part`: d, or d/L within the part where its
-/// Lipschitz bound L < 1 (no surface lies within d/L inside the leaf; beyond it the global
-/// bound allows d).
+/// One step from a sample of value d ≥ ε(t) in `part`: Hart's d, or, where the leaf's
+/// gradient enclosure shows the field falling by at most `fall` < 1 per unit along the ray,
+/// d/fall within the leaf — no surface lies nearer (the field cannot reach 0 sooner), on a
+/// plane it is the crossing itself — kept ε/4 short, as segment tracing keeps its steps
+/// (Galin et al. 2020), so that rounding never lands past the crossing. Beyond the leaf the
+/// global bound allows d.
 #[inline]
-pub(crate) fn hart_step(d: f32, part: &Part, t: f32) -> f32 {
-    if part.lipschitz < 1.0 {
-        d.max((d / part.lipschitz).min(part.end - t))
+pub(crate) fn hart_step(d: f32, part: &Part, t: f32, eps: f32) -> f32 {
+    if part.fall < 1.0 {
+        d.max((d / part.fall - 0.25 * eps).min(part.end - t))
     } else {
         d
     }
@@ -186,13 +193,14 @@ fn march_part(
         }
         let d = part.tape.eval_in(ray.at(t), field.regs);
         *steps += 1;
-        if d < epsilon_at(s, t) {
+        let eps = epsilon_at(s, t);
+        if d < eps {
             match crossing::confirm(field, ray, t, d, t1, s, steps) {
                 Candidate::Hit(t) => return Stretch::Hit(t),
                 Candidate::Continue(next) => t = next,
             }
         } else {
-            t += hart_step(d, part, t);
+            t += hart_step(d, part, t, eps);
         }
     }
     Stretch::Left(t)
@@ -229,14 +237,15 @@ pub(crate) fn next_up(x: f32) -> f32 {
 
 /// The tape valid at increasing parameters t along a ray: the leaves of the walk, the whole
 /// tape outside the tree's box.
-struct Along<'f> {
+pub(crate) struct Along<'f> {
     walk: Option<RayWalk<'f>>,
     current: Option<Crossed<'f>>,
     whole: &'f Tape,
 }
 
 impl<'f> Along<'f> {
-    fn new(field: &FieldCursor<'f, '_>, ray: &Ray, t0: f32, t1: f32) -> Self {
+    /// The tapes along `ray` over [t0, t1] for the field of `field`.
+    pub fn new(field: &FieldCursor<'f, '_>, ray: &Ray, t0: f32, t1: f32) -> Self {
         Along {
             walk: field.octree().map(|tree| RayWalk::new(tree, ray, t0, t1)),
             current: None,
@@ -271,9 +280,9 @@ impl<'f> Along<'f> {
 
     /// The tape valid at t.
     #[inline]
-    fn tape(&mut self, t: f32) -> &'f Tape {
+    pub fn tape(&mut self, t: f32) -> &'f Tape {
         match self.at(t) {
-            Some(c) => c.cell.tape,
+            Some(c) => c.tape,
             None => self.whole,
         }
     }
@@ -442,19 +451,7 @@ pub fn penumbra(
         if h < epsilon_at(s, t) {
             return 0.0;
         }
-        // The unbounding spheres of the last two samples meet on a circle whose plane lies y
-        // behind the current sample; the closest approach to the surface is estimated there.
-        // Only between the two samples (y ≤ h') does that geometry hold: where the field grows
-        // as fast as the step (h ≈ 2h', the ray heading straight away), y would land behind
-        // the previous sample and d collapse to 0, a false dark speck; use k·h/t there.
-        let y = h * h / (2.0 * previous);
-        let estimate = if improved && y <= previous {
-            let d = (h * h - y * y).max(0.0).sqrt();
-            k * d / (t - y).max(1e-6)
-        } else {
-            k * h / t.max(1e-6)
-        };
-        res = res.min(estimate);
+        res = res.min(penumbra_estimate(h, previous, t, k, improved));
         previous = h;
         t += h;
         if t > t1 || res < 1e-4 {
@@ -462,6 +459,23 @@ pub fn penumbra(
         }
     }
     res.clamp(0.0, 1.0)
+}
+
+/// Quilez's estimate at a sample of value h at t, the previous sample's value being `previous`.
+#[inline]
+pub(crate) fn penumbra_estimate(h: f32, previous: f32, t: f32, k: f32, improved: bool) -> f32 {
+    // The unbounding spheres of the last two samples meet on a circle whose plane lies y
+    // behind the current sample; the closest approach to the surface is estimated there.
+    // Only between the two samples (y ≤ h') does that geometry hold: where the field grows
+    // as fast as the step (h ≈ 2h', the ray heading straight away), y would land behind
+    // the previous sample and d collapse to 0, a false dark speck; use k·h/t there.
+    let y = h * h / (2.0 * previous);
+    if improved && y <= previous {
+        let d = (h * h - y * y).max(0.0).sqrt();
+        k * d / (t - y).max(1e-6)
+    } else {
+        k * h / t.max(1e-6)
+    }
 }
 
 /// Marches from inside a solid to where the ray leaves it: inside, −f bounds the distance to
@@ -480,7 +494,7 @@ pub fn exit(
     let (mut steps, mut skips) = (0, 0);
     while steps < s.max_steps && skips < MAX_SKIPS {
         let tape = match along.at(t) {
-            Some(c) if c.cell.leaf.verdict == Verdict::Full => {
+            Some(c) if c.leaf.verdict == Verdict::Full => {
                 // inside at every point of the leaf: on to just past where the ray leaves it
                 t = next_up(t.max(c.exit));
                 skips += 1;
@@ -489,7 +503,7 @@ pub fn exit(
                 }
                 continue;
             }
-            Some(c) => c.cell.tape,
+            Some(c) => c.tape,
             None => along.whole,
         };
         let d = -tape.eval_in(ray.at(t), field.regs);

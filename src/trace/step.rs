@@ -94,17 +94,3 @@ pub fn region_at<'f>(cursor: &mut FieldCursor<'f, '_>, m: &Marching, t: f32) -> 
 pub fn is(region: &Region, kind: Verdict) -> bool {
     region.cell.is_some_and(|c| c.leaf.verdict == kind)
 }
-
-/// Hart's safe step from a sample of value d > 0, lengthened by the leaf's Lipschitz bound:
-/// inside a box where |∇f| ≤ L < 1, no surface lies within d/L along the ray — as far as the
-/// box reaches; from there the global bound takes over, which allows d anyway.
-#[inline]
-pub fn safe_step(d: f32, region: &Region, m: &Marching, t: f32) -> f32 {
-    match region.cell {
-        Some(c) if c.leaf.lipschitz < 1.0 => {
-            let to_exit = m.exit(&c) - t;
-            d.max((d / c.leaf.lipschitz).min(to_exit))
-        }
-        _ => d,
-    }
-}

@@ -29,6 +29,10 @@ use emit::{Emit, V3};
 use glam::Vec3;
 use shapes::Out;
 
+/// Most operations a lowered program may have (4 Mi, about 200 MiB while lowering): a union
+/// of a hundred thousand primitives takes about 1.5 Mi.
+pub const MAX_OPERATIONS: usize = 4 << 20;
+
 /// Why a tree could not be lowered, and where: `path` leads from the root to the node (and,
 /// where one value is at fault, its field), so the scene loader can point at the text.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -86,26 +90,6 @@ pub struct LoweredSdf {
     pub program: SsaTape,
     /// Conservative object-space bounds of the surface (may be infinite).
     pub bounds: Aabb,
-    /// Whether |∇f| = 1 almost everywhere (primitives and sharp CSG of them, rigid and
-    /// uniformly scaled, rounded, shelled, repeated): no region has a Lipschitz bound below
-    /// 1, so region specialisation need not look for one.
-    pub unit_gradient: bool,
-}
-
-/// Whether a tree's field has |∇f| = 1 almost everywhere: no node divides by a Lipschitz
-/// bound or blends (implicits, twist, bend, non-uniform scale, smooth CSG, the ellipsoid's
-/// bound).
-pub fn unit_gradient(node: &SdfNode) -> bool {
-    use SdfNode::*;
-    let own = match node {
-        Ellipsoid { .. } | Implicit { .. } | Twist { .. } | Bend { .. } => false,
-        Scale { factors, .. } => factors.0.min_element() == factors.0.max_element(),
-        SmoothUnion { k, .. } | SmoothIntersection { k, .. } | SmoothSubtraction { k, .. } => {
-            k.0 <= 0.0
-        }
-        _ => true,
-    };
-    own && node.children().into_iter().all(unit_gradient)
 }
 
 /// Lowers `node` with the object-to-world transform already folded in by the caller (use
@@ -132,7 +116,6 @@ pub fn lower(
         shading,
         program,
         bounds,
-        unit_gradient: unit_gradient(node),
     })
 }
 
@@ -185,6 +168,14 @@ impl Context<'_> {
         mat: u32,
     ) -> Result<Out, LowerError> {
         self.path.push(Step::Node(node.kind()));
+        // Repetition evaluates its child once per neighbouring cell, so nested repetitions
+        // multiply: refuse before the program outgrows memory, at the node that overflows.
+        if b.len() > MAX_OPERATIONS {
+            return Err(self.error(format!(
+                "too complex: the tape would exceed {MAX_OPERATIONS} operations (nested \
+                 repetitions multiply their child; use fewer levels or fewer shapes)"
+            )));
+        }
         let out = self.node_inner(b, node, p, mat)?;
         self.path.pop();
         Ok(out)
