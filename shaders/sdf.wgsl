@@ -79,10 +79,11 @@ fn next_up(x: f32) -> f32 {
 }
 
 // sphere::Part: a part of the ray marched with one tape (a leaf's, or the whole tape's
-// outside the tree) and the field's Lipschitz bound there; `valid` is false when none is left.
+// outside the tree) and how fast the field may fall along the ray there (field::Leaf::fall);
+// `valid` is false when none is left.
 struct Part {
     tape: TapeRef,
-    lipschitz: f32,
+    fall: f32,
     start: f32,
     end: f32,
     valid: bool,
@@ -99,6 +100,7 @@ const PHASE_DONE: u32 = 4u;
 // leaves of the walk (field_walk) that are not empty, the whole tape beyond the box.
 struct Parts {
     object: u32,
+    direction: vec3<f32>,
     phase: u32,
     t1: f32,
     enter: f32,
@@ -107,7 +109,7 @@ struct Parts {
 
 // Parts::new.
 fn parts_new(object: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> Parts {
-    var parts = Parts(object, PHASE_WHOLE, t1, t0, t1);
+    var parts = Parts(object, d, PHASE_WHOLE, t1, t0, t1);
     let obj = objects[object];
     if obj.field_root != NONE {
         let iv = ray_interval(obj.field_lo, obj.field_hi, o, d, t0, t1);
@@ -150,7 +152,7 @@ fn parts_next(parts: ptr<function, Parts>, t: f32) -> Part {
                 } else {
                     let leaf = field_leaves[x.leaf];
                     if !(x.exit < t || leaf.verdict == VERDICT_EMPTY) {
-                        return Part(field_tapes[leaf.tape], leaf.lipschitz, max(t, x.enter), min(x.exit, (*parts).t1), true);
+                        return Part(field_tapes[leaf.tape], leaf_fall(leaf, (*parts).direction), max(t, x.enter), min(x.exit, (*parts).t1), true);
                     }
                 }
             }
@@ -166,10 +168,22 @@ fn parts_next(parts: ptr<function, Parts>, t: f32) -> Part {
     return Part(objects[object].distance, 1.0, 0.0, 0.0, false);
 }
 
-// sphere::hart_step: d, or d/L within the part where its Lipschitz bound L < 1.
-fn hart_step(f: f32, part: Part, t: f32) -> f32 {
-    if part.lipschitz < 1.0 {
-        return max(f, min(f / part.lipschitz, part.end - t));
+// field::Leaf::fall: the largest −d·g over the leaf's gradient enclosure, at least 0, rounded
+// up (1, the global bound, without an enclosure).
+fn leaf_fall(leaf: FieldLeafRecord, d: vec3<f32>) -> f32 {
+    if leaf.graded == 0u {
+        return 1.0;
+    }
+    let m = min(leaf.gradient_lo * d, leaf.gradient_hi * d);
+    let f = -(m.x + m.y + m.z);
+    return max(f + abs(f) * 4.0 * 1.1920929e-7, 0.0);
+}
+
+// sphere::hart_step: d, or d/fall kept ε/4 short within the part where the field falls by
+// less than 1 per unit along the ray.
+fn hart_step(f: f32, part: Part, t: f32, eps: f32) -> f32 {
+    if part.fall < 1.0 {
+        return max(f, min(f / part.fall - 0.25 * eps, part.end - t));
     }
     return f;
 }
@@ -193,14 +207,15 @@ fn march_part(object: u32, part: Part, o: vec3<f32>, d: vec3<f32>, t1: f32, step
         }
         let f = tape_eval(part.tape, o + d * t);
         *steps = *steps + 1u;
-        if f < epsilon_at(t) {
+        let eps = epsilon_at(t);
+        if f < eps {
             let c = sdf_confirm(object, o, d, t, f, t1, steps);
             if c.hit {
                 return Stretch(STRETCH_HIT, c.t);
             }
             t = c.t;
         } else {
-            t = t + hart_step(f, part, t);
+            t = t + hart_step(f, part, t, eps);
         }
     }
     return Stretch(STRETCH_LEFT, t);

@@ -709,9 +709,9 @@ fn field_report(
         let mut leaves = Vec::new();
         let mut first = None;
         while let Some(x) = walk.next_leaf() {
-            leaves.push(index(x.cell.leaf));
-            if first.is_none() && x.cell.leaf.verdict != Verdict::Empty {
-                first = Some((index(x.cell.leaf), x.enter, x.exit));
+            leaves.push(index(x.leaf));
+            if first.is_none() && x.leaf.verdict != Verdict::Empty {
+                first = Some((index(x.leaf), x.enter, x.exit));
             }
         }
         r.leaves_met += leaves.len();

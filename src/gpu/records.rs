@@ -76,17 +76,25 @@ gpu_struct! {
     /// One leaf of an object's field octree (`accel::field::Leaf`). The field node buffer
     /// holds every object's `FieldOctree::raw_nodes`, rebased: an inner node is the index in
     /// that buffer of its first child, a leaf is `FIELD_LEAF` | an index into the leaf buffer.
-    pub struct FieldLeafRecord(20) {
+    pub struct FieldLeafRecord(48) {
+        /// Lower ends of the enclosures of ∂f/∂x, ∂f/∂y, ∂f/∂z over the box (`Leaf::gradient`;
+        /// zeros when `graded` is 0).
+        pub gradient_lo: [f32; 3],
         /// Index into the field tape buffer: the leaf's distance tape.
         pub tape: u32,
+        /// Upper ends of the gradient enclosures.
+        pub gradient_hi: [f32; 3],
         /// Index into the field tape buffer: the leaf's shading tape.
         pub shading: u32,
         /// What the box holds (`VERDICT_*`).
         pub verdict: u32,
-        /// An upper bound on |∇f| over the box, at most 1.
-        pub lipschitz: f32,
         /// A lower bound on f over the box.
         pub min_value: f32,
+        /// 1 when the gradient enclosure is known (finite), 0 for the whole line: WGSL has no
+        /// infinities to mark it as the CPU does.
+        pub graded: u32,
+        /// Padding to WGSL's 16-byte struct alignment.
+        pub pad: u32,
     }
 }
 

@@ -391,12 +391,19 @@ impl SceneData {
             self.field_tapes.push(r);
         }
         self.field_leaves
-            .extend(tree.leaves().iter().map(|l| FieldLeafRecord {
-                tape: tape_base + l.tape,
-                shading: shading_base + l.shading,
-                verdict: verdict_code(l.verdict),
-                lipschitz: l.lipschitz,
-                min_value: l.min_value,
+            .extend(tree.leaves().iter().map(|l| {
+                let graded = l.gradient.iter().flatten().all(|g| g.is_finite());
+                let [lo, hi] = if graded { l.gradient } else { [[0.0; 3]; 2] };
+                FieldLeafRecord {
+                    gradient_lo: lo,
+                    tape: tape_base + l.tape,
+                    gradient_hi: hi,
+                    shading: shading_base + l.shading,
+                    verdict: verdict_code(l.verdict),
+                    min_value: l.min_value,
+                    graded: graded as u32,
+                    pad: 0,
+                }
             }));
         let (node_base, leaf_base) = (node_base as u32, leaf_base as u32);
         self.field_nodes.extend(raw.iter().map(|&n| {
@@ -652,7 +659,7 @@ mod tests {
             assert_eq!((lo, hi), (cell.lo, cell.hi));
             let leaf = data.field_leaves[(node & !LEAF) as usize];
             assert_eq!(leaf.verdict, verdict_code(cell.leaf.verdict));
-            assert_eq!(leaf.lipschitz, cell.leaf.lipschitz);
+            assert_eq!(leaf.graded == 1, cell.leaf.gradient[0][0].is_finite());
             assert_eq!(leaf.min_value, cell.leaf.min_value);
             let tape = data.field_tapes[leaf.tape as usize];
             assert_eq!(instrs(&tape), instr_records(cell.tape.instrs()));
