@@ -61,11 +61,10 @@ fn object_interval(index: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32,
 // SceneTracer passes to the walk, for each query.
 fn walk_visit(query: u32, index: u32, t0: f32, t1: f32, o: vec3<f32>, d: vec3<f32>, k: f32, improved: bool, state: WalkState) -> WalkState {
     var s = state;
-    let tape = objects[index].distance;
     switch query {
         case WALK_CLOSEST: {
             // the march stays within [t0, t1] ⊆ [tmin, limit]: any hit is the nearest so far
-            let r = sdf_trace(tape, o, d, t0, t1);
+            let r = sdf_trace(index, o, d, t0, t1);
             s.steps = s.steps + r.steps;
             if r.hit {
                 s.found = true;
@@ -75,19 +74,19 @@ fn walk_visit(query: u32, index: u32, t0: f32, t1: f32, o: vec3<f32>, d: vec3<f3
             }
         }
         case WALK_OCCLUDED: {
-            if sdf_trace(tape, o, d, t0, t1).hit {
+            if sdf_trace(index, o, d, t0, t1).hit {
                 s.found = true;
                 s.stop = true;
             }
         }
         case WALK_PENUMBRA: {
-            s.value = min(s.value, sdf_penumbra(tape, o, d, t0, t1, k, improved));
+            s.value = min(s.value, sdf_penumbra(index, o, d, t0, t1, k, improved));
             if s.value <= 0.0 {
                 s.stop = true;
             }
         }
         default: {
-            s.value = min(s.value, tape_eval(tape, o));
+            s.value = min(s.value, field_eval(index, o));
         }
     }
     return s;
@@ -276,8 +275,7 @@ fn scene_closest_hit(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32) -> SceneH
     let w = sdf_walk(WALK_CLOSEST, o, d, tmin, limit, 0.0, 0.0, false, 0.0);
     let steps = w.steps;
     if w.found {
-        let tape = objects[w.object].distance;
-        let g = sdf_gradient(tape, o + d * w.t, normal_step(w.t));
+        let g = sdf_gradient(w.object, o + d * w.t, normal_step(w.t));
         return SceneHit(w.t, HIT_SDF, w.object, 0u, vec2<f32>(0.0), normalize_or_y(g), g, steps);
     }
     if mesh.hit {
@@ -349,17 +347,17 @@ fn scene_exit(hit: SceneHit, o: vec3<f32>, d: vec3<f32>, tmax: f32) -> vec4<f32>
         }
         return vec4<f32>(h.t, n);
     }
-    let tape = objects[hit.object].distance;
-    let t = sdf_exit(tape, o, d, 0.0, limit);
+    let t = sdf_exit(hit.object, o, d, 0.0, limit);
     if t < 0.0 {
         return vec4<f32>(-1.0, 0.0, 0.0, 0.0);
     }
-    let n = normalize_or_y(sdf_gradient(tape, o + d * t, normal_step(t)));
+    let n = normalize_or_y(sdf_gradient(hit.object, o + d * t, normal_step(t)));
     return vec4<f32>(t, n);
 }
 
-// SceneTracer::material_at: the SDF's blended material from its shading tape, or the mesh
-// triangle's material with its base-colour texture applied.
+// SceneTracer::material_at: the SDF's blended material from the shading tape valid at p (the
+// leaf's, or the whole one), or the mesh triangle's material with its base-colour texture
+// applied.
 fn scene_material(hit: SceneHit, p: vec3<f32>) -> Material {
     if hit.kind == HIT_MESH {
         let s = mesh_surface(hit.object, hit.triangle, hit.bary.x, hit.bary.y);
@@ -367,6 +365,5 @@ fn scene_material(hit: SceneHit, p: vec3<f32>) -> Material {
         m.color = m.color * s.tint;
         return m;
     }
-    let obj = objects[hit.object];
-    return material_from_lanes(tape_material(obj.shading, obj.material_result, p));
+    return material_from_lanes(tape_material(field_shading_at(hit.object, p), p));
 }

@@ -1,5 +1,8 @@
-// Sphere tracing of one tape (Hart 1996), its normals, shadow penumbrae and exits: the
-// functions of src/trace/sphere.rs and src/trace/normal.rs, step for step.
+// Sphere tracing of one object over its field octree (Hart 1996), its normals, shadow
+// penumbrae and exits: the functions of src/trace/sphere.rs, src/trace/crossing.rs and
+// src/trace/normal.rs, step for step. Samples of a march are evaluated with the tape of the
+// leaf the walk is in (field.wgsl), probes and normals with the tape of the leaf holding the
+// point, and the whole tape outside the octree's box.
 
 // trace::epsilon_at: ε(t) = ε₀ + ε₁·max(t, 0).
 fn epsilon_at(t: f32) -> f32 {
@@ -8,6 +11,7 @@ fn epsilon_at(t: f32) -> f32 {
 
 // trace::crossing::confirm: a candidate where f < ε(t) is a hit only where the ray crosses the
 // surface (Kalra & Barr 1989: a sign change, narrowed by bisection); otherwise the march goes on.
+// Probes evaluate the field by point location, as FieldCursor::eval.
 struct Candidate {
     hit: bool,
     t: f32,
@@ -16,7 +20,7 @@ struct Candidate {
 const MAX_BISECTIONS: u32 = 24u;
 
 // crossing::bisect: narrows (outside: f > 0, inside: f ≤ 0) to ε/2, returns the outside end.
-fn sdf_bisect(tape: TapeRef, o: vec3<f32>, d: vec3<f32>, outside_in: f32, inside_in: f32, steps: ptr<function, u32>) -> f32 {
+fn sdf_bisect(object: u32, o: vec3<f32>, d: vec3<f32>, outside_in: f32, inside_in: f32, steps: ptr<function, u32>) -> f32 {
     var outside = outside_in;
     var inside = inside_in;
     for (var i = 0u; i < MAX_BISECTIONS; i = i + 1u) {
@@ -24,7 +28,7 @@ fn sdf_bisect(tape: TapeRef, o: vec3<f32>, d: vec3<f32>, outside_in: f32, inside
             break;
         }
         let mid = 0.5 * (outside + inside);
-        let f = tape_eval(tape, o + d * mid);
+        let f = field_eval(object, o + d * mid);
         *steps = *steps + 1u;
         if f <= 0.0 {
             inside = mid;
@@ -35,7 +39,7 @@ fn sdf_bisect(tape: TapeRef, o: vec3<f32>, d: vec3<f32>, outside_in: f32, inside
     return outside;
 }
 
-fn sdf_confirm(tape: TapeRef, o: vec3<f32>, d: vec3<f32>, t: f32, f: f32, t1: f32, steps: ptr<function, u32>) -> Candidate {
+fn sdf_confirm(object: u32, o: vec3<f32>, d: vec3<f32>, t: f32, f: f32, t1: f32, steps: ptr<function, u32>) -> Candidate {
     if f <= 0.0 {
         return Candidate(true, t);
     }
@@ -44,19 +48,19 @@ fn sdf_confirm(tape: TapeRef, o: vec3<f32>, d: vec3<f32>, t: f32, f: f32, t1: f3
     if ts <= t {
         return Candidate(false, t + eps);
     }
-    let fs = tape_eval(tape, o + d * ts);
+    let fs = field_eval(object, o + d * ts);
     *steps = *steps + 1u;
     if fs <= 0.0 {
-        return Candidate(true, sdf_bisect(tape, o, d, t, ts, steps));
+        return Candidate(true, sdf_bisect(object, o, d, t, ts, steps));
     }
     let slope = (fs - f) / (ts - t);
     if slope < 0.0 {
         let tp = min(ts + fs / -slope + eps, t1);
         if tp > ts {
-            let fp = tape_eval(tape, o + d * tp);
+            let fp = field_eval(object, o + d * tp);
             *steps = *steps + 1u;
             if fp <= 0.0 {
-                return Candidate(true, sdf_bisect(tape, o, d, ts, tp, steps));
+                return Candidate(true, sdf_bisect(object, o, d, ts, tp, steps));
             }
         }
     }
@@ -69,23 +73,174 @@ struct TraceResult {
     steps: u32,
 }
 
-// sphere::trace_hart: march from t0 by the field value; where f < ε(t) the candidate is
-// confirmed by crossing::confirm (below); a miss past t1 or after max_steps evaluations.
-fn sdf_trace(tape: TapeRef, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> TraceResult {
-    var t = t0;
-    var steps = 0u;
-    while steps < globals.max_steps {
-        let f = tape_eval(tape, o + d * t);
-        steps = steps + 1u;
-        if f < epsilon_at(t) {
-            let c = sdf_confirm(tape, o, d, t, f, t1, &steps);
+// sphere::next_up: the next float above x ≥ 0.
+fn next_up(x: f32) -> f32 {
+    return bitcast<f32>(bitcast<u32>(max(x, 0.0)) + 1u);
+}
+
+// sphere::Part: a part of the ray marched with one tape (a leaf's, or the whole tape's
+// outside the tree) and how fast the field may fall along the ray there (field::Leaf::fall);
+// `valid` is false when none is left.
+struct Part {
+    tape: TapeRef,
+    fall: f32,
+    start: f32,
+    end: f32,
+    valid: bool,
+}
+
+// sphere::Phase.
+const PHASE_WHOLE: u32 = 0u;
+const PHASE_BEFORE: u32 = 1u;
+const PHASE_WALK: u32 = 2u;
+const PHASE_AFTER: u32 = 3u;
+const PHASE_DONE: u32 = 4u;
+
+// sphere::Parts: the parts of [t0, t1] in order: the whole tape before the tree's box, the
+// leaves of the walk (field_walk) that are not empty, the whole tape beyond the box.
+struct Parts {
+    object: u32,
+    direction: vec3<f32>,
+    phase: u32,
+    t1: f32,
+    enter: f32,
+    leave: f32,
+}
+
+// Parts::new.
+fn parts_new(object: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> Parts {
+    var parts = Parts(object, d, PHASE_WHOLE, t1, t0, t1);
+    let obj = objects[object];
+    if obj.field_root != NONE {
+        let iv = ray_interval(obj.field_lo, obj.field_hi, o, d, t0, t1);
+        if iv.hit {
+            field_walk_begin(object, o, d, t0, iv.t1);
+            if t0 < iv.t0 {
+                parts.phase = PHASE_BEFORE;
+            } else {
+                parts.phase = PHASE_WALK;
+            }
+            parts.enter = iv.t0;
+            parts.leave = iv.t1;
+        }
+    }
+    return parts;
+}
+
+// Parts::whole_part.
+fn whole_part(object: u32, start: f32, end: f32) -> Part {
+    return Part(objects[object].distance, 1.0, start, end, true);
+}
+
+// Parts::next: the next part for a march now at t.
+fn parts_next(parts: ptr<function, Parts>, t: f32) -> Part {
+    let object = (*parts).object;
+    while (*parts).phase != PHASE_DONE {
+        switch (*parts).phase {
+            case PHASE_WHOLE: {
+                (*parts).phase = PHASE_DONE;
+                return whole_part(object, t, (*parts).t1);
+            }
+            case PHASE_BEFORE: {
+                (*parts).phase = PHASE_WALK;
+                return whole_part(object, t, (*parts).enter);
+            }
+            case PHASE_WALK: {
+                let x = field_next_leaf();
+                if x.leaf == NONE {
+                    (*parts).phase = PHASE_AFTER;
+                } else {
+                    let leaf = field_leaves[x.leaf];
+                    if !(x.exit < t || leaf.verdict == VERDICT_EMPTY) {
+                        return Part(field_tapes[leaf.tape], leaf_fall(leaf, (*parts).direction), max(t, x.enter), min(x.exit, (*parts).t1), true);
+                    }
+                }
+            }
+            case PHASE_AFTER: {
+                (*parts).phase = PHASE_DONE;
+                if (*parts).leave < (*parts).t1 {
+                    return whole_part(object, max(t, next_up((*parts).leave)), (*parts).t1);
+                }
+            }
+            default: {}
+        }
+    }
+    return Part(objects[object].distance, 1.0, 0.0, 0.0, false);
+}
+
+// field::Leaf::fall: the largest −d·g over the leaf's gradient enclosure, at least 0, rounded
+// up (1, the global bound, without an enclosure).
+fn leaf_fall(leaf: FieldLeafRecord, d: vec3<f32>) -> f32 {
+    if leaf.graded == 0u {
+        return 1.0;
+    }
+    let m = min(leaf.gradient_lo * d, leaf.gradient_hi * d);
+    let f = -(m.x + m.y + m.z);
+    return max(f + abs(f) * 4.0 * 1.1920929e-7, 0.0);
+}
+
+// sphere::hart_step: d, or d/fall kept ε/4 short within the part where the field falls by
+// less than 1 per unit along the ray.
+fn hart_step(f: f32, part: Part, t: f32, eps: f32) -> f32 {
+    if part.fall < 1.0 {
+        return max(f, min(f / part.fall - 0.25 * eps, part.end - t));
+    }
+    return f;
+}
+
+// sphere::Stretch: how a march over one part ended.
+const STRETCH_HIT: u32 = 0u;
+const STRETCH_LEFT: u32 = 1u;
+const STRETCH_SPENT: u32 = 2u;
+
+struct Stretch {
+    kind: u32,
+    t: f32,
+}
+
+// sphere::march_part: Hart's march over one part.
+fn march_part(object: u32, part: Part, o: vec3<f32>, d: vec3<f32>, t1: f32, steps: ptr<function, u32>) -> Stretch {
+    var t = part.start;
+    while t <= part.end {
+        if *steps >= globals.max_steps {
+            return Stretch(STRETCH_SPENT, t);
+        }
+        let f = tape_eval(part.tape, o + d * t);
+        *steps = *steps + 1u;
+        let eps = epsilon_at(t);
+        if f < eps {
+            let c = sdf_confirm(object, o, d, t, f, t1, steps);
             if c.hit {
-                return TraceResult(true, c.t, steps);
+                return Stretch(STRETCH_HIT, c.t);
             }
             t = c.t;
         } else {
-            t = t + f;
+            t = t + hart_step(f, part, t, eps);
         }
+    }
+    return Stretch(STRETCH_LEFT, t);
+}
+
+// sphere::trace_hart: the parts of [t0, t1] marched in order, each with its own tape; where
+// f < ε(t) the candidate is confirmed (sdf_confirm); a miss past t1 or after max_steps
+// evaluations.
+fn sdf_trace(object: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> TraceResult {
+    var parts = parts_new(object, o, d, t0, t1);
+    var t = t0;
+    var steps = 0u;
+    loop {
+        let part = parts_next(&parts, t);
+        if !part.valid {
+            break;
+        }
+        let s = march_part(object, part, o, d, t1, &steps);
+        if s.kind == STRETCH_HIT {
+            return TraceResult(true, s.t, steps);
+        }
+        if s.kind == STRETCH_SPENT {
+            break;
+        }
+        t = s.t;
         if t > t1 {
             break;
         }
@@ -93,16 +248,70 @@ fn sdf_trace(tape: TapeRef, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> Tra
     return TraceResult(false, t, steps);
 }
 
+// sphere::Along: the leaf at increasing parameters t along a ray (the walk's, field_walk),
+// none outside the tree.
+struct Along {
+    // the walk may still meet leaves
+    walking: bool,
+    // the last leaf met (leaf NONE: none)
+    current: Crossed,
+}
+
+// Along::new: the walk over [t0, t1].
+fn along_new(object: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> Along {
+    let walking = objects[object].field_root != NONE;
+    if walking {
+        field_walk_begin(object, o, d, t0, t1);
+    }
+    return Along(walking, crossed_none());
+}
+
+// Along::at: the leaf at t (t never decreasing between calls), or leaf NONE outside the tree.
+fn along_at(along: ptr<function, Along>, t: f32) -> Crossed {
+    let c = (*along).current;
+    if c.leaf != NONE && t <= c.exit {
+        if t >= c.enter {
+            return c;
+        }
+        return crossed_none();
+    }
+    while (*along).walking {
+        let n = field_next_leaf();
+        if n.leaf == NONE {
+            (*along).walking = false;
+            (*along).current = crossed_none();
+        } else if !(n.exit < t) {
+            (*along).current = n;
+            if t >= n.enter {
+                return n;
+            }
+            return crossed_none();
+        }
+    }
+    return crossed_none();
+}
+
+// Along::tape: the tape valid at t.
+fn along_tape(along: ptr<function, Along>, object: u32, t: f32) -> TapeRef {
+    let c = along_at(along, t);
+    if c.leaf == NONE {
+        return objects[object].distance;
+    }
+    return field_tapes[field_leaves[c.leaf].tape];
+}
+
 // sphere::penumbra: Quilez's soft-shadow estimate min(k·h/t), or with `improved` the closest
-// approach between the last two samples; 0 when a sample is within ε(t) of the surface.
-fn sdf_penumbra(tape: TapeRef, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32, k: f32, improved: bool) -> f32 {
+// approach between the last two samples; 0 when a sample is within ε(t) of the surface. The
+// samples are the whole tape's (no leaf skipped), each with the tape of its leaf.
+fn sdf_penumbra(object: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32, k: f32, improved: bool) -> f32 {
+    var along = along_new(object, o, d, t0, t1);
     var res = 1.0;
     // f32::INFINITY of the CPU: h*h/(2·previous) is then 0, as with an infinite previous.
     var previous = 3.4028235e38;
     var first = true;
     var t = t0;
     for (var i = 0u; i < globals.max_steps; i = i + 1u) {
-        let h = tape_eval(tape, o + d * t);
+        let h = tape_eval(along_tape(&along, object, t), o + d * t);
         if h < epsilon_at(t) {
             return 0.0;
         }
@@ -128,12 +337,32 @@ fn sdf_penumbra(tape: TapeRef, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32, k: 
     return clamp(res, 0.0, 1.0);
 }
 
-// sphere::exit: from inside a solid to where the ray leaves it, by steps of 0.9·|f|; a
-// negative result when the ray is still inside after max_steps or t1.
-fn sdf_exit(tape: TapeRef, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> f32 {
+// sphere::exit: from inside a solid to where the ray leaves it, by steps of 0.9·|f|; a leaf
+// proven full is left at once. A negative result when the ray is still inside after
+// max_steps or t1.
+fn sdf_exit(object: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> f32 {
+    var along = along_new(object, o, d, t0, t1);
     var t = t0;
-    for (var i = 0u; i < globals.max_steps; i = i + 1u) {
+    var steps = 0u;
+    var skips = 0u;
+    while steps < globals.max_steps && skips < MAX_SKIPS {
+        let c = along_at(&along, t);
+        var tape = objects[object].distance;
+        if c.leaf != NONE {
+            let leaf = field_leaves[c.leaf];
+            if leaf.verdict == VERDICT_FULL {
+                // inside at every point of the leaf: on to just past where the ray leaves it
+                t = next_up(max(t, c.exit));
+                skips = skips + 1u;
+                if t > t1 {
+                    return -1.0;
+                }
+                continue;
+            }
+            tape = field_tapes[leaf.tape];
+        }
         let f = -tape_eval(tape, o + d * t);
+        steps = steps + 1u;
         if f < epsilon_at(t) {
             return t;
         }
@@ -150,20 +379,21 @@ fn normal_step(t: f32) -> f32 {
     return max(2.0 * epsilon_at(t), 1e-4);
 }
 
-// normal::central and normal::tetrahedral: the gradient estimate at p with step h.
-fn sdf_gradient(tape: TapeRef, p: vec3<f32>, h: f32) -> vec3<f32> {
+// normal::central and normal::tetrahedral: the gradient estimate at p with step h, each
+// point evaluated with the tape of the leaf holding it.
+fn sdf_gradient(object: u32, p: vec3<f32>, h: f32) -> vec3<f32> {
     if globals.normals == NORMALS_TETRAHEDRAL {
         let k0 = vec3<f32>(1.0, -1.0, -1.0);
         let k1 = vec3<f32>(-1.0, -1.0, 1.0);
         let k2 = vec3<f32>(-1.0, 1.0, -1.0);
         let k3 = vec3<f32>(1.0, 1.0, 1.0);
-        let g = k0 * tape_eval(tape, p + k0 * h) + k1 * tape_eval(tape, p + k1 * h)
-            + k2 * tape_eval(tape, p + k2 * h) + k3 * tape_eval(tape, p + k3 * h);
+        let g = k0 * field_eval(object, p + k0 * h) + k1 * field_eval(object, p + k1 * h)
+            + k2 * field_eval(object, p + k2 * h) + k3 * field_eval(object, p + k3 * h);
         return g / (4.0 * h);
     }
-    let gx = tape_eval(tape, p + vec3<f32>(h, 0.0, 0.0)) - tape_eval(tape, p - vec3<f32>(h, 0.0, 0.0));
-    let gy = tape_eval(tape, p + vec3<f32>(0.0, h, 0.0)) - tape_eval(tape, p - vec3<f32>(0.0, h, 0.0));
-    let gz = tape_eval(tape, p + vec3<f32>(0.0, 0.0, h)) - tape_eval(tape, p - vec3<f32>(0.0, 0.0, h));
+    let gx = field_eval(object, p + vec3<f32>(h, 0.0, 0.0)) - field_eval(object, p - vec3<f32>(h, 0.0, 0.0));
+    let gy = field_eval(object, p + vec3<f32>(0.0, h, 0.0)) - field_eval(object, p - vec3<f32>(0.0, h, 0.0));
+    let gz = field_eval(object, p + vec3<f32>(0.0, 0.0, h)) - field_eval(object, p - vec3<f32>(0.0, 0.0, h));
     return vec3<f32>(gx, gy, gz) / (2.0 * h);
 }
 

@@ -99,13 +99,13 @@ fn tape_eval(tape: TapeRef, p: vec3<f32>) -> f32 {
 
 // Tape::eval_material's material: the blended material lanes at p (the table's first
 // material when the tape has no material result).
-fn tape_material(tape: TapeRef, material_result: u32, p: vec3<f32>) -> array<vec4<f32>, 3> {
+fn tape_material(tape: TapeRef, p: vec3<f32>) -> array<vec4<f32>, 3> {
     tape_run(tape, p, true);
-    if material_result == NONE {
+    if tape.material == NONE {
         if globals.material_count > 0u {
             return materials[0].lanes;
         }
         return array<vec4<f32>, 3>(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
     }
-    return mat_regs[material_result % MAX_MATERIAL_REGISTERS];
+    return mat_regs[tape.material % MAX_MATERIAL_REGISTERS];
 }

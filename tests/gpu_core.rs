@@ -1,6 +1,8 @@
 //! The GPU tracing core against the CPU: the SDF conformance suite on the WGSL tape
-//! interpreter, closest hits and shadow rays of every shipped scene and of instanced bunnies
-//! compared ray by ray with `SceneTracer`, and chunked dispatch independent of the chunk size.
+//! interpreter, the field octrees' point location, leaf tapes and ray walk against
+//! `FieldOctree` and `RayWalk`, closest hits and shadow rays of every shipped scene and of
+//! instanced bunnies compared ray by ray with `SceneTracer`, and chunked dispatch independent
+//! of the chunk size.
 //!
 //! These tests need a GPU adapter; on machines without a GPU that is Mesa's lavapipe (Debian
 //! package `mesa-vulkan-drivers`). A missing adapter fails the tests, it does not skip them.
@@ -123,7 +125,8 @@ impl Agreement {
 /// meshes.
 fn compare(name: &str, scene: &Scene, seed: u64) -> Agreement {
     let cpu = SceneTracer::new(scene);
-    let gpu = GpuQuery::new(ctx(), scene).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let gpu =
+        GpuQuery::with_fields(ctx(), scene, cpu.fields()).unwrap_or_else(|e| panic!("{name}: {e}"));
     let s = &scene.tracer;
     let diameter = bounds(scene).diagonal();
     let rays = rays(scene, seed);
@@ -264,14 +267,20 @@ fn scenes_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/scenes")
 }
 
-#[test]
-fn every_shipped_scene_agrees_with_the_cpu() {
+/// The scene files of `assets/scenes`, by name.
+fn shipped_scenes() -> Vec<PathBuf> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(scenes_dir())
         .expect("assets/scenes")
         .map(|e| e.unwrap().path())
         .filter(|p| p.extension().is_some_and(|e| e == "ron"))
         .collect();
     files.sort();
+    files
+}
+
+#[test]
+fn every_shipped_scene_agrees_with_the_cpu() {
+    let files = shipped_scenes();
     assert!(!files.is_empty(), "no scenes in assets/scenes");
     println!("GPU adapter: {}", ctx().adapter_name());
     for (k, path) in files.iter().enumerate() {
@@ -403,7 +412,8 @@ fn probe(name: &str, scene: &Scene, seed: u64) -> ProbeReport {
     use hytrace::gpu::records::QueryRay;
     use hytrace::scene::Shadow;
     let cpu = SceneTracer::new(scene);
-    let gpu = GpuQuery::new(ctx(), scene).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let gpu =
+        GpuQuery::with_fields(ctx(), scene, cpu.fields()).unwrap_or_else(|e| panic!("{name}: {e}"));
     let s = &scene.tracer;
     let materials: Vec<_> = scene.materials.iter().map(|m| m.to_vec()).collect();
     let tmax = s.max_distance;
@@ -592,4 +602,231 @@ fn shading_queries_on(files: &[&str]) {
         "disagreements: {}",
         failures.join("; ")
     );
+}
+
+/// What the field probe kernel and the CPU agree on over one object's rays.
+#[derive(Debug, Default)]
+struct FieldReport {
+    rays: usize,
+    /// Origins inside the octree's box.
+    inside: usize,
+    leaf_agree: usize,
+    value_over: usize,
+    value_max: f32,
+    walk_agree: usize,
+    /// Leaves met, summed over the rays (the CPU's walk).
+    leaves_met: usize,
+    /// Rays whose walk meets a leaf that is not empty.
+    surface_rays: usize,
+}
+
+/// Origins in and around the octree's box (a fifth outside it), with random directions; a
+/// tenth have a zero direction component (the walk's TINY_DIRECTION), some a later tmin or
+/// an earlier tmax.
+fn field_rays(tree: &hytrace::accel::field::FieldOctree, seed: u64) -> Vec<(Ray, f32, f32)> {
+    let b = tree.bounds();
+    let size = b.max - b.min;
+    let diag = size.length();
+    let mut rng = Rng::new(seed);
+    (0..1500)
+        .map(|i| {
+            let o = if i % 5 == 4 {
+                rng.in_box(b.min - 0.25 * size, b.max + 0.25 * size)
+            } else {
+                rng.in_box(b.min, b.max)
+            };
+            let mut d = rng.direction();
+            if i % 10 == 3 {
+                d[rng.below(3) as usize] = 0.0;
+            }
+            let (tmin, tmax) = match i % 4 {
+                0 => (0.0, rng.range_f32(0.0, diag)),
+                1 => (rng.range_f32(0.0, 0.5 * diag), 3.0 * diag),
+                _ => (0.0, 3.0 * diag),
+            };
+            (Ray::new(o, d), tmin, tmax)
+        })
+        .collect()
+}
+
+/// The field probe of object `object` over `rays` against the CPU: the leaf holding each
+/// origin, the field there (the leaf's tape, or the whole one outside the box) and the
+/// leaves the walk meets in order (with the first that is not empty and its parameters).
+fn field_report(
+    gpu: &GpuQuery,
+    source: Option<&str>,
+    fields: &[hytrace::accel::field::ObjectField],
+    object: usize,
+    rays: &[(Ray, f32, f32)],
+) -> FieldReport {
+    use hytrace::accel::field::{Leaf, RayWalk};
+    use hytrace::gpu::records::{FIELD_PROBE_LEAVES, NONE, QueryRay};
+    use hytrace::sdf::simplify::Verdict;
+    let field = &fields[object];
+    let tree = field.octree.as_ref().expect("an octree");
+    // the GPU's leaf buffer holds the objects' leaves one octree after the other
+    let base: usize = fields[..object]
+        .iter()
+        .filter_map(|f| f.octree.as_ref())
+        .map(|t| t.leaves().len())
+        .sum();
+    let index = |l: &Leaf| {
+        (base + (l as *const Leaf as usize - tree.leaves().as_ptr() as usize) / size_of::<Leaf>())
+            as u32
+    };
+    let batch: Vec<QueryRay> = rays
+        .iter()
+        .map(|(r, tmin, tmax)| QueryRay {
+            origin: r.origin.to_array(),
+            tmin: *tmin,
+            direction: r.direction.to_array(),
+            tmax: *tmax,
+        })
+        .collect();
+    let out = match source {
+        Some(src) => gpu.field_probe_source(src, &batch, object as u32),
+        None => gpu.field_probe(&batch, object as u32),
+    }
+    .unwrap_or_else(|e| panic!("{e}"));
+    let mut regs = hytrace::sdf::tape::Registers::new();
+    let mut r = FieldReport::default();
+    for ((ray, tmin, tmax), g) in rays.iter().zip(&out) {
+        r.rays += 1;
+        let o = ray.origin;
+        let cell = tree.locate(o);
+        r.inside += cell.is_some() as usize;
+        if cell.map_or(NONE, |c| index(c.leaf)) == g.leaf {
+            r.leaf_agree += 1;
+        }
+        let tape = cell.map_or(&field.whole, |c| c.tape);
+        let v = tape.eval_in(o, &mut regs);
+        let dv = (v - g.value).abs();
+        r.value_max = r.value_max.max(dv);
+        if dv > 1e-4 * v.abs().max(1.0) {
+            r.value_over += 1;
+        }
+        let mut walk = RayWalk::new(tree, ray, *tmin, *tmax);
+        let mut leaves = Vec::new();
+        let mut first = None;
+        while let Some(x) = walk.next_leaf() {
+            leaves.push(index(x.leaf));
+            if first.is_none() && x.leaf.verdict != Verdict::Empty {
+                first = Some((index(x.leaf), x.enter, x.exit));
+            }
+        }
+        r.leaves_met += leaves.len();
+        r.surface_rays += first.is_some() as usize;
+        let recorded: Vec<u32> = g.leaves.iter().flatten().copied().collect();
+        let n = leaves.len().min(FIELD_PROBE_LEAVES as usize);
+        let close = |a: f32, b: f32| (a - b).abs() <= 1e-5 * a.abs().max(1.0);
+        let same_first = match first {
+            None => g.first_surface == NONE,
+            Some((leaf, enter, exit)) => {
+                leaf == g.first_surface && close(enter, g.first_enter) && close(exit, g.first_exit)
+            }
+        };
+        if g.count as usize == leaves.len() && recorded[..n] == leaves[..n] && same_first {
+            r.walk_agree += 1;
+        } else if std::env::var_os("GPU_CORE_DEBUG").is_some() {
+            println!(
+                "  walk differs: {ray:?} [{tmin}, {tmax}]: cpu {} leaves {:?} first {first:?}, \
+                 gpu {} leaves {:?} first {} [{}, {}]",
+                leaves.len(),
+                &leaves[..n.min(8)],
+                g.count,
+                &recorded[..n.min(8)],
+                g.first_surface,
+                g.first_enter,
+                g.first_exit
+            );
+        }
+    }
+    r
+}
+
+/// Every shipped object with a field octree: the GPU locates the same leaf as
+/// `FieldOctree::locate` at points in and around its box, evaluates the same field there (the
+/// leaf's tape inside, the whole tape outside, within f32 tolerance), and its walk meets the
+/// same leaves in the same order as `RayWalk`, with the same first non-empty leaf and slab
+/// parameters. Then the same comparison with deliberately broken walks (mirroring ignored;
+/// the nearest exit plane taken as the farthest) must fail, so the test can.
+#[test]
+fn field_octrees_locate_evaluate_and_walk_as_on_the_cpu() {
+    let files = shipped_scenes();
+    let mut failures = Vec::new();
+    let mut objects = 0;
+    // one object, kept for the broken walks
+    let mut sample: Option<(Scene, usize)> = None;
+    for path in &files {
+        let name = path.file_stem().unwrap().to_string_lossy().to_string();
+        let scene = Scene::load(path).unwrap_or_else(|e| panic!("{e}"));
+        let cpu = SceneTracer::new(&scene);
+        let gpu = GpuQuery::with_fields(ctx(), &scene, cpu.fields())
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        for (i, field) in cpu.fields().iter().enumerate() {
+            let Some(tree) = &field.octree else { continue };
+            objects += 1;
+            let rays = field_rays(tree, 1000 + objects as u64);
+            let r = field_report(&gpu, None, cpu.fields(), i, &rays);
+            println!(
+                "{name:<14} object {i}: {} leaves, rays {} (origins inside {}), leaf agree {}, \
+                 value max |d| {:.2e} (over {}), walks agree {} (leaves met {}, rays reaching \
+                 a non-empty leaf {})",
+                tree.leaves().len(),
+                r.rays,
+                r.inside,
+                r.leaf_agree,
+                r.value_max,
+                r.value_over,
+                r.walk_agree,
+                r.leaves_met,
+                r.surface_rays
+            );
+            let allowed = r.rays / 1000;
+            if r.rays - r.leaf_agree > allowed
+                || r.value_over > allowed
+                || r.rays - r.walk_agree > allowed
+            {
+                failures.push(format!("{name} object {i}: {r:?}"));
+            }
+            if sample.is_none() && tree.leaves().len() > 64 && r.surface_rays > r.rays / 4 {
+                sample = Some((scene.clone(), i));
+            }
+        }
+    }
+    assert!(
+        objects >= 3,
+        "only {objects} shipped objects have an octree"
+    );
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+
+    let (scene, i) = sample.expect("a shipped object with a deep octree");
+    let cpu = SceneTracer::new(&scene);
+    let gpu = GpuQuery::with_fields(ctx(), &scene, cpu.fields()).unwrap();
+    let rays = field_rays(cpu.fields()[i].octree.as_ref().unwrap(), 5);
+    let source = hytrace::gpu::shaders::with_kernel(hytrace::gpu::shaders::FIELD_PROBE_WGSL);
+    for (what, from, to) in [
+        (
+            "mirroring ignored",
+            "field_nodes[f.node + (c ^ field_walk.mirror)]",
+            "field_nodes[f.node + c]",
+        ),
+        (
+            "the farthest exit plane",
+            "if ct1.x <= ct1.y && ct1.x <= ct1.z {",
+            "if ct1.x >= ct1.y && ct1.x >= ct1.z {",
+        ),
+    ] {
+        assert_eq!(source.matches(from).count(), 1, "{what}: `{from}`");
+        let broken = source.replace(from, to);
+        let r = field_report(&gpu, Some(&broken), cpu.fields(), i, &rays);
+        println!(
+            "broken walk ({what}): walks agree {} of {}",
+            r.walk_agree, r.rays
+        );
+        assert!(
+            r.walk_agree < r.rays * 9 / 10,
+            "a broken walk ({what}) went unnoticed: {r:?}"
+        );
+    }
 }

@@ -744,7 +744,7 @@ pub struct RayWalk<'a> {
 
 /// A direction component this small counts as this (after mirroring, so positive): the slab
 /// parameters of a ray parallel to a slab stay finite, and their midpoints defined.
-const TINY_DIRECTION: f32 = 1e-20;
+pub const TINY_DIRECTION: f32 = 1e-20;
 
 impl<'a> RayWalk<'a> {
     /// The walk over the leaves the ray crosses within [from, to].

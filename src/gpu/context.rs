@@ -19,8 +19,8 @@ pub struct GpuContext {
 
 impl GpuContext {
     /// Opens the first Vulkan adapter wgpu offers, software ones (llvmpipe) included, with the
-    /// adapter's own limits (the scene library binds 14 storage buffers, more than the
-    /// WebGPU default of 8). Fails with [`GpuError::NoAdapter`] when there is none.
+    /// adapter's own limits (the scene library binds more storage buffers than the WebGPU
+    /// default of 8). Fails with [`GpuError::NoAdapter`] when there is none.
     pub fn new() -> Result<Self, GpuError> {
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
             backends: wgpu::Backends::VULKAN,

@@ -66,6 +66,14 @@ impl<const N: usize> WgslType for [[f32; 4]; N] {
     const SIZE: usize = 16 * N;
 }
 
+impl<const N: usize> WgslType for [[u32; 4]; N] {
+    fn wgsl_name() -> String {
+        format!("array<vec4<u32>, {N}>")
+    }
+    const ALIGN: usize = 16;
+    const SIZE: usize = 16 * N;
+}
+
 /// The size WGSL's storage layout gives a struct with fields of these (alignment, size) pairs:
 /// each field at the next multiple of its alignment, the whole rounded up to the largest one.
 pub const fn wgsl_struct_size(fields: &[(usize, usize)]) -> usize {

@@ -1,9 +1,10 @@
 //! The GPU tracer: wgpu compute kernels over WGSL shaders that evaluate the CPU's tapes and
 //! mirror its tracing queries (see `shaders/README.md`).
 //!
-//! [`context`] opens a headless device, [`scene`] uploads a scene (tapes, BVHs, meshes,
-//! materials, textures), [`shaders`] assembles the WGSL (a generated prelude of shared
-//! constants and structs, then `shaders/*.wgsl`), [`query`] answers ray batches with it.
+//! [`context`] opens a headless device, [`scene`] uploads a scene (tapes, the objects' field
+//! octrees, BVHs, meshes, materials, textures), [`shaders`] assembles the WGSL (a generated
+//! prelude of shared constants and structs, then `shaders/*.wgsl`), [`query`] answers ray
+//! batches with it.
 
 pub mod context;
 pub mod layout;

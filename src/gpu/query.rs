@@ -4,12 +4,13 @@
 
 use super::GpuError;
 use super::context::GpuContext;
-use super::records::{ChunkParams, ProbeResult, QueryRay, QueryResult};
+use super::records::{ChunkParams, FieldProbeResult, ProbeResult, QueryRay, QueryResult};
 use super::scene::{GpuScene, SceneData, scene_layout};
 use super::shaders::{
-    EVAL_WGSL, HIT_MESH, HIT_SDF, PROBE_WGSL, QUERY_CLOSEST, QUERY_OCCLUDED, QUERY_WGSL,
-    WORKGROUP_SIZE, with_kernel,
+    EVAL_WGSL, FIELD_PROBE_WGSL, HIT_MESH, HIT_SDF, PROBE_WGSL, QUERY_CLOSEST, QUERY_OCCLUDED,
+    QUERY_WGSL, WORKGROUP_SIZE, with_kernel,
 };
+use crate::accel::field::ObjectField;
 use crate::geom::Ray;
 use crate::reference::query::{ObjectId, QueryHit, RayQuery};
 use crate::scene::Scene;
@@ -34,6 +35,17 @@ const PROBE_PASSES: u32 = 4;
 impl Kernel {
     /// Compiles `kernel` (appended to the scene library) with entry point `entry`.
     pub fn new(ctx: &GpuContext, name: &str, kernel: &str, entry: &str) -> Result<Self, GpuError> {
+        Self::from_source(ctx, name, &with_kernel(kernel), entry)
+    }
+
+    /// Compiles a complete module (the scene library and a kernel, as [`with_kernel`] gives
+    /// them, perhaps altered: tests check that a broken library is caught).
+    pub fn from_source(
+        ctx: &GpuContext,
+        name: &str,
+        source: &str,
+        entry: &str,
+    ) -> Result<Self, GpuError> {
         let scene_layout = scene_layout(ctx);
         let buffer = |binding, ty| wgpu::BindGroupLayoutEntry {
             binding,
@@ -60,7 +72,7 @@ impl Kernel {
             .device
             .create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some(name),
-                source: wgpu::ShaderSource::Wgsl(with_kernel(kernel).into()),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
             });
         let layout = ctx
             .device
@@ -174,17 +186,32 @@ pub struct GpuQuery<'a> {
     scene: GpuScene,
     kernel: Kernel,
     chunk: u32,
+    objects: u32,
 }
 
 impl<'a> GpuQuery<'a> {
     /// Uploads `scene` and compiles the query kernel.
     pub fn new(ctx: &'a GpuContext, scene: &Scene) -> Result<Self, GpuError> {
-        let data = SceneData::from_scene(scene)?;
+        Self::from_data(ctx, &SceneData::from_scene(scene)?)
+    }
+
+    /// [`GpuQuery::new`] with the objects' fields built already (`SceneTracer::fields`), so
+    /// that the GPU walks exactly the CPU's octrees.
+    pub fn with_fields(
+        ctx: &'a GpuContext,
+        scene: &Scene,
+        fields: &[ObjectField],
+    ) -> Result<Self, GpuError> {
+        Self::from_data(ctx, &SceneData::from_fields(scene, fields)?)
+    }
+
+    fn from_data(ctx: &'a GpuContext, data: &SceneData) -> Result<Self, GpuError> {
         Ok(GpuQuery {
             ctx,
-            scene: GpuScene::new(ctx, &data)?,
+            scene: GpuScene::new(ctx, data)?,
             kernel: Kernel::new(ctx, "query.wgsl", QUERY_WGSL, "query_main")?,
             chunk: DEFAULT_CHUNK,
+            objects: data.objects.len() as u32,
         })
     }
 
@@ -213,6 +240,35 @@ impl<'a> GpuQuery<'a> {
         // lavapipe (Mesa 22.3) returned wrong values for some lanes on glass.ron — the same
         // driver trouble the render kernel met with several samples per invocation.
         self.run_kernel(&kernel, rays, k.to_bits(), PROBE_PASSES)
+    }
+
+    /// Runs the field probe kernel (`shaders/field_probe.wgsl`: the field and its leaf at
+    /// each ray's origin, the leaves of the octree walk over its interval) for one object;
+    /// compiles it on each call.
+    pub fn field_probe(
+        &self,
+        rays: &[QueryRay],
+        object: u32,
+    ) -> Result<Vec<FieldProbeResult>, GpuError> {
+        self.field_probe_source(&with_kernel(FIELD_PROBE_WGSL), rays, object)
+    }
+
+    /// [`GpuQuery::field_probe`] with the module compiled from `source` (the library and the
+    /// field probe kernel, perhaps altered).
+    pub fn field_probe_source(
+        &self,
+        source: &str,
+        rays: &[QueryRay],
+        object: u32,
+    ) -> Result<Vec<FieldProbeResult>, GpuError> {
+        if object >= self.objects {
+            return Err(GpuError::Unsupported(format!(
+                "SDF object {object} of a scene with {}",
+                self.objects
+            )));
+        }
+        let kernel = Kernel::from_source(self.ctx, "field_probe.wgsl", source, "field_probe_main")?;
+        self.run_kernel(&kernel, rays, object, 1)
     }
 
     /// Runs `passes` passes of `kernel` (`chunk.part` = 0, 1, …) over the rays into one result

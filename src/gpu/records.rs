@@ -19,8 +19,9 @@ gpu_struct! {
         pub len: u32,
         /// Register holding the distance at the end.
         pub result: u32,
-        /// Unused.
-        pub pad: u32,
+        /// Material register holding the blended material at the end (shading tapes), or
+        /// [`NONE`].
+        pub material: u32,
     }
 }
 
@@ -46,20 +47,54 @@ pub fn instr_records(instrs: &[crate::sdf::tape::Instr]) -> &[InstrRecord] {
 }
 
 gpu_struct! {
-    /// One SDF object: world bounds and its two tapes.
-    pub struct SdfObjectRecord(64) {
+    /// One SDF object: world bounds, its field octree and its two whole tapes.
+    pub struct SdfObjectRecord(96) {
         /// Bounds minimum (infinite coordinates stored as ∓`f32::MAX`).
         pub lo: [f32; 3],
         /// 1 when the bounds are NaN (unknown: the whole ray is visited), else 0.
         pub nan_bounds: u32,
         /// Bounds maximum.
         pub hi: [f32; 3],
-        /// Material register of the shading tape's result, or [`NONE`].
-        pub material_result: u32,
-        /// The distance tape.
+        /// Index in the field node buffer of the octree's root, or [`NONE`] without one.
+        pub field_root: u32,
+        /// Minimum of the box the octree covers (`FieldOctree::bounds`).
+        pub field_lo: [f32; 3],
+        /// Unused.
+        pub pad0: u32,
+        /// Maximum of the box the octree covers.
+        pub field_hi: [f32; 3],
+        /// Unused.
+        pub pad1: u32,
+        /// The whole distance tape (outside the octree's box, or without one).
         pub distance: TapeRef,
-        /// The shading tape (distance and blended material).
+        /// The whole shading tape (distance and blended material).
         pub shading: TapeRef,
+    }
+}
+
+gpu_struct! {
+    /// One leaf of an object's field octree (`accel::field::Leaf`). The field node buffer
+    /// holds every object's `FieldOctree::raw_nodes`, rebased: an inner node is the index in
+    /// that buffer of its first child, a leaf is `FIELD_LEAF` | an index into the leaf buffer.
+    pub struct FieldLeafRecord(48) {
+        /// Lower ends of the enclosures of ∂f/∂x, ∂f/∂y, ∂f/∂z over the box (`Leaf::gradient`;
+        /// zeros when `graded` is 0).
+        pub gradient_lo: [f32; 3],
+        /// Index into the field tape buffer: the leaf's distance tape.
+        pub tape: u32,
+        /// Upper ends of the gradient enclosures.
+        pub gradient_hi: [f32; 3],
+        /// Index into the field tape buffer: the leaf's shading tape.
+        pub shading: u32,
+        /// What the box holds (`VERDICT_*`).
+        pub verdict: u32,
+        /// A lower bound on f over the box.
+        pub min_value: f32,
+        /// 1 when the gradient enclosure is known (finite), 0 for the whole line: WGSL has no
+        /// infinities to mark it as the CPU does.
+        pub graded: u32,
+        /// Padding to WGSL's 16-byte struct alignment.
+        pub pad: u32,
     }
 }
 
@@ -256,6 +291,36 @@ gpu_struct! {
     }
 }
 
+/// Leaves of the walk one ray of the field probe kernel records in order (the rest are only
+/// counted).
+pub const FIELD_PROBE_LEAVES: u32 = 64;
+
+gpu_struct! {
+    /// The answer of the field probe kernel (`shaders/field_probe.wgsl`) for one ray of one
+    /// object: point location and the field at the ray's origin, and the leaves the octree
+    /// walk over the ray's interval meets, for checking both against the CPU.
+    pub struct FieldProbeResult(288) {
+        /// The field at the origin (`field_eval`).
+        pub value: f32,
+        /// The leaf holding the origin, or [`NONE`] outside the octree.
+        pub leaf: u32,
+        /// Leaves the walk met.
+        pub count: u32,
+        /// The first leaf met that is not proven empty (a surface or full leaf), or [`NONE`].
+        pub first_surface: u32,
+        /// Where the ray enters that leaf's box.
+        pub first_enter: f32,
+        /// Where it leaves it.
+        pub first_exit: f32,
+        /// Unused.
+        pub pad0: u32,
+        /// Unused.
+        pub pad1: u32,
+        /// The first [`FIELD_PROBE_LEAVES`] leaves met, in order.
+        pub leaves: [[u32; 4]; FIELD_PROBE_LEAVES as usize / 4],
+    }
+}
+
 gpu_struct! {
     /// Parameters of one chunk of a dispatch.
     pub struct ChunkParams(16) {
@@ -263,7 +328,8 @@ gpu_struct! {
         pub first: u32,
         /// Items in the chunk.
         pub count: u32,
-        /// What to compute (`QUERY_*` bits) or, for tape evaluation, the object whose tape runs.
+        /// What to compute (`QUERY_*` bits) or, for tape evaluation and the field probe, the
+        /// object.
         pub mode: u32,
         /// Which pass of a multi-pass kernel runs (the probe kernel); 0 otherwise.
         pub part: u32,

@@ -1,5 +1,6 @@
-//! A scene in GPU buffers: every tape, the object bounds and their BVH, meshes with a BVH2 per
-//! mesh and one over the instances, materials and textures.
+//! A scene in GPU buffers: every tape, the object bounds and their BVH, each object's field
+//! octree of specialised tapes, meshes with a BVH2 per mesh and one over the instances,
+//! materials and textures.
 //!
 //! [`SceneData`] is the host-side image of the buffers (plain vectors of the records in
 //! [`crate::gpu::records`], built without a device, so its invariants are testable anywhere);
@@ -11,11 +12,17 @@
 //! triangle records (stored in leaf order) or the reference list (object and instance
 //! indices). Node boxes are padded by a few ulps of their coordinates so that the slab test's
 //! rounding never culls a triangle the watertight test would hit.
+//!
+//! The field octrees ([`crate::accel::field`]) are uploaded as the CPU holds them, rebased
+//! into shared buffers: every object's nodes in one array (child and leaf indices offset by
+//! where the object's nodes and leaves start), every leaf in another, every distinct leaf
+//! tape as a [`TapeRef`] into the shared instruction buffer.
 
 use super::GpuError;
 use super::context::GpuContext;
 use super::records::*;
-use super::shaders::{BindingKind, normals_code, scene_bindings, wrap_code};
+use super::shaders::{BindingKind, normals_code, scene_bindings, verdict_code, wrap_code};
+use crate::accel::field::{FieldOctree, LEAF, ObjectField};
 use crate::accel::triangle;
 use crate::geom::Aabb;
 use crate::scene::{Scene, TracerSettings};
@@ -33,6 +40,12 @@ pub struct SceneData {
     pub instrs: Vec<InstrRecord>,
     /// SDF objects.
     pub objects: Vec<SdfObjectRecord>,
+    /// Nodes of every object's field octree, rebased (see [`FieldLeafRecord`]).
+    pub field_nodes: Vec<u32>,
+    /// Leaves of every field octree.
+    pub field_leaves: Vec<FieldLeafRecord>,
+    /// The distinct distance and shading tapes of every field octree's leaves.
+    pub field_tapes: Vec<TapeRef>,
     /// Nodes of every BVH (objects, instances, meshes).
     pub nodes: Vec<BvhNode>,
     /// Object and instance indices referenced by leaves, then the unbounded objects.
@@ -84,24 +97,32 @@ fn tape_ref(tape: &Tape, instrs: &mut Vec<InstrRecord>) -> TapeRef {
         start: instrs.len() as u32,
         len: tape.len() as u32,
         result: tape.result() as u32,
-        pad: 0,
+        material: tape.material_result().map_or(NONE, u32::from),
     };
     instrs.extend_from_slice(instr_records(tape.instrs()));
     r
 }
 
 impl SceneData {
-    /// Builds the buffers of a scene.
+    /// Builds the buffers of a scene, with the fields the CPU tracer would build
+    /// ([`crate::trace::build_fields`]).
     pub fn from_scene(scene: &Scene) -> Result<Self, GpuError> {
-        // The WGSL tracer implements Hart's stepper only; the over-relaxed ones and segment
-        // tracing (which needs the interval evaluator of `sdf::interval`) are CPU steppers
-        // measured by `hytrace bench`.
-        if scene.tracer.stepper != crate::scene::Stepper::Hart {
+        // refused before the octrees are built for nothing
+        supported(scene)?;
+        Self::from_fields(scene, &crate::trace::build_fields(scene, true))
+    }
+
+    /// Builds the buffers of a scene whose objects' fields are built already (one per object,
+    /// in scene order: `SceneTracer::fields`), so that both backends walk the same octrees.
+    pub fn from_fields(scene: &Scene, fields: &[ObjectField]) -> Result<Self, GpuError> {
+        if fields.len() != scene.objects.len() {
             return Err(GpuError::Unsupported(format!(
-                "tracer.stepper {:?}: the GPU traces with Hart's stepper only (use --backend cpu)",
-                scene.tracer.stepper
+                "{} fields for {} SDF objects",
+                fields.len(),
+                scene.objects.len()
             )));
         }
+        supported(scene)?;
         let mut data = SceneData::default();
         data.set_tracer(&scene.tracer);
         let quality = scene.tracer.bvh.params();
@@ -110,19 +131,25 @@ impl SceneData {
         let mut boxes = Vec::new();
         let mut boxed = Vec::new();
         let mut unbounded = Vec::new();
-        for (i, object) in scene.objects.iter().enumerate() {
-            let lowered = &object.lowered;
-            let distance = tape_ref(&lowered.distance, &mut data.instrs);
-            let shading = tape_ref(&lowered.shading, &mut data.instrs);
+        for (i, (object, field)) in scene.objects.iter().zip(fields).enumerate() {
+            let distance = tape_ref(&field.whole, &mut data.instrs);
+            let shading = tape_ref(&field.whole_shading, &mut data.instrs);
+            let (field_root, field_box) = match &field.octree {
+                Some(tree) => (data.add_field(tree)?, tree.bounds()),
+                None => (NONE, Aabb::new(Vec3::ZERO, Vec3::ZERO)),
+            };
             let b: Aabb = object.bounds();
             let nan = b.min.is_nan() || b.max.is_nan();
             data.objects.push(SdfObjectRecord {
                 lo: finite_or_max(b.min),
                 nan_bounds: nan as u32,
                 hi: finite_or_max(b.max),
-                material_result: lowered.shading.material_result().map_or(NONE, u32::from),
+                field_root,
+                field_lo: field_box.min.to_array(),
+                field_hi: field_box.max.to_array(),
                 distance,
                 shading,
+                ..Default::default()
             });
             // as AabbBvh::build: empty boxes are never visited, infinite or NaN ones always
             if b.min.cmpgt(b.max).any() {
@@ -333,16 +360,60 @@ impl SceneData {
         for tape in tapes {
             let distance = tape_ref(tape, &mut data.instrs);
             data.objects.push(SdfObjectRecord {
-                lo: [0.0; 3],
                 nan_bounds: 1,
-                hi: [0.0; 3],
-                material_result: NONE,
+                field_root: NONE,
                 distance,
                 shading: distance,
+                ..Default::default()
             });
         }
         data.globals.object_count = tapes.len() as u32;
         data
+    }
+
+    /// Appends an object's octree (its nodes rebased to the shared buffers, its leaves and
+    /// their tapes) and returns the index of its root node.
+    fn add_field(&mut self, tree: &FieldOctree) -> Result<u32, GpuError> {
+        let raw = tree.raw_nodes();
+        let (node_base, leaf_base) = (self.field_nodes.len(), self.field_leaves.len());
+        // indices share a word with the leaf bit
+        if node_base + raw.len() >= LEAF as usize
+            || leaf_base + tree.leaves().len() >= LEAF as usize
+        {
+            return Err(GpuError::Unsupported(format!(
+                "the scene's field octrees have more than {LEAF} nodes"
+            )));
+        }
+        let tape_base = self.field_tapes.len() as u32;
+        let shading_base = tape_base + tree.tapes.len() as u32;
+        for tape in tree.tapes.iter().chain(&tree.shading) {
+            let r = tape_ref(tape, &mut self.instrs);
+            self.field_tapes.push(r);
+        }
+        self.field_leaves
+            .extend(tree.leaves().iter().map(|l| {
+                let graded = l.gradient.iter().flatten().all(|g| g.is_finite());
+                let [lo, hi] = if graded { l.gradient } else { [[0.0; 3]; 2] };
+                FieldLeafRecord {
+                    gradient_lo: lo,
+                    tape: tape_base + l.tape,
+                    gradient_hi: hi,
+                    shading: shading_base + l.shading,
+                    verdict: verdict_code(l.verdict),
+                    min_value: l.min_value,
+                    graded: graded as u32,
+                    pad: 0,
+                }
+            }));
+        let (node_base, leaf_base) = (node_base as u32, leaf_base as u32);
+        self.field_nodes.extend(raw.iter().map(|&n| {
+            if n & LEAF != 0 {
+                LEAF | ((n & !LEAF) + leaf_base)
+            } else {
+                n + node_base
+            }
+        }));
+        Ok(node_base)
     }
 
     fn set_tracer(&mut self, s: &TracerSettings) {
@@ -407,6 +478,9 @@ impl SceneData {
             bytemuck::bytes_of(&self.globals),
             bytemuck::cast_slice(&self.instrs),
             bytemuck::cast_slice(&self.objects),
+            bytemuck::cast_slice(&self.field_nodes),
+            bytemuck::cast_slice(&self.field_leaves),
+            bytemuck::cast_slice(&self.field_tapes),
             bytemuck::cast_slice(&self.nodes),
             bytemuck::cast_slice(&self.refs),
             bytemuck::cast_slice(&self.triangles),
@@ -422,6 +496,19 @@ impl SceneData {
         assert_eq!(names.len(), bytes.len(), "one buffer per scene binding");
         names.iter().map(|n| n.0).zip(bytes).collect()
     }
+}
+
+/// Whether the GPU tracer handles the scene's settings: it implements Hart's stepper only; the
+/// over-relaxed ones and segment tracing (which needs the interval evaluator of
+/// `sdf::interval`) are CPU steppers measured by `hytrace bench`.
+fn supported(scene: &Scene) -> Result<(), GpuError> {
+    if scene.tracer.stepper != crate::scene::Stepper::Hart {
+        return Err(GpuError::Unsupported(format!(
+            "tracer.stepper {:?}: the GPU traces with Hart's stepper only (use --backend cpu)",
+            scene.tracer.stepper
+        )));
+    }
+    Ok(())
 }
 
 /// Levels of the BVH2 rooted at `root` (1 for a single leaf).
@@ -520,5 +607,76 @@ impl GpuScene {
     /// The uploaded buffers, in binding order.
     pub fn buffers(&self) -> &[wgpu::Buffer] {
         &self.buffers
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+    use std::path::Path;
+
+    /// A gyroid sphere (a long tape, so an octree pays) beside a plain sphere (none).
+    fn scene() -> Scene {
+        let src = "Scene(
+            camera: Perspective(position: (0, 0, 5), look_at: (0, 0, 0), fov: 40),
+            objects: [
+                (shape: Sphere(radius: 0.5), translate: (3, 0, 0)),
+                (shape: Implicit(expr: \"max(sqrt(x*x + y*y + z*z) - 1, abs(sin(6*x)*cos(6*y) + sin(6*y)*cos(6*z) + sin(6*z)*cos(6*x)) - 0.3)\", lipschitz: 20, half_extents: (1, 1, 1))),
+            ],
+        )";
+        Scene::from_source(src, Path::new("gpu-fields.ron")).unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    /// The rebased buffers describe the CPU's octree: a host-side descent through
+    /// `field_nodes` from the object's root reaches the record of the leaf
+    /// `FieldOctree::locate` finds, whose tape references hold that leaf's instructions.
+    #[test]
+    fn uploaded_octrees_are_the_cpu_octrees_rebased() {
+        let scene = scene();
+        let fields = crate::trace::build_fields(&scene, true);
+        assert!(fields[0].octree.is_none() && fields[1].octree.is_some());
+        let data = SceneData::from_fields(&scene, &fields).unwrap();
+        assert_eq!(data.objects[0].field_root, NONE);
+        let obj = data.objects[1];
+        let tree = fields[1].octree.as_ref().unwrap();
+        assert_eq!(Vec3::from(obj.field_lo), tree.bounds().min);
+        assert_eq!(Vec3::from(obj.field_hi), tree.bounds().max);
+        let instrs = |r: &TapeRef| &data.instrs[r.start as usize..(r.start + r.len) as usize];
+        let mut rng = Rng::new(3);
+        for _ in 0..2000 {
+            let p = rng.in_box(tree.bounds().min, tree.bounds().max);
+            let cell = tree.locate(p).expect("inside");
+            let (mut lo, mut hi) = (Vec3::from(obj.field_lo), Vec3::from(obj.field_hi));
+            let mut node = data.field_nodes[obj.field_root as usize];
+            while node & LEAF == 0 {
+                let mid = 0.5 * (lo + hi);
+                let up = p.cmpge(mid);
+                node = data.field_nodes[(node + up.bitmask()) as usize];
+                lo = Vec3::select(up, mid, lo);
+                hi = Vec3::select(up, hi, mid);
+            }
+            assert_eq!((lo, hi), (cell.lo, cell.hi));
+            let leaf = data.field_leaves[(node & !LEAF) as usize];
+            assert_eq!(leaf.verdict, verdict_code(cell.leaf.verdict));
+            assert_eq!(leaf.graded == 1, cell.leaf.gradient[0][0].is_finite());
+            assert_eq!(leaf.min_value, cell.leaf.min_value);
+            let tape = data.field_tapes[leaf.tape as usize];
+            assert_eq!(instrs(&tape), instr_records(cell.tape.instrs()));
+            assert_eq!(tape.result, u32::from(cell.tape.result()));
+            let shading = data.field_tapes[leaf.shading as usize];
+            assert_eq!(instrs(&shading), instr_records(cell.shading.instrs()));
+            assert_eq!(
+                shading.material,
+                cell.shading.material_result().map_or(NONE, u32::from)
+            );
+        }
+    }
+
+    #[test]
+    fn fields_must_match_the_objects() {
+        let scene = scene();
+        let fields = crate::trace::build_fields(&scene, true);
+        assert!(SceneData::from_fields(&scene, &fields[..1]).is_err());
     }
 }

@@ -3,15 +3,19 @@
 
 use super::layout::{WgslStruct, WgslType};
 use super::records::*;
+use crate::accel::field;
 use crate::scene::Shadow;
 use crate::scene::file::NormalMethod;
 use crate::scene::mesh::Wrap;
+use crate::sdf::simplify::Verdict;
 use crate::sdf::tape;
 use crate::shade::material::MaterialParams;
 use glam::Vec3;
 
 /// The tape interpreter (`Tape::eval_in`, `Tape::eval_material`).
 pub const TAPE_WGSL: &str = include_str!("../../shaders/tape.wgsl");
+/// An object's field octree: point location and the ray walk (`src/accel/field.rs`).
+pub const FIELD_WGSL: &str = include_str!("../../shaders/field.wgsl");
 /// Sphere tracing, normals, penumbrae, exits (`src/trace/sphere.rs`, `src/trace/normal.rs`).
 pub const SDF_WGSL: &str = include_str!("../../shaders/sdf.wgsl");
 /// BVH2 traversal and the watertight triangle test (`src/accel`).
@@ -25,6 +29,9 @@ pub const EVAL_WGSL: &str = include_str!("../../shaders/eval.wgsl");
 
 /// The probe kernel: shading's scene queries per ray, for tests against the CPU.
 pub const PROBE_WGSL: &str = include_str!("../../shaders/probe.wgsl");
+/// The field probe kernel: point location and the octree walk per ray, for tests against the
+/// CPU.
+pub const FIELD_PROBE_WGSL: &str = include_str!("../../shaders/field_probe.wgsl");
 
 /// Threads per workgroup of the compute kernels (1-D).
 pub const WORKGROUP_SIZE: u32 = 64;
@@ -59,6 +66,15 @@ pub fn normals_code(method: NormalMethod) -> u32 {
     }
 }
 
+/// The number a leaf verdict has in WGSL (`VERDICT_*`).
+pub fn verdict_code(verdict: Verdict) -> u32 {
+    match verdict {
+        Verdict::Empty => 0,
+        Verdict::Full => 1,
+        Verdict::Surface => 2,
+    }
+}
+
 /// The number a texture wrap mode has in WGSL (`WRAP_*`).
 pub fn wrap_code(wrap: Wrap) -> u32 {
     match wrap {
@@ -87,6 +103,9 @@ pub fn scene_bindings() -> Vec<(&'static str, BindingKind, String)> {
         ("globals", Uniform, SceneGlobals::wgsl_name()),
         ("instrs", Storage, array(InstrRecord::wgsl_name())),
         ("objects", Storage, array(SdfObjectRecord::wgsl_name())),
+        ("field_nodes", Storage, array(u32::wgsl_name())),
+        ("field_leaves", Storage, array(FieldLeafRecord::wgsl_name())),
+        ("field_tapes", Storage, array(TapeRef::wgsl_name())),
         ("nodes", Storage, array(BvhNode::wgsl_name())),
         ("refs", Storage, array(u32::wgsl_name())),
         ("triangles", Storage, array(TriangleRecord::wgsl_name())),
@@ -186,11 +205,24 @@ pub fn wgsl_prelude() -> String {
     s += &u("WRAP_REPEAT", wrap_code(Wrap::Repeat));
     s += &u("WRAP_CLAMP_TO_EDGE", wrap_code(Wrap::ClampToEdge));
     s += &u("WRAP_MIRRORED_REPEAT", wrap_code(Wrap::MirroredRepeat));
+    s += &u("VERDICT_EMPTY", verdict_code(Verdict::Empty));
+    s += &u("VERDICT_FULL", verdict_code(Verdict::Full));
+    s += &u("VERDICT_SURFACE", verdict_code(Verdict::Surface));
+    s += &u("FIELD_MAX_DEPTH", field::MAX_DEPTH);
+    s += &u("FIELD_LEAF", field::LEAF);
+    s += &u("FIELD_PROBE_LEAVES", FIELD_PROBE_LEAVES);
+    s += &u("MAX_SKIPS", crate::trace::step::MAX_SKIPS);
+    // the shortest decimal that reads back as the same f32
+    s += &format!(
+        "const TINY_DIRECTION: f32 = {:?}f;\n",
+        field::TINY_DIRECTION
+    );
     s += "\n";
     for decl in [
         InstrRecord::wgsl(),
         TapeRef::wgsl(),
         SdfObjectRecord::wgsl(),
+        FieldLeafRecord::wgsl(),
         BvhNode::wgsl(),
         TriangleRecord::wgsl(),
         MeshRecord::wgsl(),
@@ -204,6 +236,7 @@ pub fn wgsl_prelude() -> String {
         QueryResult::wgsl(),
         ChunkParams::wgsl(),
         ProbeResult::wgsl(),
+        FieldProbeResult::wgsl(),
     ] {
         s += &decl;
     }
@@ -220,11 +253,12 @@ pub fn wgsl_prelude() -> String {
     s
 }
 
-/// The scene library: prelude, tape interpreter, sphere tracing, mesh traversal and the hybrid
-/// queries of `scene.wgsl` (the functions shading builds on). Kernels are appended to it.
+/// The scene library: prelude, tape interpreter, field octrees, mesh traversal, sphere
+/// tracing and the hybrid queries of `scene.wgsl` (the functions shading builds on). Kernels
+/// are appended to it.
 pub fn scene_library() -> String {
     let mut s = wgsl_prelude();
-    for part in [TAPE_WGSL, SDF_WGSL, MESH_WGSL, SCENE_WGSL] {
+    for part in [TAPE_WGSL, FIELD_WGSL, MESH_WGSL, SDF_WGSL, SCENE_WGSL] {
         s += part;
         s += "\n";
     }
@@ -243,6 +277,7 @@ pub fn all_modules() -> Vec<(&'static str, String)> {
         ("query.wgsl", with_kernel(QUERY_WGSL)),
         ("eval.wgsl", with_kernel(EVAL_WGSL)),
         ("probe.wgsl", with_kernel(PROBE_WGSL)),
+        ("field_probe.wgsl", with_kernel(FIELD_PROBE_WGSL)),
     ]
 }
 
@@ -269,8 +304,9 @@ mod tests {
         validate("the prelude", &src);
         for (name, part) in [
             ("tape.wgsl", TAPE_WGSL),
-            ("sdf.wgsl", SDF_WGSL),
+            ("field.wgsl", FIELD_WGSL),
             ("mesh.wgsl", MESH_WGSL),
+            ("sdf.wgsl", SDF_WGSL),
             ("scene.wgsl", SCENE_WGSL),
         ] {
             src += part;

@@ -416,6 +416,7 @@ pub struct Frames {
 }
 
 impl Frames {
+    #[cfg(feature = "fidget")]
     fn new(times: Option<&[f64]>) -> Frames {
         match times {
             Some(t) => Frames {
@@ -567,6 +568,7 @@ pub fn run(opts: &super::BenchOptions, scenes: &[(String, Scene)]) -> anyhow::Re
 }
 
 /// A frame: seconds and hit mask, or None when it was cancelled at the frame limit.
+#[cfg(feature = "fidget")]
 type Frame = anyhow::Result<Option<(f64, Vec<bool>)>>;
 
 /// What [`alternate_frames`] measured, per backend: the timed seconds and the warm-up's hit
