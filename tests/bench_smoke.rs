@@ -160,6 +160,83 @@ fn check_peer(stdout: &str, peer: &serde_json::Value) {
     assert_eq!(rows, 2, "a timing row per thread count:\n{stdout}");
     // The GPU row is there; its figures depend on an adapter being found.
     assert!(peer["gpu"].is_object(), "{peer}");
+    check_evaluators(stdout, &peer["evaluators"], &names);
+}
+
+/// The "Tape evaluators" table: per model, the six evaluators on both workloads, each with a
+/// time per point and per instruction and its agreement with our scalar interpreter.
+fn check_evaluators(stdout: &str, table: &serde_json::Value, names: &[&str]) {
+    assert!(stdout.contains("### Tape evaluators"), "{stdout}");
+    let models = table["models"].as_array().expect("evaluator models");
+    let evaluated: Vec<&str> = models
+        .iter()
+        .map(|m| m["model"].as_str().unwrap())
+        .collect();
+    assert_eq!(evaluated, names, "a row block per peer model");
+    let expected = [
+        ("hytrace eval8", 8),
+        ("hytrace scalar", 1),
+        ("fidget VM", 8),
+        ("fidget VM", 256),
+        ("fidget JIT", 8),
+        ("fidget JIT", 256),
+    ];
+    for m in models {
+        assert!(m["points"].as_u64().unwrap() > 0, "{m}");
+        assert!(m["leaf_groups"].as_u64().unwrap() > 0, "{m}");
+        assert!(m["tapes"].as_u64().unwrap() > 0, "{m}");
+        // Specialised tapes are never longer than the whole ones they come from.
+        let (spec, whole) = (
+            m["mean_tape_specialised"].as_f64().unwrap(),
+            m["mean_tape_whole"].as_f64().unwrap(),
+        );
+        assert!(spec > 0.0 && spec <= whole, "{m}");
+        let figures = m["figures"].as_array().expect("figures");
+        let kinds: Vec<(&str, u64)> = figures
+            .iter()
+            .map(|f| {
+                (
+                    f["evaluator"].as_str().unwrap(),
+                    f["batch"].as_u64().unwrap(),
+                )
+            })
+            .collect();
+        assert_eq!(
+            kinds,
+            expected.map(|(n, b)| (n, b as u64)),
+            "{}",
+            m["model"]
+        );
+        for f in figures {
+            for w in ["specialised", "whole"] {
+                let t = &f[w];
+                assert!(t["ns_per_point"].as_f64().unwrap() > 0.0, "{w}: {f}");
+                assert!(t["best_ns_per_point"].as_f64().unwrap() > 0.0, "{w}: {f}");
+                assert!(
+                    t["ns_per_point_instruction"].as_f64().unwrap() > 0.0,
+                    "{w}: {f}"
+                );
+                assert!(!t["runs_ms"].as_array().unwrap().is_empty(), "{w}: {f}");
+                // Our packets give the scalar interpreter's bits; fidget's results agree to
+                // the precision of its sin/cos/exp/ln (ours are polynomial approximations).
+                let d = t["max_relative_difference"]
+                    .as_f64()
+                    .unwrap_or(f64::INFINITY);
+                if f["evaluator"].as_str().unwrap().starts_with("hytrace") {
+                    assert_eq!(d, 0.0, "{w}: {f}");
+                } else {
+                    assert!((0.0..=1e-3).contains(&d), "{w}: {f}");
+                }
+            }
+        }
+    }
+    let rows = stdout
+        .lines()
+        .filter(|l| {
+            l.starts_with("| gyroid sphere | fidget JIT | ") && l.matches('|').count() == 12
+        })
+        .count();
+    assert_eq!(rows, 2, "a JIT row per batch size:\n{stdout}");
 }
 
 #[test]

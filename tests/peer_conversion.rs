@@ -1,15 +1,50 @@
-//! The bench's tape → fidget conversion computes what our tapes compute: fidget's point evaluator
-//! against our interpreter at random points, for every elementary operation and for every object
-//! of the shipped scenes and of the peer section's generated models. Runs with `--features fidget`.
+//! The bench's tape → fidget conversions compute what our tapes compute: fidget's point evaluator
+//! against our interpreter at random points, for every elementary operation, for every object
+//! of the shipped scenes and of the peer section's generated models (SSA conversion), and for
+//! the compiled tapes the tracer runs, whole and specialised to octree leaves (register-tape
+//! conversion). Runs with `--features fidget`.
 #![cfg(feature = "fidget")]
 
 use fidget::vm::VmShape;
-use hytrace::bench::peer::{self, fidget::to_tree};
+use hytrace::bench::peer::{
+    self,
+    fidget::{tape_to_tree, to_tree},
+};
 use hytrace::rng::Rng;
 use hytrace::scene::Scene;
 use hytrace::sdf::ssa::{Builder, SsaTape};
-use hytrace::sdf::tape::{Op, Shape};
+use hytrace::sdf::tape::{Op, Shape, Tape};
 use std::path::{Path, PathBuf};
+
+/// |b − a| / (1 + |a|), NaN on one side only infinitely wrong.
+fn relative(a: f32, b: f32) -> f32 {
+    if a.is_nan() && b.is_nan() || a == b {
+        0.0
+    } else if a.is_nan() || b.is_nan() {
+        f32::INFINITY
+    } else {
+        (a - b).abs() / (1.0 + a.abs())
+    }
+}
+
+/// [`worst`] for a compiled register tape, through [`tape_to_tree`].
+fn worst_compiled(tape: &Tape, points: &[[f32; 3]]) -> (f32, [f32; 3], f32, f32) {
+    let shape = VmShape::from(tape_to_tree(tape).expect("converts"));
+    let fidget_tape = shape.point_tape(Default::default());
+    let mut eval = VmShape::new_point_eval();
+    let mut worst = (0.0f32, [0.0; 3], 0.0, 0.0);
+    for &p in points {
+        let a = tape.eval(glam::Vec3::from(p));
+        let (b, _) = eval
+            .eval(&fidget_tape, p[0], p[1], p[2])
+            .expect("evaluates");
+        let err = relative(a, b);
+        if err > worst.0 {
+            worst = (err, p, a, b);
+        }
+    }
+    worst
+}
 
 /// Evaluates `tape` with fidget after conversion and with our interpreter at `points`; returns
 /// the worst |difference| / (1 + |ours|) and where.
@@ -25,13 +60,7 @@ fn worst(tape: &SsaTape, points: &[[f32; 3]]) -> (f32, [f32; 3], f32, f32) {
             .eval(&fidget_tape, p[0], p[1], p[2])
             .expect("evaluates");
         // NaN on one side only counts as the worst error.
-        let err = if a.is_nan() && b.is_nan() || a == b {
-            0.0
-        } else if a.is_nan() || b.is_nan() {
-            f32::INFINITY
-        } else {
-            (a - b).abs() / (1.0 + a.abs())
-        };
+        let err = relative(a, b);
         if err > worst.0 {
             worst = (err, p, a, b);
         }
@@ -110,8 +139,8 @@ fn assets() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/assets"))
 }
 
-#[test]
-fn every_shipped_and_generated_model_converts() {
+/// The shipped scenes and the peer section's generated models.
+fn shipped_and_generated() -> Vec<(String, Scene)> {
     // hybrid.ron finds its meshes through HYTRACE_ASSETS.
     if std::env::var_os("HYTRACE_ASSETS").is_none() {
         // SAFETY: set before any thread of this test reads the environment.
@@ -129,6 +158,12 @@ fn every_shipped_and_generated_model_converts() {
             Scene::from_source(&source, Path::new(&name)).unwrap(),
         ));
     }
+    scenes
+}
+
+#[test]
+fn every_shipped_and_generated_model_converts() {
+    let scenes = shipped_and_generated();
     let mut rng = Rng::new(9);
     for (name, scene) in &scenes {
         for o in &scene.objects {
@@ -148,4 +183,58 @@ fn every_shipped_and_generated_model_converts() {
             );
         }
     }
+}
+
+/// Leaves checked per object (evenly spread over the octree's leaves), points per leaf.
+const LEAVES: usize = 48;
+const LEAF_POINTS: usize = 24;
+
+#[test]
+fn compiled_whole_and_leaf_tapes_convert() {
+    let mut rng = Rng::new(17);
+    let mut checked = 0;
+    for (name, scene) in &shipped_and_generated() {
+        let fields = hytrace::trace::build_fields(scene, true);
+        for (o, field) in scene.objects.iter().zip(&fields) {
+            let b = o.bounds();
+            let (lo, hi) = if b.is_finite() {
+                let pad = 0.1 * (b.max - b.min).max_element();
+                (b.min - pad, b.max + pad)
+            } else {
+                (glam::Vec3::splat(-5.0), glam::Vec3::splat(5.0))
+            };
+            let points = random_points(&mut rng, lo, hi, 200);
+            let (err, p, a, f) = worst_compiled(&field.whole, &points);
+            assert!(
+                err <= 1e-4,
+                "{name} / {} whole tape: ours {a}, fidget {f} at {p:?}",
+                o.name
+            );
+            let Some(tree) = &field.octree else { continue };
+            let leaves = tree.leaf_boxes();
+            let step = leaves.len().div_ceil(LEAVES).max(1);
+            for (i, (leaf, cell)) in leaves.iter().enumerate().step_by(step) {
+                let tape = &tree.tapes[leaf.tape as usize];
+                let points = random_points(&mut rng, cell.min, cell.max, LEAF_POINTS);
+                let (err, p, a, f) = worst_compiled(tape, &points);
+                assert!(
+                    err <= 1e-4,
+                    "{name} / {} leaf {i} ({:?}, {} instructions): ours {a}, fidget {f} at {p:?}",
+                    o.name,
+                    leaf.verdict,
+                    tape.len()
+                );
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked > 100, "only {checked} leaf tapes checked");
+}
+
+#[test]
+fn an_empty_tape_converts_to_its_input_register() {
+    // No instruction: the result is register 0, the point's x (a degenerate tape).
+    let empty = Tape::default();
+    let (err, p, a, f) = worst_compiled(&empty, &[[1.5, -2.0, 3.0], [-0.25, 0.0, 0.0]]);
+    assert_eq!(err, 0.0, "ours {a}, fidget {f} at {p:?}");
 }

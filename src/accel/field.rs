@@ -336,6 +336,32 @@ impl FieldOctree {
         &self.leaves
     }
 
+    /// Every leaf with its box, in node order (a walk of [`Self::raw_nodes`]).
+    pub fn leaf_boxes(&self) -> Vec<(&Leaf, Aabb)> {
+        let mut out = Vec::with_capacity(self.leaves.len());
+        let mut todo = vec![(self.nodes[0], self.lo, self.hi)];
+        while let Some((node, lo, hi)) = todo.pop() {
+            if node.0 & LEAF_BIT != 0 {
+                out.push((
+                    &self.leaves[(node.0 & !LEAF_BIT) as usize],
+                    Aabb::new(lo, hi),
+                ));
+                continue;
+            }
+            let mid = 0.5 * (lo + hi);
+            // pushed in reverse so that the walk visits octant 0 first
+            for octant in (0..8u32).rev() {
+                let up = glam::BVec3::new(octant & 1 != 0, octant & 2 != 0, octant & 4 != 0);
+                todo.push((
+                    self.nodes[node.0 as usize + octant as usize],
+                    Vec3::select(up, mid, lo),
+                    Vec3::select(up, hi, mid),
+                ));
+            }
+        }
+        out
+    }
+
     /// The leaf holding p, with its box; `None` outside the tree's box.
     #[inline]
     pub fn locate(&self, p: Vec3) -> Option<Cell<'_>> {

@@ -69,6 +69,9 @@ pub struct Sections {
     pub scaling: bool,
     /// SDF renderer against fidget.
     pub peer: bool,
+    /// The peer section's "Tape evaluators" table: our tape interpreter against fidget's VM
+    /// and JIT on the tracer's tapes (also part of `peer`).
+    pub evaluators: bool,
 }
 
 /// The machine and build the figures come from.
@@ -213,7 +216,7 @@ pub fn run(
     } else {
         None
     };
-    let peer = if opts.sections.peer {
+    let peer = if opts.sections.peer || opts.sections.evaluators {
         Some(peer::run(opts, sdf_scenes)?)
     } else {
         None

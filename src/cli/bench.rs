@@ -55,7 +55,7 @@ pub struct BenchArgs {
     #[arg(long, value_enum, default_value = "highest")]
     pub bvh: hytrace::accel::bvh::BuildQuality,
     /// Sections to run, comma-separated: mesh, sdf, scaling, peer (default all; peer needs
-    /// the `fidget` feature).
+    /// the `fidget` feature), or evaluators: only the peer section's "Tape evaluators" table.
     #[arg(long, value_delimiter = ',')]
     pub only: Vec<String>,
     /// Also write the report as JSON to this file.
@@ -101,6 +101,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         sdf: true,
         scaling: true,
         peer: true,
+        evaluators: true,
     };
     if !args.only.is_empty() {
         sections = Sections {
@@ -108,14 +109,21 @@ pub fn run(args: BenchArgs) -> Result<()> {
             sdf: false,
             scaling: false,
             peer: false,
+            evaluators: false,
         };
         for s in &args.only {
             match s.as_str() {
                 "mesh" => sections.mesh = true,
                 "sdf" => sections.sdf = true,
                 "scaling" => sections.scaling = true,
-                "peer" => sections.peer = true,
-                other => anyhow::bail!("--only {other}: expected mesh, sdf, scaling or peer"),
+                "peer" => {
+                    sections.peer = true;
+                    sections.evaluators = true;
+                }
+                "evaluators" => sections.evaluators = true,
+                other => {
+                    anyhow::bail!("--only {other}: expected mesh, sdf, scaling, peer or evaluators")
+                }
             }
         }
     }
@@ -171,7 +179,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         peer_size,
         peer_frame_limit: args.peer_frame_limit,
     };
-    let sdf_scenes = if sections.sdf || sections.peer {
+    let sdf_scenes = if sections.sdf || sections.peer || sections.evaluators {
         load_scenes(&args.scenes, args.quick)?
     } else {
         Vec::new()

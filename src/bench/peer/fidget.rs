@@ -1,7 +1,8 @@
 //! The peer renderer: our SSA tapes converted to fidget trees and rendered by fidget's voxel
 //! renderers (VM and JIT on the CPU, wgpu on the GPU).
 //!
-//! Conversion, operation by operation (`to_tree`): fidget has every elementary operation of
+//! Conversion, operation by operation (`to_tree` from SSA, `tape_to_tree` from the compiled
+//! register tapes the tracer runs, both through `op_tree`): fidget has every elementary operation of
 //! ours except four, which are written with its own:
 //!
 //! - `Select` (c > 0 ? a : b): with m = max(compare(c, 0), 0), which is 1 where c > 0 and 0
@@ -18,7 +19,7 @@
 
 use super::{PeerModel, mask_of};
 use crate::sdf::ssa::SsaTape;
-use crate::sdf::tape::Op;
+use crate::sdf::tape::{MAX_REGISTERS, Op, Shape as OpShape, Tape};
 use fidget::context::Tree;
 use fidget::render::{ThreadPool, VoxelSize};
 use fidget::shape::Shape;
@@ -39,56 +40,130 @@ pub fn to_tree(tape: &SsaTape) -> Tree {
                 .and_then(Clone::clone)
                 .unwrap_or_else(|| Tree::constant(f32::NAN))
         };
-        let (a, b, c) = (|| get(op.a), || get(op.b), || get(op.c));
-        let k = op.imm();
         let tree = match op.op {
             Op::Input => match op.imm {
                 0 => x.clone(),
                 1 => y.clone(),
                 _ => z.clone(),
             },
-            Op::Const => Tree::constant(k),
-            Op::Copy => a(),
-            Op::Neg => a().neg(),
-            Op::Abs => a().abs(),
-            Op::Sqrt => a().sqrt(),
-            Op::Square => a().square(),
-            Op::Floor => a().floor(),
-            Op::Sin => a().sin(),
-            Op::Cos => a().cos(),
-            Op::Tan => a().tan(),
-            Op::Exp => a().exp(),
-            Op::Ln => a().ln(),
-            Op::Add => a() + b(),
-            Op::Sub => a() - b(),
-            Op::Mul => a() * b(),
-            Op::Div => a() / b(),
-            Op::Min => a().min(b()),
-            Op::Max => a().max(b()),
-            Op::Pow => pow(a(), b(), d.ops.get(op.b as usize).and_then(constant)),
-            Op::Hypot => (a().square() + b().square()).sqrt(),
-            Op::AddImm => a() + k,
-            Op::SubImm => a() - k,
-            Op::RsubImm => Tree::constant(k) - a(),
-            Op::MulImm => a() * k,
-            Op::DivImm => a() / k,
-            Op::RdivImm => Tree::constant(k) / a(),
-            Op::MinImm => a().min(k),
-            Op::MaxImm => a().max(k),
-            Op::PowImm => pow(a(), Tree::constant(k), Some(k)),
-            Op::Select => {
-                let m = c().compare(0.0).max(0.0);
-                m.and(a()).or(m.not().and(b()))
-            }
-            Op::Hypot3 => ((a().square() + b().square()) + c().square()).sqrt(),
-            // Not in a distance program.
-            Op::MatLoad | Op::MatMix => Tree::constant(0.0),
+            Op::Pow => pow(
+                get(op.a),
+                get(op.b),
+                d.ops.get(op.b as usize).and_then(constant),
+            ),
+            _ => op_tree(op.op, || get(op.a), || get(op.b), || get(op.c), op.imm()),
         };
         t[i] = Some(tree);
     }
     t.get(d.result as usize)
         .and_then(Clone::clone)
         .unwrap_or_else(|| Tree::constant(f32::NAN))
+}
+
+/// One operation of ours on fidget trees (`Pow` with a constant exponent is [`pow`]'s job:
+/// the caller knows whether `b` is constant; `Input` is the caller's too).
+fn op_tree(
+    op: Op,
+    a: impl Fn() -> Tree,
+    b: impl Fn() -> Tree,
+    c: impl Fn() -> Tree,
+    k: f32,
+) -> Tree {
+    match op {
+        Op::Const => Tree::constant(k),
+        Op::Copy => a(),
+        Op::Neg => a().neg(),
+        Op::Abs => a().abs(),
+        Op::Sqrt => a().sqrt(),
+        Op::Square => a().square(),
+        Op::Floor => a().floor(),
+        Op::Sin => a().sin(),
+        Op::Cos => a().cos(),
+        Op::Tan => a().tan(),
+        Op::Exp => a().exp(),
+        Op::Ln => a().ln(),
+        Op::Add => a() + b(),
+        Op::Sub => a() - b(),
+        Op::Mul => a() * b(),
+        Op::Div => a() / b(),
+        Op::Min => a().min(b()),
+        Op::Max => a().max(b()),
+        Op::Pow => pow(a(), b(), None),
+        Op::Hypot => (a().square() + b().square()).sqrt(),
+        Op::AddImm => a() + k,
+        Op::SubImm => a() - k,
+        Op::RsubImm => Tree::constant(k) - a(),
+        Op::MulImm => a() * k,
+        Op::DivImm => a() / k,
+        Op::RdivImm => Tree::constant(k) / a(),
+        Op::MinImm => a().min(k),
+        Op::MaxImm => a().max(k),
+        Op::PowImm => pow(a(), Tree::constant(k), Some(k)),
+        Op::Select => {
+            let m = c().compare(0.0).max(0.0);
+            m.and(a()).or(m.not().and(b()))
+        }
+        Op::Hypot3 => ((a().square() + b().square()) + c().square()).sqrt(),
+        // Not in a distance program (`Input` is handled by the callers).
+        Op::MatLoad | Op::MatMix | Op::Input => Tree::constant(0.0),
+    }
+}
+
+/// The distance of a compiled register [`Tape`] as a fidget tree: the very program the tracer
+/// runs (the whole tape, or a leaf's specialised one), instruction by instruction, with the
+/// formulas of [`to_tree`]. Registers 0–2 start as x, y, z; material instructions are skipped
+/// as the interpreter skips them. Fails on a tape that reads a register no instruction wrote.
+pub fn tape_to_tree(tape: &Tape) -> anyhow::Result<Tree> {
+    let (x, y, z) = Tree::axes();
+    let mut regs: Vec<Option<Tree>> = vec![None; MAX_REGISTERS];
+    // What each register holds when it is a constant, for `Pow`'s exponent.
+    let mut konst: Vec<Option<f32>> = vec![None; MAX_REGISTERS];
+    regs[0] = Some(x);
+    regs[1] = Some(y);
+    regs[2] = Some(z);
+    let material = tape.material_registers() > 0;
+    for (i, ins) in tape.instrs().iter().enumerate() {
+        let op = ins.op();
+        if op.is_material() {
+            if material {
+                continue;
+            }
+            anyhow::bail!("instruction {i}: {op:?} in a distance tape");
+        }
+        let read = |r: u8| {
+            regs[r as usize].clone().ok_or_else(|| {
+                anyhow::anyhow!("instruction {i} ({op:?}) reads register {r} before any write")
+            })
+        };
+        let (a, b, c) = match op.shape() {
+            OpShape::Nullary => (None, None, None),
+            OpShape::Unary | OpShape::WithImm => (Some(read(ins.a())?), None, None),
+            OpShape::Binary => (Some(read(ins.a())?), Some(read(ins.b())?), None),
+            OpShape::Ternary => (
+                Some(read(ins.a())?),
+                Some(read(ins.b())?),
+                Some(read(ins.imm_bits() as u8)?),
+            ),
+            OpShape::MatLoad | OpShape::MatMix => (None, None, None),
+        };
+        let nan = || Tree::constant(f32::NAN);
+        let (a, b, c) = (
+            || a.clone().unwrap_or_else(nan),
+            || b.clone().unwrap_or_else(nan),
+            || c.clone().unwrap_or_else(nan),
+        );
+        let tree = match op {
+            Op::Input => anyhow::bail!("instruction {i}: Input in a compiled tape"),
+            Op::Pow => pow(a(), b(), konst[ins.b() as usize]),
+            _ => op_tree(op, a, b, c, ins.imm()),
+        };
+        let out = ins.out() as usize;
+        konst[out] = (op == Op::Const).then(|| ins.imm());
+        regs[out] = Some(tree);
+    }
+    regs[tape.result() as usize]
+        .clone()
+        .ok_or_else(|| anyhow::anyhow!("the result register {} is never written", tape.result()))
 }
 
 fn constant(op: &crate::sdf::ssa::SsaOp) -> Option<f32> {

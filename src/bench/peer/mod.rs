@@ -9,6 +9,7 @@
 //! placed so that its columns are our pixel centres. The ground truth ([`truth`]) samples each
 //! pixel's ray densely in f64.
 
+pub mod evaluators;
 #[cfg(feature = "fidget")]
 pub mod fidget;
 pub mod truth;
@@ -530,6 +531,8 @@ pub struct PeerReport {
     pub rows: Vec<PeerRow>,
     /// The GPU comparison.
     pub gpu: Option<PeerGpu>,
+    /// The "Tape evaluators" table (None when not run).
+    pub evaluators: Option<evaluators::EvalReport>,
 }
 
 /// Version of the fidget crates compared with.
@@ -563,6 +566,7 @@ pub fn run(opts: &super::BenchOptions, scenes: &[(String, Scene)]) -> anyhow::Re
             models: Vec::new(),
             rows: Vec::new(),
             gpu: None,
+            evaluators: None,
         })
     }
 }
@@ -593,8 +597,15 @@ fn run_with_fidget(
         models: Vec::new(),
         rows: Vec::new(),
         gpu: None,
+        evaluators: None,
     };
     let models = models(scenes, size)?;
+    if opts.sections.evaluators {
+        report.evaluators = Some(evaluator_table(opts, &models)?);
+    }
+    if !opts.sections.peer {
+        return Ok(report);
+    }
     for model in &models {
         eprintln!("bench: SDF peer, {}", model.name);
         let prepared = Prepared::new(model);
@@ -695,6 +706,33 @@ fn run_with_fidget(
         }
     }
     Ok(report)
+}
+
+/// The "Tape evaluators" table over `models` ([`evaluators`]).
+#[cfg(feature = "fidget")]
+fn evaluator_table(
+    opts: &super::BenchOptions,
+    models: &[PeerModel],
+) -> anyhow::Result<evaluators::EvalReport> {
+    let mut table = evaluators::EvalReport {
+        simd: format!("{:?}", crate::sdf::simd::SimdLevel::detect()),
+        groups: if opts.quick {
+            evaluators::GROUPS_QUICK
+        } else {
+            evaluators::GROUPS
+        },
+        models: Vec::new(),
+    };
+    for model in models {
+        eprintln!("bench: SDF peer, tape evaluators, {}", model.name);
+        let fields = crate::trace::build_fields(&model.scene, true);
+        let bounds: Vec<crate::geom::Aabb> =
+            model.scene.objects.iter().map(|o| o.bounds()).collect();
+        table
+            .models
+            .push(evaluators::measure(opts, &model.name, &fields, &bounds)?);
+    }
+    Ok(table)
 }
 
 /// Times `backends` alternately, as [`super::alternate`] does for ray sets: one untimed warm-up
@@ -859,6 +897,13 @@ impl PeerReport {
             let _ = writeln!(s, "Skipped: {why}.\n");
             return;
         }
+        if self.models.is_empty() {
+            // Only the evaluator table ran (`--only evaluators`).
+            if let Some(e) = &self.evaluators {
+                e.markdown(s);
+            }
+            return;
+        }
         let size = self.models.first().map_or(0, |m| m.size);
         let limit = self.frame_limit_s;
         let _ = writeln!(
@@ -972,5 +1017,8 @@ impl PeerReport {
             }
         }
         s.push('\n');
+        if let Some(e) = &self.evaluators {
+            e.markdown(s);
+        }
     }
 }
