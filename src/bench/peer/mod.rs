@@ -50,14 +50,47 @@ pub struct PeerModel {
 }
 
 /// The generated models, as scene sources: fidget's gyroid sphere, a union of 400 spheres, a
-/// smooth-union chain of 60 links and a twisted, bent composite.
+/// smooth-union chain of 60 links, a twisted, bent composite, and unions of 10 and 1,000 boxes
+/// tiling the same square (the same pixels: cost against the size of the tree).
 pub fn generated() -> Vec<(String, String)> {
     vec![
         ("gyroid sphere".into(), gyroid_sphere()),
         ("400 spheres".into(), spheres(400)),
         ("smooth chain (60 links)".into(), smooth_chain(60)),
         ("twisted + bent".into(), twisted_bent()),
+        (TILES_FEW.into(), tiles(5, 2)),
+        (TILES_MANY.into(), tiles(50, 20)),
     ]
+}
+
+/// The model names of the two tilings, whose frame times the report compares.
+pub const TILES_FEW: &str = "10 tiles";
+/// See [`TILES_FEW`].
+pub const TILES_MANY: &str = "1000 tiles";
+
+/// `nx`·`ny` boxes tiling the square [−0.9, 0.9]² edge to edge, of depths varying from box to
+/// box, one `Union`: seen along z they cover exactly the same pixels for any count.
+fn tiles(nx: usize, ny: usize) -> String {
+    let (wx, wy) = (1.8 / nx as f32, 1.8 / ny as f32);
+    let mut shapes = Vec::with_capacity(nx * ny);
+    for j in 0..ny {
+        for i in 0..nx {
+            // depths from a fixed hash of the cell, 0.05 to 0.15
+            let h = ((i * 7919 + j * 104729) % 101) as f32 / 100.0;
+            shapes.push(format!(
+                "Transform(translate: ({:.5}, {:.5}, 0), shape: Box(half_extents: ({:.5}, {:.5}, {:.4})))",
+                -0.9 + (i as f32 + 0.5) * wx,
+                -0.9 + (j as f32 + 0.5) * wy,
+                0.5 * wx,
+                0.5 * wy,
+                0.05 + 0.1 * h
+            ));
+        }
+    }
+    scene_source(&format!(
+        "(name: \"tiles\", shape: Union([{}]))",
+        shapes.join(", ")
+    ))
 }
 
 fn scene_source(objects: &str) -> String {
@@ -891,6 +924,33 @@ fn pct(x: Option<f64>) -> String {
 
 impl PeerReport {
     /// Appends the section's tables.
+    /// hytrace's frames of the 1,000-box tiling over the 10-box one, per thread count: what
+    /// the size of the tree costs over the same pixels.
+    fn tiles_markdown(&self, s: &mut String) {
+        for r in self.rows.iter().filter(|r| r.model == TILES_MANY) {
+            let Some(few) = self
+                .rows
+                .iter()
+                .find(|f| f.model == TILES_FEW && f.threads == r.threads)
+            else {
+                continue;
+            };
+            let ratio = |a: &Frames, b: &Frames| match (a.median_ms, b.median_ms) {
+                (Some(a), Some(b)) if b > 0.0 => format!("{:.2}×", a / b),
+                _ => "—".into(),
+            };
+            let _ = writeln!(
+                s,
+                "\nhytrace, {TILES_MANY} over {TILES_FEW} (the same pixels), {} threads: steady frame {}, first frame {}; fidget VM {}, JIT {}.",
+                r.threads,
+                ratio(&r.hytrace_steady, &few.hytrace_steady),
+                ratio(&r.hytrace_first, &few.hytrace_first),
+                ratio(&r.fidget_vm, &few.fidget_vm),
+                ratio(&r.fidget_jit, &few.fidget_jit),
+            );
+        }
+    }
+
     pub fn markdown(&self, s: &mut String) {
         let _ = writeln!(s, "## SDF peer: fidget {}\n", self.fidget_version);
         if let Some(why) = &self.skipped {
@@ -935,6 +995,7 @@ impl PeerReport {
                 r.hytrace_steady.runs_ms.len()
             );
         }
+        self.tiles_markdown(s);
         let _ = writeln!(
             s,
             "\nHit-mask agreement with the ground truth: each ray sampled at the given number of evenly spaced points through the view cube in f64 (a hit: any negative sample), on every k-th pixel of every k-th row (k chosen per model so that the ground truth costs at most {:.1e} operation evaluations). \"hytrace = fidget\": the two masks on every pixel.\n",
