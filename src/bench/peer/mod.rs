@@ -923,7 +923,6 @@ fn pct(x: Option<f64>) -> String {
 }
 
 impl PeerReport {
-    /// Appends the section's tables.
     /// hytrace's frames of the 1,000-box tiling over the 10-box one, per thread count: what
     /// the size of the tree costs over the same pixels.
     fn tiles_markdown(&self, s: &mut String) {
@@ -951,6 +950,7 @@ impl PeerReport {
         }
     }
 
+    /// Appends the section's tables.
     pub fn markdown(&self, s: &mut String) {
         let _ = writeln!(s, "## SDF peer: fidget {}\n", self.fidget_version);
         if let Some(why) = &self.skipped {
