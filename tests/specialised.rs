@@ -188,3 +188,54 @@ fn huge_and_exploding_trees_render_or_are_refused_with_the_limit() {
         "{msg}"
     );
 }
+
+#[test]
+fn a_union_of_thousands_of_translated_boxes_fits_in_registers_and_traces_right() {
+    // 60 × 40 boxes tiling [-0.9, 0.9]², row by row, of 97 different depths: the column
+    // offsets x − cᵢ and the depth terms |z| − hₖ are shared across the union, so without
+    // recomputing them near their readers more than the tape's 256 registers would be alive
+    // at once.
+    let (nx, ny) = (60, 40);
+    let (wx, wy) = (1.8 / nx as f32, 1.8 / ny as f32);
+    let depth = |i: usize, j: usize| 0.05 + 0.001 * ((i * 7919 + j * 104_729) % 97) as f32;
+    let mut shapes = Vec::new();
+    for j in 0..ny {
+        for i in 0..nx {
+            shapes.push(format!(
+                "Transform(translate: ({}, {}, 0), shape: Box(half_extents: ({}, {}, {})))",
+                -0.9 + (i as f32 + 0.5) * wx,
+                -0.9 + (j as f32 + 0.5) * wy,
+                0.5 * wx,
+                0.5 * wy,
+                depth(i, j)
+            ));
+        }
+    }
+    let src = format!(
+        "Scene(camera: Orthographic(position: (0, 0, 3), look_at: (0, 0, 0), height: 2),
+               objects: [(shape: Union([{}]))])",
+        shapes.join(", ")
+    );
+    let scene = Scene::from_source(&src, Path::new("tiles.ron")).unwrap_or_else(|e| panic!("{e}"));
+    let tracer = SceneTracer::new(&scene);
+    for k in 0..400 {
+        // off the tiles' edges, where the taller neighbour may be hit first
+        let (u, v) = (
+            ((k % 20) as f32 + 0.37) / 20.0,
+            ((k / 20) as f32 + 0.41) / 20.0,
+        );
+        let ray = scene.camera.ray(u, v, 1.0);
+        let o = ray.origin;
+        let inside = o.x.abs() < 0.9 && o.y.abs() < 0.9;
+        let hit = tracer.closest_hit(&ray, 0.0, f32::INFINITY);
+        match hit {
+            Some(h) if inside => {
+                let (i, j) = (((o.x + 0.9) / wx) as usize, ((o.y + 0.9) / wy) as usize);
+                let top = 3.0 - depth(i, j);
+                assert!((h.t - top).abs() < 1e-3, "{k}: {} for {top}", h.t);
+            }
+            None if !inside => {}
+            other => panic!("{k} at {:?}: {:?}", ray.origin, other.map(|h| h.t)),
+        }
+    }
+}

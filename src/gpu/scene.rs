@@ -390,21 +390,20 @@ impl SceneData {
             let r = tape_ref(tape, &mut self.instrs);
             self.field_tapes.push(r);
         }
-        self.field_leaves
-            .extend(tree.leaves().iter().map(|l| {
-                let graded = l.gradient.iter().flatten().all(|g| g.is_finite());
-                let [lo, hi] = if graded { l.gradient } else { [[0.0; 3]; 2] };
-                FieldLeafRecord {
-                    gradient_lo: lo,
-                    tape: tape_base + l.tape,
-                    gradient_hi: hi,
-                    shading: shading_base + l.shading,
-                    verdict: verdict_code(l.verdict),
-                    min_value: l.min_value,
-                    graded: graded as u32,
-                    pad: 0,
-                }
-            }));
+        self.field_leaves.extend(tree.leaves().iter().map(|l| {
+            let graded = l.gradient.iter().flatten().all(|g| g.is_finite());
+            let [lo, hi] = if graded { l.gradient } else { [[0.0; 3]; 2] };
+            FieldLeafRecord {
+                gradient_lo: lo,
+                tape: tape_base + l.tape,
+                gradient_hi: hi,
+                shading: shading_base + l.shading,
+                verdict: verdict_code(l.verdict),
+                min_value: l.min_value,
+                graded: graded as u32,
+                pad: 0,
+            }
+        }));
         let (node_base, leaf_base) = (node_base as u32, leaf_base as u32);
         self.field_nodes.extend(raw.iter().map(|&n| {
             if n & LEAF != 0 {

@@ -417,12 +417,76 @@ impl SsaTape {
     /// the program needs more than [`MAX_REGISTERS`] values (or [`MAX_MATERIAL_REGISTERS`]
     /// materials) alive at once.
     pub fn compile(&self) -> Result<Tape, String> {
-        self.compile_part(true)
+        self.compile_or_rematerialise(true)
     }
 
     /// [`Self::compile`] of the distance alone (the material operations dropped).
     pub fn compile_distance(&self) -> Result<Tape, String> {
-        self.compile_part(false)
+        self.compile_or_rematerialise(false)
+    }
+
+    /// Allocation as it is, or, when registers run out, once more after cheap values read far
+    /// from where they are made have been recomputed near their readers (a register
+    /// allocator's rematerialisation, Briggs, Cooper & Torczon 1992, instead of spilling: the
+    /// interpreters have no memory beyond their registers). That is what a union of many
+    /// translated primitives needs: the coordinate offsets that rows of them share would
+    /// otherwise stay alive across the whole union.
+    fn compile_or_rematerialise(&self, with_material: bool) -> Result<Tape, String> {
+        match self.compile_part(with_material) {
+            Err(e) if e.contains("registers") && !e.contains("material") => self
+                .rematerialised(with_material)
+                .compile_part(with_material),
+            other => other,
+        }
+    }
+
+    /// The program with every value that takes at most [`REMAT_COST`] operations of the
+    /// inputs recomputed wherever its last copy is more than [`REMAT_DISTANCE`] operations old,
+    /// and emitted only where first read: such a value is never alive for long. Other values
+    /// keep their order; dead code is left out.
+    pub fn rematerialised(&self, with_material: bool) -> SsaTape {
+        let n = self.ops.len();
+        let mut live = Vec::new();
+        self.live_into(with_material, &mut live);
+        let mut cost: Vec<Option<u32>> = vec![None; n];
+        for (i, op) in self.ops.iter().enumerate() {
+            let c = match op.op {
+                Op::Input => Some(0),
+                _ if op.op.is_material() => None,
+                _ => {
+                    let mut c = Some(1u32);
+                    op.for_each_value_operand(|v| {
+                        c = c.and_then(|c| cost[v as usize].map(|k| c + k));
+                    });
+                    c.filter(|&c| c <= REMAT_COST)
+                }
+            };
+            cost[i] = c;
+        }
+        let mut r = Remat {
+            ops: &self.ops,
+            cost: &cost,
+            copy: vec![u32::MAX; n],
+            out: Vec::with_capacity(n),
+        };
+        for (i, op) in self.ops.iter().enumerate() {
+            if op.op == Op::Input {
+                r.copy[i] = r.out.len() as u32;
+                r.out.push(*op);
+            } else if live[i] && cost[i].is_none() {
+                r.emit(i);
+            }
+        }
+        let result = r.fresh(self.result);
+        let material = self
+            .material
+            .filter(|_| with_material)
+            .map(|m| r.copy[m as usize]);
+        SsaTape {
+            ops: r.out,
+            result,
+            material,
+        }
     }
 
     fn compile_part(&self, with_material: bool) -> Result<Tape, String> {
@@ -513,6 +577,64 @@ impl SsaTape {
     }
 }
 
+/// Most operations a value may take to compute from the inputs and still be recomputed by
+/// [`SsaTape::rematerialised`].
+pub const REMAT_COST: u32 = 6;
+
+/// How many operations old the last copy of such a value may be and still be read.
+pub const REMAT_DISTANCE: usize = 24;
+
+/// The rewriting state of [`SsaTape::rematerialised`].
+struct Remat<'a> {
+    ops: &'a [SsaOp],
+    /// What recomputing each value costs (None: never recomputed).
+    cost: &'a [Option<u32>],
+    /// Index in `out` of each value's newest copy (`u32::MAX`: none yet).
+    copy: Vec<u32>,
+    out: Vec<SsaOp>,
+}
+
+impl Remat<'_> {
+    /// A copy of value v recent enough to read now, emitting a new one if needed.
+    fn fresh(&mut self, v: u32) -> u32 {
+        let v = v as usize;
+        let c = self.copy[v];
+        let recomputable = matches!(self.cost[v], Some(k) if k > 0);
+        if c != u32::MAX && (!recomputable || self.out.len() - c as usize <= REMAT_DISTANCE) {
+            return c;
+        }
+        self.emit(v)
+    }
+
+    /// Emits value v with its operands read from fresh copies; returns its index.
+    fn emit(&mut self, v: usize) -> u32 {
+        let mut op = self.ops[v];
+        match op.op.shape() {
+            Shape::Nullary | Shape::MatLoad => {}
+            Shape::Unary | Shape::WithImm => op.a = self.fresh(op.a),
+            Shape::Binary => {
+                op.a = self.fresh(op.a);
+                op.b = self.fresh(op.b);
+            }
+            Shape::Ternary => {
+                op.a = self.fresh(op.a);
+                op.b = self.fresh(op.b);
+                op.c = self.fresh(op.c);
+            }
+            Shape::MatMix => {
+                // materials are never recomputed: their copies are the originals
+                op.a = self.copy[op.a as usize];
+                op.b = self.copy[op.b as usize];
+                op.c = self.fresh(op.c);
+            }
+        }
+        let at = self.out.len() as u32;
+        self.copy[v] = at;
+        self.out.push(op);
+        at
+    }
+}
+
 /// A set of free registers; the lowest is taken first, so allocation is deterministic.
 struct FreeRegisters {
     words: [u64; MAX_REGISTERS / 64],
@@ -577,6 +699,67 @@ mod tests {
         assert_eq!(tape.eval(Vec3::new(1.5, 0.0, 0.0)), 4.5);
     }
 
+    /// A union of `nx`·`ny` boxes of half sizes h in the xy-plane, row by row, the column
+    /// offsets shared between rows (as hash-consing shares them): each offset lives from the
+    /// first row to the last. Returns the program and the same formula in plain Rust.
+    fn grid(nx: usize, ny: usize) -> (SsaTape, impl Fn(f32, f32) -> f32) {
+        let (h, step) = (0.4f32, 1.0f32);
+        let mut b = Builder::new();
+        let [x, y, _] = b.point();
+        let mut acc = None;
+        for j in 0..ny {
+            for i in 0..nx {
+                let dx = b.with_imm(Op::SubImm, x, i as f32 * step);
+                let dy = b.with_imm(Op::SubImm, y, j as f32 * step);
+                let ax = b.unary(Op::Abs, dx);
+                let ay = b.unary(Op::Abs, dy);
+                let ex = b.with_imm(Op::SubImm, ax, h);
+                let ey = b.with_imm(Op::SubImm, ay, h);
+                let d = b.binary(Op::Max, ex, ey);
+                acc = Some(acc.map_or(d, |a| b.binary(Op::Min, a, d)));
+            }
+        }
+        let prog = b.finish(acc.unwrap(), None);
+        let plain = move |px: f32, py: f32| {
+            let mut m = f32::INFINITY;
+            for j in 0..ny {
+                for i in 0..nx {
+                    let ex = (px - i as f32 * step).abs() - h;
+                    let ey = (py - j as f32 * step).abs() - h;
+                    m = m.min(ex.max(ey));
+                }
+            }
+            m
+        };
+        (prog, plain)
+    }
+
+    #[test]
+    fn rematerialisation_recomputes_long_lived_cheap_values_when_registers_run_out() {
+        let (prog, plain) = grid(300, 2);
+        assert!(
+            prog.compile_part(false).is_err(),
+            "300 shared column offsets should not fit in {MAX_REGISTERS} registers"
+        );
+        let tape = prog
+            .compile_distance()
+            .expect("fits after rematerialisation");
+        let mut rng = crate::rng::Rng::new(7);
+        for _ in 0..200 {
+            let (px, py) = (rng.range_f32(-2.0, 302.0), rng.range_f32(-2.0, 3.0));
+            let p = Vec3::new(px, py, 0.0);
+            assert_eq!(tape.eval(p).to_bits(), plain(px, py).to_bits(), "at {p}");
+        }
+        // a program that fits is rewritten to the same values
+        let (small, _) = grid(6, 3);
+        let a = small.compile_part(false).unwrap();
+        let b = small.rematerialised(false).compile_part(false).unwrap();
+        for _ in 0..100 {
+            let p = Vec3::new(rng.range_f32(-1.0, 7.0), rng.range_f32(-1.0, 4.0), 0.0);
+            assert_eq!(a.eval(p).to_bits(), b.eval(p).to_bits(), "at {p}");
+        }
+    }
+
     #[test]
     fn registers_are_reused_after_the_last_reader() {
         // a long chain x + 1 + 1 + … needs one register beyond the inputs
@@ -596,8 +779,15 @@ mod tests {
     fn too_many_live_values_is_an_error() {
         let mut b = Builder::new();
         let [x, ..] = b.point();
+        // each value costs more than REMAT_COST operations, so none is recomputed
         let vals: Vec<V> = (0..300)
-            .map(|i| b.with_imm(Op::AddImm, x, i as f32 + 0.5))
+            .map(|i| {
+                let mut v = b.with_imm(Op::AddImm, x, i as f32 + 0.5);
+                for _ in 0..REMAT_COST {
+                    v = b.unary(Op::Sin, v);
+                }
+                v
+            })
             .collect();
         let mut acc = vals[0];
         for v in &vals[1..] {
