@@ -615,7 +615,8 @@ mod tests {
     use crate::rng::Rng;
     use std::path::Path;
 
-    /// A gyroid sphere (a long tape, so an octree pays) beside a plain sphere (none).
+    /// A gyroid sphere (a long tape, so a deep octree pays) beside a plain sphere (whose tape is
+    /// too short to split: an octree of one leaf).
     fn scene() -> Scene {
         let src = "Scene(
             camera: Perspective(position: (0, 0, 5), look_at: (0, 0, 0), fov: 40),
@@ -634,9 +635,14 @@ mod tests {
     fn uploaded_octrees_are_the_cpu_octrees_rebased() {
         let scene = scene();
         let fields = crate::trace::build_fields(&scene, true);
-        assert!(fields[0].octree.is_none() && fields[1].octree.is_some());
+        let small = fields[0]
+            .octree
+            .as_ref()
+            .expect("every object has an octree");
+        assert_eq!(small.leaves().len(), 1);
+        assert!(fields[1].octree.as_ref().unwrap().leaves().len() > 1);
         let data = SceneData::from_fields(&scene, &fields).unwrap();
-        assert_eq!(data.objects[0].field_root, NONE);
+        assert_ne!(data.objects[0].field_root, NONE);
         let obj = data.objects[1];
         let tree = fields[1].octree.as_ref().unwrap();
         assert_eq!(Vec3::from(obj.field_lo), tree.bounds().min);
