@@ -176,14 +176,14 @@ fn leaf_fall(leaf: FieldLeafRecord, d: vec3<f32>) -> f32 {
     }
     let m = min(leaf.gradient_lo * d, leaf.gradient_hi * d);
     let f = -(m.x + m.y + m.z);
-    return max(f + abs(f) * 4.0 * 1.1920929e-7, 0.0);
+    return max(f + abs(f) * FALL_ROUNDING, 0.0);
 }
 
 // sphere::hart_step: d, or d/fall kept ε/4 short within the part where the field falls by
 // less than 1 per unit along the ray.
 fn hart_step(f: f32, part: Part, t: f32, eps: f32) -> f32 {
     if part.fall < 1.0 {
-        return max(f, min(f / part.fall - 0.25 * eps, part.end - t));
+        return max(f, min(f / part.fall - HART_STEP_MARGIN * eps, part.end - t));
     }
     return f;
 }

@@ -46,7 +46,11 @@ pub const MIN_TAPE: usize = 12;
 /// Levels split regardless of what their children gain.
 pub const CULL_DEPTH: u32 = 3;
 
-/// One leaf: its tapes, what its box holds, and the Lipschitz bound of the field there.
+/// Relative amount by which [`Leaf::fall`] rounds its bound up (four ulps: the three products
+/// and two sums before it each round once).
+pub const FALL_ROUNDING: f32 = 4.0 * f32::EPSILON;
+
+/// One leaf: its tapes, what its box holds, and enclosures of the field and its gradient there.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Leaf {
     /// Index into [`FieldOctree::tapes`]: the distance tape.
@@ -74,7 +78,7 @@ impl Leaf {
         let hi = Vec3::from_array(self.gradient[1]) * d;
         // −min over the box of d·g; rounded up, so the bound may only grow
         let f = -lo.min(hi).element_sum();
-        (f + f.abs() * 4.0 * f32::EPSILON).max(0.0)
+        (f + f.abs() * FALL_ROUNDING).max(0.0)
     }
 }
 

@@ -213,10 +213,10 @@ pub fn wgsl_prelude() -> String {
     s += &u("FIELD_PROBE_LEAVES", FIELD_PROBE_LEAVES);
     s += &u("MAX_SKIPS", crate::trace::step::MAX_SKIPS);
     // the shortest decimal that reads back as the same f32
-    s += &format!(
-        "const TINY_DIRECTION: f32 = {:?}f;\n",
-        field::TINY_DIRECTION
-    );
+    let f = |name: &str, v: f32| format!("const {name}: f32 = {v:?}f;\n");
+    s += &f("TINY_DIRECTION", field::TINY_DIRECTION);
+    s += &f("FALL_ROUNDING", field::FALL_ROUNDING);
+    s += &f("HART_STEP_MARGIN", crate::trace::sphere::HART_STEP_MARGIN);
     s += "\n";
     for decl in [
         InstrRecord::wgsl(),

@@ -18,9 +18,10 @@ use glam::Vec3;
 /// lowered tape is step-corrected), so an unbounding sphere of radius f(p) around p contains no
 /// surface and the step never skips one (Hart 1996, Theorem 1). Over an octree the march walks
 /// the leaves along the ray ([`RayWalk`]): empty leaves are passed without an evaluation, each
-/// other leaf is marched with its own tape, by f/L where its Lipschitz bound L < 1 allows (up
-/// to its exit). Where f < ε(t) the candidate is confirmed by a sign change and placed at the
-/// crossing ([`crossing::confirm`]); a miss past t1 or after `max_steps` evaluations.
+/// other leaf is marched with its own tape, by f/fall where the leaf's gradient enclosure
+/// shows the field falling slower than 1 along the ray ([`hart_step`], up to its exit). Where
+/// f < ε(t) the candidate is confirmed by a sign change and placed at the crossing
+/// ([`crossing::confirm`]); a miss past t1 or after `max_steps` evaluations.
 pub fn trace_hart(
     field: &mut FieldCursor,
     ray: &Ray,
@@ -161,6 +162,9 @@ impl<'f> Parts<'f> {
     }
 }
 
+/// The fraction of ε(t) by which a step lengthened by a leaf's fall stops short of it.
+pub const HART_STEP_MARGIN: f32 = 0.25;
+
 /// One step from a sample of value d ≥ ε(t) in `part`: Hart's d, or, where the leaf's
 /// gradient enclosure shows the field falling by at most `fall` < 1 per unit along the ray,
 /// d/fall within the leaf — no surface lies nearer (the field cannot reach 0 sooner), on a
@@ -170,7 +174,7 @@ impl<'f> Parts<'f> {
 #[inline]
 pub(crate) fn hart_step(d: f32, part: &Part, t: f32, eps: f32) -> f32 {
     if part.fall < 1.0 {
-        d.max((d / part.fall - 0.25 * eps).min(part.end - t))
+        d.max((d / part.fall - HART_STEP_MARGIN * eps).min(part.end - t))
     } else {
         d
     }
