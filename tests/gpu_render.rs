@@ -49,13 +49,7 @@ fn gpu() -> Gpu {
     // compilation out of the first scene's printed time.
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/scenes/primitives.ron");
     let scene = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
-    let warm_up = RenderOptions {
-        width: 8,
-        height: 8,
-        samples: 1,
-        threads: None,
-        progress: false,
-    };
+    let warm_up = RenderOptions::single_sample(8, 8);
     gpu.render(&scene, &warm_up);
     gpu
 }

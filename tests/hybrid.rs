@@ -46,17 +46,7 @@ fn render_top_down(objects: &str) -> Framebuffer {
     );
     let scene =
         Scene::from_source(&src, Path::new("hybrid-test.ron")).unwrap_or_else(|e| panic!("{e}"));
-    hytrace::render::cpu::render(
-        &scene,
-        &RenderOptions {
-            width: SIZE,
-            height: SIZE,
-            samples: 1,
-            threads: None,
-            progress: false,
-        },
-    )
-    .unwrap()
+    hytrace::render::cpu::render(&scene, &RenderOptions::single_sample(SIZE, SIZE)).unwrap()
 }
 
 /// Fraction of plane pixels (outside the occluder's own disk) whose shadowing agrees with the

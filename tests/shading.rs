@@ -257,17 +257,7 @@ fn scenes() -> Vec<std::path::PathBuf> {
 fn every_view_renders_for_every_shipped_scene() {
     for path in scenes() {
         let scene = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
-        let fb = cpu::render(
-            &scene,
-            &RenderOptions {
-                width: 48,
-                height: 36,
-                samples: 1,
-                threads: None,
-                progress: false,
-            },
-        )
-        .unwrap();
+        let fb = cpu::render(&scene, &RenderOptions::single_sample(48, 36)).unwrap();
         assert!(
             fb.pixels.iter().all(|p| p.is_finite()),
             "{}: non-finite radiance",

@@ -11,13 +11,7 @@ use std::path::Path;
 
 fn render(scene: &Scene, options: AccelOptions, w: u32, h: u32) -> Framebuffer {
     let tracer = SceneTracer::with_options(scene, options);
-    let opts = RenderOptions {
-        width: w,
-        height: h,
-        samples: 1,
-        threads: None,
-        progress: false,
-    };
+    let opts = RenderOptions::single_sample(w, h);
     cpu::render_with(&tracer, &opts).unwrap()
 }
 
@@ -152,17 +146,7 @@ fn huge_and_exploding_trees_render_or_are_refused_with_the_limit() {
     let tracer = SceneTracer::new(&scene);
     let stats = tracer.fields()[0].octree.as_ref().unwrap().stats();
     assert!(stats.bytes < 200 << 20, "{stats:?}");
-    let fb = cpu::render_with(
-        &tracer,
-        &RenderOptions {
-            width: 8,
-            height: 8,
-            samples: 1,
-            threads: None,
-            progress: false,
-        },
-    )
-    .unwrap();
+    let fb = cpu::render_with(&tracer, &RenderOptions::single_sample(8, 8)).unwrap();
     assert_eq!(fb.depth.len(), 64);
     let centre = scene.camera.ray(0.5, 0.5, 1.0);
     assert!(tracer.closest_hit(&centre, 0.0, f32::INFINITY).is_some());

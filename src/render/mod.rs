@@ -24,6 +24,20 @@ pub struct RenderOptions {
     pub progress: bool,
 }
 
+impl RenderOptions {
+    /// One sample per pixel at `width`×`height` on all cores, without a progress bar: what the
+    /// bench and the tests render.
+    pub fn single_sample(width: u32, height: u32) -> Self {
+        RenderOptions {
+            width,
+            height,
+            samples: 1,
+            threads: None,
+            progress: false,
+        }
+    }
+}
+
 /// Side of the square tiles the image is cut into.
 pub const TILE: u32 = 32;
 

@@ -433,11 +433,12 @@ impl SsaTape {
     /// otherwise stay alive across the whole union.
     fn compile_or_rematerialise(&self, with_material: bool) -> Result<Tape, String> {
         match self.compile_part(with_material) {
-            Err(e) if e.contains("registers") && !e.contains("material") => self
+            Err(OutOf::Registers) => self
                 .rematerialised(with_material)
                 .compile_part(with_material),
             other => other,
         }
+        .map_err(|e| e.to_string())
     }
 
     /// The program with every value that takes at most [`REMAT_COST`] operations of the
@@ -489,7 +490,7 @@ impl SsaTape {
         }
     }
 
-    fn compile_part(&self, with_material: bool) -> Result<Tape, String> {
+    fn compile_part(&self, with_material: bool) -> Result<Tape, OutOf> {
         let n = self.ops.len();
         let mut live = Vec::new();
         self.live_into(with_material, &mut live);
@@ -540,17 +541,11 @@ impl SsaTape {
                 }
             }
             let out = if op.op.is_material() {
-                let r = materials.take().ok_or_else(|| {
-                    format!(
-                        "too complex: needs more than {MAX_MATERIAL_REGISTERS} material registers"
-                    )
-                })?;
+                let r = materials.take().ok_or(OutOf::MaterialRegisters)?;
                 used_m = used_m.max(r as usize + 1);
                 r
             } else {
-                let r = values.take().ok_or_else(|| {
-                    format!("too complex: needs more than {MAX_REGISTERS} registers")
-                })?;
+                let r = values.take().ok_or(OutOf::Registers)?;
                 used_v = used_v.max(r as usize + 1);
                 r
             };
@@ -574,6 +569,27 @@ impl SsaTape {
             registers: used_v,
             material_registers: used_m,
         })
+    }
+}
+
+/// What register allocation ran out of.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum OutOf {
+    /// Value registers: worth a second try after rematerialisation.
+    Registers,
+    /// Material registers (materials are never recomputed).
+    MaterialRegisters,
+}
+
+impl std::fmt::Display for OutOf {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            OutOf::Registers => write!(f, "too complex: needs more than {MAX_REGISTERS} registers"),
+            OutOf::MaterialRegisters => write!(
+                f,
+                "too complex: needs more than {MAX_MATERIAL_REGISTERS} material registers"
+            ),
+        }
     }
 }
 

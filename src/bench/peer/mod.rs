@@ -644,13 +644,7 @@ fn run_with_fidget(
         let prepared = Prepared::new(model);
         let truth = ground_truth(model, &all_cores);
         let tracer = crate::trace::SceneTracer::new(&model.scene);
-        let render_opts = crate::render::RenderOptions {
-            width: size,
-            height: size,
-            samples: 1,
-            threads: None,
-            progress: false,
-        };
+        let render_opts = crate::render::RenderOptions::single_sample(size, size);
         // Masks of fidget VM, fidget JIT and hytrace, from whichever thread count gave one.
         let mut masks: [Option<Vec<bool>>; 3] = Default::default();
         for &threads in &opts.threads {
@@ -849,13 +843,7 @@ fn gpu_row(opts: &super::BenchOptions, model: &PeerModel, workers: &super::Worke
         ctx.adapter_info().device_type
     );
     let truth = ground_truth(model, workers);
-    let render_opts = crate::render::RenderOptions {
-        width: size,
-        height: size,
-        samples: 1,
-        threads: None,
-        progress: false,
-    };
+    let render_opts = crate::render::RenderOptions::single_sample(size, size);
     let hytrace = |renderer: &crate::gpu::render::GpuRenderer| -> Frame {
         let start = std::time::Instant::now();
         let fb = renderer.render(&ctx, &model.scene, &render_opts)?;
