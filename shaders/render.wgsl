@@ -1,19 +1,20 @@
-// The GPU render kernel: for each pixel of one image tile, the camera rays of
+// The GPU render kernel: for each pixel of one rectangle of the image, the camera rays of
 // src/render/cpu.rs (`camera_sample`, with `render::sample_offset`'s stratified, hashed
 // sub-pixel positions) and src/scene/camera.rs, followed by the iterative integrator of
-// src/shade/integrator.rs; writes the pixel's mean radiance and AOVs as
-// `Framebuffer::set` combines them (sums here, the division on the host).
+// src/shade/integrator.rs; adds the sample to the pixel's sums of radiance and AOVs as
+// `render::progressive::PixelSums` adds them (the division is the host's).
 //
 // Needs, from the generated prelude: ShadeCamera, ShadeSettings, ShadeLight, RenderTile,
 // RenderPixel and the PROJECTION_*, MAX_BOUNCES and RENDER_STACK constants
 // (src/gpu/shade.rs); from shaders/scene.wgsl: SceneHit, scene_closest_hit, scene_exit,
 // scene_material; from shaders/shade.wgsl: the shading functions.
 
-@group(1) @binding(0) var<uniform> shade_camera: ShadeCamera;
-@group(1) @binding(1) var<uniform> shade_settings: ShadeSettings;
-@group(1) @binding(2) var<storage, read> shade_lights: array<ShadeLight>;
-@group(1) @binding(3) var<uniform> render_tile: RenderTile;
-@group(1) @binding(4) var<storage, read_write> render_pixels: array<RenderPixel>;
+// group 1: what the scene fixes; group 2: the view and the sums it accumulates into
+@group(1) @binding(0) var<uniform> shade_settings: ShadeSettings;
+@group(1) @binding(1) var<storage, read> shade_lights: array<ShadeLight>;
+@group(2) @binding(0) var<uniform> shade_camera: ShadeCamera;
+@group(2) @binding(1) var<uniform> render_tile: RenderTile;
+@group(2) @binding(2) var<storage, read_write> render_pixels: array<RenderPixel>;
 
 /// Paths lighter than this are not followed (integrator::MIN_WEIGHT).
 const MIN_WEIGHT: f32 = 1e-3;
@@ -190,12 +191,12 @@ fn trace_camera_ray(origin: vec3<f32>, direction: vec3<f32>) -> CameraSample {
     return sample;
 }
 
-/// One invocation per pixel of the tile, one dispatch per sample: the tile's corner and size
-/// and the sample index come from `render_tile`. Sample 0 writes the pixel's sums, later ones
-/// add to them in sample order (as `Framebuffer::set` sums); the host divides by the count.
-/// One sample per dispatch also keeps each dispatch short — and a loop over the samples inside
-/// one invocation made lavapipe 22.3 render glass.ron's refracting objects wrongly (PSNR 26 dB
-/// against the CPU at 4 spp, 53 dB with this form).
+/// One invocation per pixel of the rectangle (x0, y0, w, h) of `render_tile`, one dispatch
+/// per sample: the first sample a buffer receives writes the pixel's sums, later ones
+/// (`accumulate`) add to them in the order they come (as `PixelSums::add` sums); the host
+/// divides by the count. One sample per dispatch also keeps each dispatch short — and a loop
+/// over the samples inside one invocation made lavapipe 22.3 render glass.ron's refracting
+/// objects wrongly (PSNR 26 dB against the CPU at 4 spp, 53 dB with this form).
 @compute @workgroup_size(8, 8, 1)
 fn render_tile_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let tile = render_tile;
@@ -209,9 +210,9 @@ fn render_tile_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let offset = sample_offset(x, y, tile.sample, tile.samples);
     let ray = camera_ray((f32(x) + offset.x) / width, (f32(y) + offset.y) / height, width / height);
     let sample = trace_camera_ray(ray.origin, ray.direction);
-    let i = gid.y * tile.w + gid.x;
+    let i = (y - tile.sums_y0) * tile.sums_width + (x - tile.sums_x0);
     var sum = RenderPixel(vec3<f32>(0.0), -1.0, vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0.0);
-    if tile.sample > 0u {
+    if tile.accumulate != 0u {
         sum = render_pixels[i];
     }
     sum.radiance += sample.radiance;

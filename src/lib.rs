@@ -4,7 +4,8 @@
 //! [`scene`] (RON files → validated scene) → [`sdf`] (SDF trees lowered to one tape format) →
 //! [`accel`] (which objects a ray may meet) → [`trace`] (sphere tracing, normals, hit and
 //! occlusion queries) → [`shade`] (materials and lights) → [`render`] (backends and image
-//! output); [`reference`] holds the ground truth (closed forms, later Embree).
+//! output) → [`gpu`] (the same on wgpu) and [`viewer`] (the interactive window);
+//! [`reference`] holds the ground truth (closed forms and Embree 4).
 #![warn(missing_docs)]
 
 pub mod accel;
@@ -19,3 +20,4 @@ pub mod scene;
 pub mod sdf;
 pub mod shade;
 pub mod trace;
+pub mod viewer;

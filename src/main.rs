@@ -23,6 +23,8 @@ struct Cli {
 enum Command {
     /// Render a scene to a PNG (the built-in showcase when no scene is given).
     Render(cli::render::RenderArgs),
+    /// Open a window on a scene: orbit, zoom, fly, debug views, hot reload, screenshots.
+    View(cli::view::ViewArgs),
     /// Print what a scene holds: meshes, instances, triangles, SDF nodes, bounds, BVH sizes.
     Info(cli::info::InfoArgs),
     /// Draw the signed distance of a scene on an axis-aligned plane, with iso-contours.
@@ -47,11 +49,13 @@ enum Command {
 }
 
 fn main() {
+    quiet_wayland_probe();
     let cli = Cli::parse();
     let result = match cli.command {
         Some(Command::Render(args)) => cli::render::run(args),
         Some(Command::Slice(args)) => cli::slice::run(args),
         Some(Command::Info(args)) => cli::info::run(args),
+        Some(Command::View(args)) => cli::view::run(args),
         Some(Command::Bench(args)) => cli::bench::run(args),
         Some(Command::Validate(args)) => cli::validate::run(args),
         Some(Command::Compare(args)) => cli::compare::run(args),
@@ -61,6 +65,20 @@ fn main() {
     if let Err(e) = result {
         eprintln!("error: {e:#}");
         std::process::exit(1);
+    }
+}
+
+/// Gives the Vulkan loader's Wayland probe an absolute XDG_RUNTIME_DIR when the environment
+/// has none (ssh sessions, containers, CI): libwayland then looks for a socket there, finds
+/// none and stays quiet, instead of printing "XDG_RUNTIME_DIR is invalid" on every run that
+/// touches the GPU, whatever the outcome.
+fn quiet_wayland_probe() {
+    let usable = std::env::var_os("XDG_RUNTIME_DIR")
+        .is_some_and(|d| Path::new(&d).is_absolute());
+    if !usable {
+        // SAFETY: called first thing in main, before any thread exists that could read the
+        // environment concurrently.
+        unsafe { std::env::set_var("XDG_RUNTIME_DIR", std::env::temp_dir()) };
     }
 }
 

@@ -126,12 +126,7 @@ fn primary_hit(
 }
 
 fn stepper_name(s: Stepper) -> String {
-    match s {
-        Stepper::Hart => "Hart".into(),
-        Stepper::Relaxed(w) => format!("Relaxed({w})"),
-        Stepper::Adaptive => "Adaptive".into(),
-        Stepper::Segment => "Segment".into(),
-    }
+    s.to_string()
 }
 
 thread_local! {

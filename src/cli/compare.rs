@@ -226,7 +226,7 @@ pub fn metrics(reference: &Backend, other: &Backend, threshold: f32) -> Metrics 
 /// The difference heatmap of two pictures (Turbo colour map over [0, HEATMAP_SCALE]) with a
 /// numbered colour bar below it.
 pub fn heatmap(a: &RgbImage, b: &RgbImage) -> RgbImage {
-    use super::draw;
+    use hytrace::render::draw;
     use hytrace::render::view::turbo;
     let diff = difference(a, b);
     let (w, h) = a.dimensions();
@@ -255,7 +255,7 @@ pub fn heatmap(a: &RgbImage, b: &RgbImage) -> RgbImage {
 
 /// The pictures side by side, each with its label above, on one sheet.
 pub fn sheet(panels: &[(String, &RgbImage)]) -> RgbImage {
-    use super::draw;
+    use hytrace::render::draw;
     let gap = 6;
     let label_h = draw::LINE + 6;
     let w: u32 =
@@ -564,7 +564,7 @@ mod tests {
         let map = heatmap(&a, &b);
         assert!(map.width() >= 40 && map.height() > 30);
         // a difference of 190/255 > HEATMAP_SCALE saturates to Turbo's top colour
-        let top = super::super::draw::to_u8(hytrace::render::view::turbo(1.0));
+        let top = hytrace::render::draw::to_u8(hytrace::render::view::turbo(1.0));
         assert_eq!(map.get_pixel(5, 5).0, top);
         let s = sheet(&[("a".into(), &a), ("b".into(), &b)]);
         assert_eq!(s.width(), 40 + 40 + 3 * 6);

@@ -1,11 +1,11 @@
 //! The subcommands of the `hytrace` binary, one module each.
 pub mod bench;
 pub mod compare;
-pub mod draw;
 pub mod info;
 pub mod render;
 pub mod slice;
 pub mod validate;
+pub mod view;
 
 use anyhow::{Result, bail};
 use std::path::Path;

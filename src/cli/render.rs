@@ -1,9 +1,9 @@
 //! `hytrace render`: a scene to an image.
 
 use anyhow::{Result, bail};
-use hytrace::render::exr::{Aov, write_exr};
+use hytrace::render::exr::Aov;
 use hytrace::render::output::ToneMapping;
-use hytrace::render::view::{View, picture};
+use hytrace::render::view::View;
 use hytrace::render::{RenderOptions, cpu, output};
 use hytrace::scene::file::ToneMap;
 use hytrace::scene::{MAX_IMAGE_SIDE, MAX_PIXELS, MAX_SAMPLES};
@@ -229,12 +229,14 @@ pub fn run(args: RenderArgs) -> Result<()> {
         Chosen::Gpu(ctx) => (hytrace::gpu::render::render(&scene, &opts, ctx)?, "GPU"),
     };
     let elapsed = start.elapsed();
-    if exr {
-        write_exr(&fb, &args.aov, &args.output)?;
-    } else {
-        let img = picture(&fb, args.view, tone, scene.tracer.max_steps);
-        output::save_png(&img, &args.output)?;
-    }
+    output::write_image(
+        &fb,
+        &args.output,
+        args.view,
+        tone,
+        scene.tracer.max_steps,
+        &args.aov,
+    )?;
     if !args.quiet {
         eprintln!(
             "{}: {}×{} px, {} spp, {} object(s), rendered on the {} in {:.3} s → {}",

@@ -57,10 +57,10 @@ pub struct ValidateArgs {
 /// Runs the validation, prints the report, writes the files; an error when a threshold fails.
 #[cfg(feature = "embree")]
 pub fn run(args: ValidateArgs) -> Result<()> {
-    use super::draw;
     use anyhow::{Context, bail};
     use hytrace::reference::embree::ReferenceOptions;
     use hytrace::reference::validate::{Options, PixelClass, validate_with_embree_options};
+    use hytrace::render::draw;
     use hytrace::scene::{MAX_IMAGE_SIDE, MAX_PIXELS};
     use std::time::Instant;
     /// Most random rays accepted.

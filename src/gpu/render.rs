@@ -1,14 +1,17 @@
-//! The GPU render backend: the scene uploaded once, then one compute dispatch per image tile
-//! (`shaders/render.wgsl`), each tile read back into the same [`Framebuffer`] the CPU fills,
-//! so PNG/EXR output, AOVs and debug views are shared with the CPU path.
+//! The GPU render backend: a scene uploaded once ([`PreparedScene`]), then the image built up
+//! one sample pass at a time in per-pixel sums that stay on the device ([`GpuPasses`]), read
+//! back into the same [`SampleSums`] and [`Framebuffer`] the CPU fills, so PNG/EXR output,
+//! AOVs and debug views are shared with the CPU path.
 
 use super::context::GpuContext;
 use super::scene::{GpuScene, SceneData, scene_layout};
 use super::shade::{RenderPixel, RenderTile, ShadeCamera, ShadeLight, ShadeSettings, wgsl_prelude};
 use super::shaders::with_kernel;
+use crate::render::progressive::{PixelSums, SampleSums};
 use crate::render::{Framebuffer, RenderOptions, Tile};
 use crate::scene::Scene;
-use anyhow::{Context, Result, bail};
+use crate::scene::camera::Camera;
+use anyhow::{Result, bail};
 use glam::Vec3;
 use indicatif::{ProgressBar, ProgressStyle};
 use wgpu::util::DeviceExt;
@@ -18,10 +21,14 @@ pub const SHADE_WGSL: &str = include_str!("../../shaders/shade.wgsl");
 /// The render kernel (`src/render/cpu.rs`, `src/shade/integrator.rs`).
 pub const RENDER_WGSL: &str = include_str!("../../shaders/render.wgsl");
 
-/// Side of the square tiles one dispatch renders. A 64×64 tile keeps each dispatch short
-/// (well under a second on lavapipe at the shipped scenes' sample counts) so no driver
-/// watchdog fires, while the per-dispatch overhead stays small.
+/// Side of the square tiles [`GpuRenderer::render`] renders one after the other. A 64×64 tile
+/// keeps each dispatch short (well under a second on lavapipe at the shipped scenes' sample
+/// counts) so no driver watchdog fires, while the per-dispatch overhead stays small.
 pub const GPU_TILE: u32 = 64;
+
+/// The most pixels one dispatch of a pass renders (256×256): a larger image's pass is cut
+/// into bands of rows, so no dispatch runs long enough for a driver watchdog.
+pub const PASS_DISPATCH_PIXELS: u32 = 256 * 256;
 
 /// Side of the kernel's square workgroups (`@workgroup_size(8, 8, 1)` in render.wgsl).
 const WORKGROUP_SIDE: u32 = 8;
@@ -58,7 +65,33 @@ fn tiles_of(width: u32, height: u32, side: u32) -> Vec<Tile> {
 /// The compiled render kernel and its bind-group layouts; it does not depend on the scene.
 pub struct GpuRenderer {
     pipeline: wgpu::ComputePipeline,
-    render_layout: wgpu::BindGroupLayout,
+    /// Group 1: the shading settings and lights of a [`PreparedScene`].
+    scene_layout: wgpu::BindGroupLayout,
+    /// Group 2: the camera, the dispatch's pixels and the sums of a [`GpuPasses`].
+    passes_layout: wgpu::BindGroupLayout,
+}
+
+/// A scene on the device, ready for [`GpuRenderer::render_pass`]: its buffers (group 0), its
+/// shading settings and lights (group 1). Built once per scene, kept across passes and cameras.
+pub struct PreparedScene {
+    scene: GpuScene,
+    bindings: wgpu::BindGroup,
+}
+
+/// Per-pixel sums of the passes rendered so far, kept on the device between passes: the
+/// target of [`GpuRenderer::render_pass`] for a `width`×`height` image.
+pub struct GpuPasses {
+    width: u32,
+    height: u32,
+    /// The rectangle of the image the sums cover (all of it, but for one tile of
+    /// [`GpuRenderer::render_tiled`]).
+    region: Tile,
+    /// Passes added since the sums were (re)started.
+    passes: u32,
+    camera: wgpu::Buffer,
+    tile: wgpu::Buffer,
+    sums: wgpu::Buffer,
+    bindings: wgpu::BindGroup,
 }
 
 impl GpuRenderer {
@@ -90,20 +123,22 @@ impl GpuRenderer {
             count: None,
         };
         // binding numbers as declared at the top of render.wgsl
-        let render_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("render bindings"),
-            entries: &[
-                uniform(0),
-                uniform(1),
-                storage(2, true),
-                uniform(3),
-                storage(4, false),
-            ],
+        let shading_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("render scene bindings"),
+            entries: &[uniform(0), storage(1, true)],
         });
-        let scene_layout = scene_layout(ctx);
+        let passes_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("render pass bindings"),
+            entries: &[uniform(0), uniform(1), storage(2, false)],
+        });
+        let buffers_layout = scene_layout(ctx);
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("render pipeline layout"),
-            bind_group_layouts: &[Some(&scene_layout), Some(&render_layout)],
+            bind_group_layouts: &[
+                Some(&buffers_layout),
+                Some(&shading_layout),
+                Some(&passes_layout),
+            ],
             immediate_size: 0,
         });
         let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
@@ -116,8 +151,127 @@ impl GpuRenderer {
         });
         GpuRenderer {
             pipeline,
-            render_layout,
+            scene_layout: shading_layout,
+            passes_layout,
         }
+    }
+
+    /// Uploads the scene: its buffers, shading settings and lights (not its camera, which
+    /// every pass names).
+    pub fn prepare(&self, ctx: &GpuContext, scene: &Scene) -> Result<PreparedScene> {
+        let gpu_scene = GpuScene::new(ctx, &SceneData::from_scene(scene)?)?;
+        let settings = ShadeSettings::new(scene);
+        // A storage binding cannot be empty: a scene without lights gets one unused record
+        // (light_count says how many are real).
+        let mut lights: Vec<ShadeLight> = scene.lights.iter().map(ShadeLight::new).collect();
+        if lights.is_empty() {
+            lights.push(ShadeLight::default());
+        }
+        let init = |label, contents: &[u8], usage| {
+            ctx.device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some(label),
+                    contents,
+                    usage,
+                })
+        };
+        let settings_buffer = init(
+            "shading settings",
+            bytemuck::bytes_of(&settings),
+            wgpu::BufferUsages::UNIFORM,
+        );
+        let light_buffer = init(
+            "lights",
+            bytemuck::cast_slice(&lights),
+            wgpu::BufferUsages::STORAGE,
+        );
+        // the bind group keeps its buffers alive
+        let bindings = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("render scene bindings"),
+            layout: &self.scene_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: settings_buffer.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: light_buffer.as_entire_binding(),
+                },
+            ],
+        });
+        Ok(PreparedScene {
+            scene: gpu_scene,
+            bindings,
+        })
+    }
+
+    /// Renders sample `sample` of `opts.samples` of every pixel of `target` as `camera` sees
+    /// the prepared scene, and adds it to the target's sums (the first pass after
+    /// [`GpuPasses::new`] or [`GpuPasses::clear`] starts them). Passes 0..n added in order
+    /// hold exactly what [`GpuRenderer::render`] averages. The pass is submitted in dispatches
+    /// of at most [`PASS_DISPATCH_PIXELS`] pixels; read it with [`GpuPasses::read`].
+    pub fn render_pass(
+        &self,
+        ctx: &GpuContext,
+        prepared: &PreparedScene,
+        camera: &Camera,
+        opts: &RenderOptions,
+        sample: u32,
+        target: &mut GpuPasses,
+    ) -> Result<()> {
+        if (opts.width, opts.height) != (target.width, target.height) {
+            bail!(
+                "a pass of a {}×{} image into the sums of a {}×{} one",
+                opts.width,
+                opts.height,
+                target.width,
+                target.height
+            );
+        }
+        let queue = &ctx.queue;
+        queue.write_buffer(
+            &target.camera,
+            0,
+            bytemuck::bytes_of(&ShadeCamera::new(camera)),
+        );
+        let region = target.region;
+        let rows = (PASS_DISPATCH_PIXELS / region.w).max(1);
+        for y0 in (region.y0..region.y0 + region.h).step_by(rows as usize) {
+            let band = Tile {
+                x0: region.x0,
+                y0,
+                w: region.w,
+                h: rows.min(region.y0 + region.h - y0),
+            };
+            // One submission per dispatch: the uniform written before each submission is the
+            // one its dispatch reads.
+            let tile = RenderTile::new(opts, band, region, sample, target.passes > 0);
+            queue.write_buffer(&target.tile, 0, bytemuck::bytes_of(&tile));
+            let mut encoder = ctx
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("render pass"),
+                });
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("render pass"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(&self.pipeline);
+                pass.set_bind_group(0, &prepared.scene.bind_group, &[]);
+                pass.set_bind_group(1, &prepared.bindings, &[]);
+                pass.set_bind_group(2, &target.bindings, &[]);
+                pass.dispatch_workgroups(
+                    band.w.div_ceil(WORKGROUP_SIDE),
+                    band.h.div_ceil(WORKGROUP_SIDE),
+                    1,
+                );
+            }
+            queue.submit([encoder.finish()]);
+        }
+        target.passes += 1;
+        Ok(())
     }
 
     /// Renders the scene in tiles of [`GPU_TILE`] pixels.
@@ -130,8 +284,10 @@ impl GpuRenderer {
         self.render_tiled(ctx, scene, opts, GPU_TILE)
     }
 
-    /// Renders the scene with one dispatch per tile of side `tile_side`. Every pixel depends
-    /// only on its own coordinates, so the image does not depend on the tile size.
+    /// Renders the scene tile by tile, tiles of side `tile_side`, each with its passes
+    /// 0..samples (at least one) of [`GpuRenderer::render_pass`] with the scene's camera.
+    /// Every pixel depends only on its own coordinates, so the image does not depend on the
+    /// tile size.
     pub fn render_tiled(
         &self,
         ctx: &GpuContext,
@@ -142,131 +298,159 @@ impl GpuRenderer {
         if tile_side == 0 {
             bail!("GPU tile size must be at least 1 pixel");
         }
-        let device = &ctx.device;
-        let queue = &ctx.queue;
-        let gpu_scene = GpuScene::new(ctx, &SceneData::from_scene(scene)?)?;
-        let (pipeline, render_layout) = (&self.pipeline, &self.render_layout);
-
-        let init = |label, contents: &[u8], usage| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents,
-                usage,
-            })
-        };
-        let camera = ShadeCamera::new(&scene.camera);
-        let settings = ShadeSettings::new(scene);
-        // A storage binding cannot be empty: a scene without lights gets one unused record
-        // (light_count says how many are real).
-        let mut lights: Vec<ShadeLight> = scene.lights.iter().map(ShadeLight::new).collect();
-        if lights.is_empty() {
-            lights.push(ShadeLight::default());
-        }
-        let camera_buffer = init(
-            "camera",
-            bytemuck::bytes_of(&camera),
-            wgpu::BufferUsages::UNIFORM,
-        );
-        let settings_buffer = init(
-            "shading settings",
-            bytemuck::bytes_of(&settings),
-            wgpu::BufferUsages::UNIFORM,
-        );
-        let light_buffer = init(
-            "lights",
-            bytemuck::cast_slice(&lights),
-            wgpu::BufferUsages::STORAGE,
-        );
-        let tile_buffer = init(
-            "tile",
-            bytemuck::bytes_of(&RenderTile::default()),
-            wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-        );
-        let pixel_bytes = std::mem::size_of::<RenderPixel>() as u64;
-        let max_tile_pixels = tile_side.min(opts.width) as u64 * tile_side.min(opts.height) as u64;
-        let output_buffer = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("tile pixels"),
-            size: max_tile_pixels * pixel_bytes,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        });
-        let readback_buffer = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("tile readback"),
-            size: max_tile_pixels * pixel_bytes,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let render_bindings = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("render bindings"),
-            layout: render_layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: camera_buffer.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: settings_buffer.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: light_buffer.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: tile_buffer.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 4,
-                    resource: output_buffer.as_entire_binding(),
-                },
-            ],
-        });
-
+        let prepared = self.prepare(ctx, scene)?;
         let all = tiles_of(opts.width, opts.height, tile_side);
         let bar = progress_bar(opts.progress, all.len() as u64)?;
-        let mut fb = Framebuffer::new(opts.width, opts.height);
-        let samples = opts.samples.max(1);
+        let mut sums = SampleSums::new(opts.width, opts.height);
         for tile in all {
-            let bytes = (tile.w * tile.h) as u64 * pixel_bytes;
-            // One submission per sample: the tile uniform written before each submission is
-            // the one its dispatch reads.
-            for sample in 0..samples {
-                queue.write_buffer(
-                    &tile_buffer,
-                    0,
-                    bytemuck::bytes_of(&RenderTile::new(opts, tile, sample)),
-                );
-                let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some("render tile sample"),
-                });
-                {
-                    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                        label: Some("render tile sample"),
-                        timestamp_writes: None,
-                    });
-                    pass.set_pipeline(pipeline);
-                    pass.set_bind_group(0, &gpu_scene.bind_group, &[]);
-                    pass.set_bind_group(1, &render_bindings, &[]);
-                    pass.dispatch_workgroups(
-                        tile.w.div_ceil(WORKGROUP_SIDE),
-                        tile.h.div_ceil(WORKGROUP_SIDE),
-                        1,
-                    );
-                }
-                if sample + 1 < samples {
-                    queue.submit([encoder.finish()]);
-                    continue;
-                }
-                encoder.copy_buffer_to_buffer(&output_buffer, 0, &readback_buffer, 0, bytes);
-                queue.submit([encoder.finish()]);
+            let mut target = GpuPasses::covering(ctx, self, opts.width, opts.height, tile)?;
+            for sample in 0..opts.samples.max(1) {
+                self.render_pass(ctx, &prepared, &scene.camera, opts, sample, &mut target)?;
             }
-            let pixels = read_back(ctx, &readback_buffer, bytes)?;
-            store_tile(&mut fb, tile, &pixels, samples);
+            target.read_into(ctx, &mut sums)?;
             bar.inc(1);
         }
         bar.finish_and_clear();
-        Ok(fb)
+        Ok(sums.mean())
+    }
+}
+
+impl GpuPasses {
+    /// Sums of no passes yet for a `width`×`height` image; fails when they exceed the
+    /// device's buffer limits.
+    pub fn new(ctx: &GpuContext, renderer: &GpuRenderer, width: u32, height: u32) -> Result<Self> {
+        let whole = Tile {
+            x0: 0,
+            y0: 0,
+            w: width,
+            h: height,
+        };
+        Self::covering(ctx, renderer, width, height, whole)
+    }
+
+    /// Sums covering the rectangle `region` of a `width`×`height` image.
+    fn covering(
+        ctx: &GpuContext,
+        renderer: &GpuRenderer,
+        width: u32,
+        height: u32,
+        region: Tile,
+    ) -> Result<Self> {
+        if region.w == 0 || region.h == 0 {
+            bail!("cannot render a {}×{} image", region.w, region.h);
+        }
+        let bytes = region.w as u64 * region.h as u64 * std::mem::size_of::<RenderPixel>() as u64;
+        let limits = ctx.limits();
+        let limit = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
+        if bytes > limit {
+            bail!(
+                "the sums of a {}×{} image take {bytes} bytes, the device binds at most {limit}",
+                region.w,
+                region.h
+            );
+        }
+        let device = &ctx.device;
+        let camera = ctx.uniform_buffer("camera", bytemuck::bytes_of(&ShadeCamera::default()));
+        let tile = ctx.uniform_buffer("tile", bytemuck::bytes_of(&RenderTile::default()));
+        let sums = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("pixel sums"),
+            size: bytes,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let bindings = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("render pass bindings"),
+            layout: &renderer.passes_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: camera.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: tile.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: sums.as_entire_binding(),
+                },
+            ],
+        });
+        Ok(GpuPasses {
+            width,
+            height,
+            region,
+            passes: 0,
+            camera,
+            tile,
+            sums,
+            bindings,
+        })
+    }
+
+    /// Width of the image.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Height of the image.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// Passes added since the sums were started.
+    pub fn passes(&self) -> u32 {
+        self.passes
+    }
+
+    /// Forgets the passes: the next one starts the sums again (when the camera moved).
+    pub fn clear(&mut self) {
+        self.passes = 0;
+    }
+
+    /// The sums of the passes so far, read back from the device (waiting for them).
+    pub fn read(&self, ctx: &GpuContext) -> Result<SampleSums> {
+        let mut sums = SampleSums::new(self.width, self.height);
+        self.read_into(ctx, &mut sums)?;
+        Ok(sums)
+    }
+
+    /// Reads the sums back into their rectangle of `sums`, an image-sized accumulator.
+    fn read_into(&self, ctx: &GpuContext, sums: &mut SampleSums) -> Result<()> {
+        if self.passes == 0 {
+            // nothing written yet: the buffer holds no sums
+            return Ok(());
+        }
+        let bytes = ctx.read_buffer(&self.sums, self.sums.size())?;
+        let pixels: &[RenderPixel] = bytemuck::cast_slice(&bytes);
+        let region = self.region;
+        for (j, row) in pixels.chunks_exact(region.w as usize).enumerate() {
+            let start = ((region.y0 + j as u32) * sums.width + region.x0) as usize;
+            for (into, p) in sums.pixels[start..start + row.len()].iter_mut().zip(row) {
+                *into = pixel_sums(p, self.passes);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A pixel's sums as the kernel leaves them, over `count` samples; a negative depth means
+/// every sample missed.
+fn pixel_sums(p: &RenderPixel, count: u32) -> PixelSums {
+    PixelSums {
+        radiance: Vec3::from_array(p.radiance),
+        depth: if p.depth < 0.0 {
+            f32::INFINITY
+        } else {
+            p.depth
+        },
+        normal: Vec3::from_array(p.normal),
+        albedo: Vec3::from_array(p.albedo),
+        steps: p.steps,
+        gradient: p.gradient,
+        count,
     }
 }
 
@@ -284,53 +468,6 @@ fn progress_bar(show: bool, tiles: u64) -> Result<ProgressBar> {
     } else {
         ProgressBar::hidden()
     })
-}
-
-/// Waits for the submitted work and copies the first `bytes` of `buffer` out.
-fn read_back(ctx: &GpuContext, buffer: &wgpu::Buffer, bytes: u64) -> Result<Vec<RenderPixel>> {
-    let slice = buffer.slice(0..bytes);
-    let (sender, receiver) = std::sync::mpsc::channel();
-    slice.map_async(wgpu::MapMode::Read, move |r| {
-        // the receiver lives until recv() below returns
-        let _ = sender.send(r);
-    });
-    ctx.device
-        .poll(wgpu::PollType::wait_indefinitely())
-        .context("waiting for the GPU to render a tile")?;
-    receiver
-        .recv()
-        .context("the GPU dropped the tile read-back")?
-        .context("mapping the tile read-back buffer")?;
-    let pixels = {
-        let view = slice
-            .get_mapped_range()
-            .context("reading the tile read-back buffer")?;
-        bytemuck::cast_slice::<u8, RenderPixel>(&view).to_vec()
-    };
-    buffer.unmap();
-    Ok(pixels)
-}
-
-/// Copies a tile's per-pixel sums over `samples` samples into the framebuffer as means (the
-/// division `Framebuffer::set` does); a negative depth means every sample missed.
-fn store_tile(fb: &mut Framebuffer, tile: Tile, pixels: &[RenderPixel], samples: u32) {
-    let n = samples as f32;
-    for j in 0..tile.h {
-        for i in 0..tile.w {
-            let p = &pixels[(j * tile.w + i) as usize];
-            let k = ((tile.y0 + j) * fb.width + tile.x0 + i) as usize;
-            fb.pixels[k] = Vec3::from_array(p.radiance) / n;
-            fb.depth[k] = if p.depth < 0.0 {
-                f32::INFINITY
-            } else {
-                p.depth
-            };
-            fb.normal[k] = Vec3::from_array(p.normal) / n;
-            fb.albedo[k] = Vec3::from_array(p.albedo) / n;
-            fb.steps[k] = p.steps / n;
-            fb.gradient[k] = p.gradient / n;
-        }
-    }
 }
 
 #[cfg(test)]

@@ -1,5 +1,5 @@
 //! Host-side packing of what the GPU shading and render kernels read: camera, lights, shading
-//! settings, the tile being rendered and the per-pixel result, as `#[repr(C)]` Pod structs whose
+//! settings, the pixels being rendered and the per-pixel sums, as `#[repr(C)]` Pod structs whose
 //! WGSL twins (and the constants the shaders test against) are generated here.
 
 use crate::gpu::layout::WgslStruct;
@@ -84,30 +84,39 @@ crate::gpu_struct! {
 }
 
 crate::gpu_struct! {
-    /// The image and the tile one dispatch renders.
-    pub struct RenderTile (32) {
+    /// The image, the pixels one dispatch renders and where their sums are: the output buffer
+    /// holds a rectangle of the image (all of it, or one tile) row by row.
+    pub struct RenderTile (48) {
         /// Image width.
         pub width: u32,
         /// Image height.
         pub height: u32,
         /// Samples per pixel.
         pub samples: u32,
-        /// Left column of the tile.
+        /// Left column of the pixels rendered.
         pub x0: u32,
-        /// Top row of the tile.
+        /// Top row of the pixels rendered.
         pub y0: u32,
-        /// Tile width.
+        /// Width of the pixels rendered.
         pub w: u32,
-        /// Tile height.
+        /// Height of the pixels rendered.
         pub h: u32,
         /// The sample this dispatch adds (0 ..= samples − 1).
         pub sample: u32,
+        /// Left column of the rectangle the output buffer holds.
+        pub sums_x0: u32,
+        /// Top row of the rectangle the output buffer holds.
+        pub sums_y0: u32,
+        /// Width of the rectangle the output buffer holds (its row length).
+        pub sums_width: u32,
+        /// 1: add to the sums in the buffer; 0: this is their first sample.
+        pub accumulate: u32,
     }
 }
 
 crate::gpu_struct! {
-    /// One rendered pixel: the sums over its samples so far (the host divides them by the
-    /// count, as `Framebuffer::set` does) and the nearest depth, < 0 while every sample missed.
+    /// One rendered pixel: the sums over its samples so far (`render::progressive::PixelSums`,
+    /// which the host divides by the count) and the nearest depth, < 0 while every sample missed.
     pub struct RenderPixel (48) {
         /// Sum of linear radiance.
         pub radiance: [f32; 3],
@@ -230,17 +239,29 @@ impl ShadeLight {
 }
 
 impl RenderTile {
-    /// Sample `sample` of the tile `tile` of an image rendered with `opts`.
-    pub fn new(opts: &RenderOptions, tile: Tile, sample: u32) -> Self {
+    /// Sample `sample` of the pixels `pixels` of an image rendered with `opts`, into an output
+    /// buffer holding the rectangle `sums` (which contains `pixels`), added to the sums already
+    /// there when `accumulate`.
+    pub fn new(
+        opts: &RenderOptions,
+        pixels: Tile,
+        sums: Tile,
+        sample: u32,
+        accumulate: bool,
+    ) -> Self {
         RenderTile {
             width: opts.width,
             height: opts.height,
             samples: opts.samples,
-            x0: tile.x0,
-            y0: tile.y0,
-            w: tile.w,
-            h: tile.h,
+            x0: pixels.x0,
+            y0: pixels.y0,
+            w: pixels.w,
+            h: pixels.h,
             sample,
+            sums_x0: sums.x0,
+            sums_y0: sums.y0,
+            sums_width: sums.w,
+            accumulate: accumulate as u32,
         }
     }
 }

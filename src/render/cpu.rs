@@ -1,8 +1,11 @@
-//! The CPU backend: rayon over tiles, one camera path per sample.
+//! The CPU backend: rayon over tiles, one camera path per sample, the image built up one
+//! sample pass at a time.
 
+use super::progressive::SampleSums;
 use super::{Framebuffer, RenderOptions, Tile, sample_offset, tiles};
 use crate::geom::Ray;
 use crate::scene::Scene;
+use crate::scene::camera::Camera;
 use crate::sdf::tape::MaterialVec;
 use crate::shade::integrator::{self, CameraSample, Primary, trace_camera_ray_from};
 use crate::shade::shadow_query;
@@ -21,13 +24,13 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> anyhow::Result<Framebuffer
 }
 
 /// [`render`] with a tracer built by the caller (kept across frames, or built with other
-/// [`crate::trace::AccelOptions`]), on the current rayon pool.
+/// [`crate::trace::AccelOptions`]), on the current rayon pool: the passes 0..n of
+/// [`render_pass`] with the scene's camera, averaged.
 pub fn render_with(tracer: &SceneTracer, opts: &RenderOptions) -> anyhow::Result<Framebuffer> {
-    let scene = tracer.scene();
-    let materials = scene.material_table();
-    let all = tiles(opts.width, opts.height);
+    let camera = &tracer.scene().camera;
+    let tiles_per_pass = tiles(opts.width, opts.height).len() as u64;
     let bar = if opts.progress {
-        let b = ProgressBar::new(all.len() as u64);
+        let b = ProgressBar::new(tiles_per_pass * opts.samples as u64);
         b.set_style(
             ProgressStyle::with_template(
                 "{spinner} rendering [{bar:40}] {percent:>3}% {pos}/{len} tiles, ETA {eta}",
@@ -38,27 +41,77 @@ pub fn render_with(tracer: &SceneTracer, opts: &RenderOptions) -> anyhow::Result
     } else {
         ProgressBar::hidden()
     };
-    let done: Vec<(Tile, Vec<Vec<CameraSample>>)> = all
-        .par_iter()
-        .map(|&tile| {
-            let px = render_tile(tracer, &materials, opts, tile);
-            bar.inc(1);
-            (tile, px)
-        })
-        .collect();
-    bar.finish_and_clear();
-    let mut fb = Framebuffer::new(opts.width, opts.height);
-    for (tile, px) in done {
-        for j in 0..tile.h {
-            for i in 0..tile.w {
-                fb.set(tile.x0 + i, tile.y0 + j, &px[(j * tile.w + i) as usize]);
-            }
-        }
+    let mut sums = SampleSums::new(opts.width, opts.height);
+    for sample in 0..opts.samples {
+        let finished = pass(tracer, camera, opts, sample, &mut sums, &|| false, &bar);
+        debug_assert!(finished, "a pass nobody cancels finishes");
     }
-    Ok(fb)
+    bar.finish_and_clear();
+    Ok(sums.mean())
 }
 
-/// A tile's samples, per pixel in row order. Each sample's camera rays are traced a tile row
+/// Renders sample `sample` of `opts.samples` of every pixel as `camera` sees the tracer's
+/// scene, in parallel over the tiles on the current rayon pool, and adds it to `sums` (of
+/// `opts.width`×`opts.height`). Returns false, with `sums` unchanged, when `cancelled()`
+/// turned true: it is asked before each tile, so an abandoned pass stops within one tile's
+/// time. Passes 0..n added in order hold exactly what [`render`] averages.
+pub fn render_pass(
+    tracer: &SceneTracer,
+    camera: &Camera,
+    opts: &RenderOptions,
+    sample: u32,
+    sums: &mut SampleSums,
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> bool {
+    pass(
+        tracer,
+        camera,
+        opts,
+        sample,
+        sums,
+        cancelled,
+        &ProgressBar::hidden(),
+    )
+}
+
+/// [`render_pass`], counting finished tiles on `bar`.
+fn pass(
+    tracer: &SceneTracer,
+    camera: &Camera,
+    opts: &RenderOptions,
+    sample: u32,
+    sums: &mut SampleSums,
+    cancelled: &(dyn Fn() -> bool + Sync),
+    bar: &ProgressBar,
+) -> bool {
+    assert_eq!(
+        (sums.width, sums.height),
+        (opts.width, opts.height),
+        "the sums are of the image rendered"
+    );
+    let materials = tracer.scene().material_table();
+    // rayon stops handing out tiles once one comes back None
+    let done: Option<Vec<(Tile, Vec<CameraSample>)>> = tiles(opts.width, opts.height)
+        .into_par_iter()
+        .map(|tile| {
+            if cancelled() {
+                return None;
+            }
+            let px = render_tile(tracer, &materials, camera, opts, tile, sample);
+            bar.inc(1);
+            Some((tile, px))
+        })
+        .collect();
+    let Some(done) = done else {
+        return false;
+    };
+    for (tile, px) in done {
+        sums.add_tile(tile, &px);
+    }
+    true
+}
+
+/// Sample `sample` of every pixel of a tile as `camera` sees it, in row order. Each sample's camera rays are traced a tile row
 /// at a time: the row's closest hits come from one [`SceneTracer::closest_hits`] call and the
 /// shadow rays of their local shading from one [`SceneTracer::visibilities`] call (packets),
 /// then each ray's path is followed on its own. The answers are those of tracing every ray
@@ -66,14 +119,14 @@ pub fn render_with(tracer: &SceneTracer, opts: &RenderOptions) -> anyhow::Result
 fn render_tile(
     tracer: &SceneTracer,
     materials: &[MaterialVec],
+    camera: &Camera,
     opts: &RenderOptions,
     tile: Tile,
-) -> Vec<Vec<CameraSample>> {
+    sample: u32,
+) -> Vec<CameraSample> {
     let scene = tracer.scene();
     let lights = scene.lights.len();
-    let mut out: Vec<Vec<CameraSample>> = (0..tile.w * tile.h)
-        .map(|_| Vec::with_capacity(opts.samples as usize))
-        .collect();
+    let mut out = Vec::with_capacity((tile.w * tile.h) as usize);
     let mut rays = Vec::with_capacity(tile.w as usize);
     let mut hits = vec![None; tile.w as usize];
     let mut surfaces = Vec::with_capacity(tile.w as usize);
@@ -81,54 +134,101 @@ fn render_tile(
     let mut owners = Vec::new();
     let mut answers = Vec::new();
     let mut visibility = vec![1.0f32; tile.w as usize * lights];
-    for s in 0..opts.samples {
-        for y in tile.y0..tile.y0 + tile.h {
-            rays.clear();
-            for x in tile.x0..tile.x0 + tile.w {
-                let (dx, dy) = sample_offset(x, y, s, opts.samples);
-                rays.push(camera_ray(tracer, opts, x as f32 + dx, y as f32 + dy));
-            }
-            tracer.closest_hits(&rays, 0.0, f32::INFINITY, &mut hits);
-            // the row's shadow rays, light by light (rays toward one light are coherent)
-            surfaces.clear();
-            surfaces.extend(rays.iter().zip(&hits).map(|(ray, hit)| {
-                hit.map(|h| integrator::surfaced(tracer, materials, ray, &h))
-                    .filter(|s| s.local_weight > 0.0)
-            }));
-            queries.clear();
-            owners.clear();
-            for light in 0..lights {
-                for (i, surf) in surfaces.iter().enumerate() {
-                    if let Some(q) = surf.and_then(|s| shadow_query(scene, &s.point, light)) {
-                        queries.push(q);
-                        owners.push(i * lights + light);
-                    }
+    for y in tile.y0..tile.y0 + tile.h {
+        rays.clear();
+        for x in tile.x0..tile.x0 + tile.w {
+            let (dx, dy) = sample_offset(x, y, sample, opts.samples);
+            rays.push(camera_ray(camera, opts, x as f32 + dx, y as f32 + dy));
+        }
+        tracer.closest_hits(&rays, 0.0, f32::INFINITY, &mut hits);
+        // the row's shadow rays, light by light (rays toward one light are coherent)
+        surfaces.clear();
+        surfaces.extend(rays.iter().zip(&hits).map(|(ray, hit)| {
+            hit.map(|h| integrator::surfaced(tracer, materials, ray, &h))
+                .filter(|s| s.local_weight > 0.0)
+        }));
+        queries.clear();
+        owners.clear();
+        for light in 0..lights {
+            for (i, surf) in surfaces.iter().enumerate() {
+                if let Some(q) = surf.and_then(|s| shadow_query(scene, &s.point, light)) {
+                    queries.push(q);
+                    owners.push(i * lights + light);
                 }
             }
-            answers.resize(queries.len(), 0.0);
-            tracer.visibilities(&queries, &mut answers);
-            for (&at, &v) in owners.iter().zip(&answers) {
-                visibility[at] = v;
-            }
-            let row = ((y - tile.y0) * tile.w) as usize;
-            for (i, (ray, hit)) in rays.iter().zip(&hits).enumerate() {
-                let first = Primary {
-                    hit: *hit,
-                    shading: surfaces[i].map(|s| (s, &visibility[i * lights..(i + 1) * lights])),
-                };
-                let sample = trace_camera_ray_from(tracer, materials, *ray, Some(first));
-                out[row + i].push(sample);
-            }
+        }
+        answers.resize(queries.len(), 0.0);
+        tracer.visibilities(&queries, &mut answers);
+        for (&at, &v) in owners.iter().zip(&answers) {
+            visibility[at] = v;
+        }
+        for (i, (ray, hit)) in rays.iter().zip(&hits).enumerate() {
+            let first = Primary {
+                hit: *hit,
+                shading: surfaces[i].map(|s| (s, &visibility[i * lights..(i + 1) * lights])),
+            };
+            out.push(trace_camera_ray_from(tracer, materials, *ray, Some(first)));
         }
     }
     out
 }
 
-/// The camera ray through image position (px, py), in pixels.
-fn camera_ray(tracer: &SceneTracer, opts: &RenderOptions, px: f32, py: f32) -> Ray {
+/// The ray of `camera` through image position (px, py), in pixels.
+fn camera_ray(camera: &Camera, opts: &RenderOptions, px: f32, py: f32) -> Ray {
     let aspect = opts.width as f32 / opts.height as f32;
-    tracer
-        .scene()
-        .camera
-        .ray(px / opts.width as f32, py / opts.height as f32, aspect)
+    camera.ray(px / opts.width as f32, py / opts.height as f32, aspect)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    /// A sphere over a plane, lit, at 3 spp: 96×64 is six tiles.
+    fn setup() -> (Scene, RenderOptions) {
+        let src = "Scene(
+            image: (width: 96, height: 64, samples: 3),
+            camera: Perspective(position: (0, 1, 4), look_at: (0, 0.5, 0)),
+            lights: [Point(position: (2, 4, 3), color: (1, 1, 1), intensity: 20)],
+            objects: [(shape: Plane(normal: (0, 1, 0), offset: 0)),
+                      (shape: Sphere(radius: 0.5), translate: (0, 0.5, 0))],
+        )";
+        let scene =
+            Scene::from_source(src, Path::new("test.ron")).unwrap_or_else(|e| panic!("{e}"));
+        let opts = RenderOptions {
+            samples: 3,
+            ..RenderOptions::single_sample(96, 64)
+        };
+        (scene, opts)
+    }
+
+    #[test]
+    fn a_cancelled_pass_leaves_the_sums_unchanged() {
+        let (scene, opts) = setup();
+        let tracer = SceneTracer::new(&scene);
+        let mut sums = SampleSums::new(opts.width, opts.height);
+        assert!(render_pass(
+            &tracer,
+            &scene.camera,
+            &opts,
+            0,
+            &mut sums,
+            &|| false
+        ));
+        let before = sums.clone();
+        // cancelled after the first tile started: some tiles were rendered, none is added
+        let asked = AtomicUsize::new(0);
+        let cancelled = || asked.fetch_add(1, Ordering::Relaxed) >= 1;
+        assert!(!render_pass(
+            &tracer,
+            &scene.camera,
+            &opts,
+            1,
+            &mut sums,
+            &cancelled
+        ));
+        assert_eq!(sums, before);
+        assert!(sums.pixels.iter().all(|p| p.count == 1));
+    }
 }

@@ -1,8 +1,11 @@
-//! Render backends and what they share: options, the framebuffer, sample positions and output.
+//! Render backends and what they share: options, the framebuffer and the sample sums it is
+//! the mean of, sample positions and output.
 
 pub mod cpu;
+pub mod draw;
 pub mod exr;
 pub mod output;
+pub mod progressive;
 pub mod slice;
 pub mod view;
 
@@ -85,19 +88,14 @@ impl Framebuffer {
         self.pixels[(y * self.width + x) as usize]
     }
 
-    /// Stores the pixel value combined from its samples (see the type's documentation).
+    /// Stores the pixel value combined from its samples (see the type's documentation), as
+    /// [`progressive::SampleSums`] combines them.
     pub fn set(&mut self, x: u32, y: u32, samples: &[CameraSample]) {
-        let i = (y * self.width + x) as usize;
-        let n = samples.len().max(1) as f32;
-        self.pixels[i] = samples.iter().map(|s| s.radiance).sum::<Vec3>() / n;
-        self.depth[i] = samples
-            .iter()
-            .map(|s| s.depth)
-            .fold(f32::INFINITY, f32::min);
-        self.normal[i] = samples.iter().map(|s| s.normal).sum::<Vec3>() / n;
-        self.albedo[i] = samples.iter().map(|s| s.albedo).sum::<Vec3>() / n;
-        self.steps[i] = samples.iter().map(|s| s.steps as f32).sum::<f32>() / n;
-        self.gradient[i] = samples.iter().map(|s| s.gradient).sum::<f32>() / n;
+        let mut sums = progressive::PixelSums::default();
+        for sample in samples {
+            sums.add(sample);
+        }
+        sums.write_mean(self, (y * self.width + x) as usize);
     }
 }
 

@@ -16,6 +16,10 @@ pub struct Camera {
     pub up: Vec3,
     /// Projection.
     pub projection: Projection,
+    /// The point it was aimed at (the viewer orbits about it).
+    pub look_at: Vec3,
+    /// The up direction it was placed with, before it was made orthogonal to `forward`.
+    pub up_hint: Vec3,
 }
 
 /// How the image plane maps to rays.
@@ -31,6 +35,16 @@ pub enum Projection {
         /// View height.
         height: f32,
     },
+}
+
+impl Projection {
+    /// A pinhole whose vertical field of view is `fov_degrees`: the one conversion from the
+    /// scene file's `fov`, so a camera the viewer prints reloads bit for bit.
+    pub fn perspective_degrees(fov_degrees: f32) -> Projection {
+        Projection::Perspective {
+            tan_half_fov: (0.5 * fov_degrees.to_radians()).tan(),
+        }
+    }
 }
 
 impl Camera {
@@ -57,6 +71,8 @@ impl Camera {
             right,
             up: right.cross(forward),
             projection,
+            look_at,
+            up_hint: up,
         })
     }
 

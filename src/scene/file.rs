@@ -336,6 +336,18 @@ pub enum Stepper {
     Segment,
 }
 
+/// The stepper as a scene file spells it: `Hart`, `Relaxed(1.6)`, `Adaptive`, `Segment`.
+impl std::fmt::Display for Stepper {
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        match self {
+            Stepper::Hart => f.write_str("Hart"),
+            Stepper::Relaxed(w) => write!(f, "Relaxed({w})"),
+            Stepper::Adaptive => f.write_str("Adaptive"),
+            Stepper::Segment => f.write_str("Segment"),
+        }
+    }
+}
+
 /// Sphere-tracing parameters (Hart 1996).
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]

@@ -137,6 +137,13 @@ impl SceneMeshes {
         self.meshes.iter().map(|m| m.triangles.len()).sum()
     }
 
+    /// The mesh files the scene loaded, each once (what the viewer watches for edits).
+    pub fn files(&self) -> Vec<&Path> {
+        let mut v: Vec<&Path> = self.loaded.keys().map(PathBuf::as_path).collect();
+        v.sort();
+        v
+    }
+
     /// World bounds of all instances.
     pub fn bounds(&self) -> Aabb {
         self.instances.iter().fold(Aabb::EMPTY, |acc, i| {

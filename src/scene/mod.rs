@@ -366,9 +366,7 @@ impl Scene {
                     position.0,
                     look_at.0,
                     up.map(|u| u.0).unwrap_or(Vec3::Y),
-                    Projection::Perspective {
-                        tan_half_fov: (0.5 * fov.to_radians()).tan(),
-                    },
+                    Projection::perspective_degrees(fov),
                 )
             }
             CameraDesc::Orthographic {

@@ -50,9 +50,7 @@ impl Scene {
                     centre + dir * distance,
                     centre,
                     Vec3::Y,
-                    Projection::Perspective {
-                        tan_half_fov: (0.5 * DEFAULT_FOV.to_radians()).tan(),
-                    },
+                    Projection::perspective_degrees(DEFAULT_FOV),
                 )
                 .expect("the default camera is never degenerate")
             }

@@ -145,6 +145,16 @@ pub struct SceneTracer<'a> {
     packets: bool,
 }
 
+/// A [`SceneTracer`]'s acceleration structures without the scene (see
+/// [`SceneTracer::into_parts`]).
+pub struct TracerParts {
+    accel: SdfAccel,
+    meshes: MeshAccel,
+    fields: Vec<ObjectField>,
+    field_build_time: std::time::Duration,
+    packets: bool,
+}
+
 thread_local! {
     /// Packet scratch (8 KiB of SIMD registers) kept per thread.
     static PACKET_SCRATCH: std::cell::RefCell<packet::PacketScratch> =
@@ -182,6 +192,40 @@ impl<'a> SceneTracer<'a> {
             fields,
             field_build_time,
             packets: options.packets,
+        }
+    }
+
+    /// Takes the acceleration structures off the scene they were built for, to trace the
+    /// same objects and meshes under other settings ([`SceneTracer::with_parts`]) without
+    /// building them again.
+    pub fn into_parts(self) -> TracerParts {
+        TracerParts {
+            accel: self.accel,
+            meshes: self.meshes,
+            fields: self.fields,
+            field_build_time: self.field_build_time,
+            packets: self.packets,
+        }
+    }
+
+    /// A tracer over `scene` with structures built for a scene of the same objects and
+    /// meshes; only its settings (stepper, shadows, occlusion, shading) may differ.
+    ///
+    /// # Panics
+    /// When the object count differs from the one the structures were built for.
+    pub fn with_parts(scene: &'a Scene, parts: TracerParts) -> Self {
+        assert_eq!(
+            scene.objects.len(),
+            parts.fields.len(),
+            "tracer structures of another scene"
+        );
+        SceneTracer {
+            scene,
+            accel: parts.accel,
+            meshes: parts.meshes,
+            fields: parts.fields,
+            field_build_time: parts.field_build_time,
+            packets: parts.packets,
         }
     }
 

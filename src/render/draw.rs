@@ -1,8 +1,5 @@
-//! Labels, legends and colour bars drawn into the pictures `validate` and `compare` write
-//! (text from the public-domain 8×8 bitmap font of the `font8x8` crate).
-// Without the `embree` feature the command is a message; these helpers stay compiled (and the
-// metrics unit-tested) so that build still checks them.
-#![cfg_attr(not(feature = "embree"), allow(dead_code))]
+//! Labels, legends and colour bars drawn into pictures: `validate` and `compare` sheets and
+//! the viewer's heads-up line (text from the public-domain 8×8 bitmap font of `font8x8`).
 
 use font8x8::{BASIC_FONTS, UnicodeFonts};
 use glam::Vec3;

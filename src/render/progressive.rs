@@ -1,0 +1,272 @@
+//! Progressive rendering's accumulator: per pixel the running sums of the samples so far, whose
+//! mean is the framebuffer — the one place a pixel's samples are combined.
+
+use super::{Framebuffer, Tile};
+use crate::shade::integrator::CameraSample;
+use glam::Vec3;
+
+/// One pixel's samples so far: the sums of radiance, normal, albedo, steps and gradient, the
+/// nearest depth and how many samples were added. Sums start at zero and grow in the order the
+/// samples are added, so samples added in sample order give the same bits however they were
+/// grouped (all of a pixel at once, or one pass over the image at a time).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PixelSums {
+    /// Sum of linear radiance.
+    pub radiance: Vec3,
+    /// Nearest first-hit distance (∞ while every sample missed).
+    pub depth: f32,
+    /// Sum of first-hit normals.
+    pub normal: Vec3,
+    /// Sum of first-hit albedos.
+    pub albedo: Vec3,
+    /// Sum of the camera rays' sphere-tracing steps.
+    pub steps: f32,
+    /// Sum of |∇f| at the first hits.
+    pub gradient: f32,
+    /// Samples added.
+    pub count: u32,
+}
+
+impl Default for PixelSums {
+    fn default() -> Self {
+        PixelSums {
+            radiance: Vec3::ZERO,
+            depth: f32::INFINITY,
+            normal: Vec3::ZERO,
+            albedo: Vec3::ZERO,
+            steps: 0.0,
+            gradient: 0.0,
+            count: 0,
+        }
+    }
+}
+
+impl PixelSums {
+    /// Adds one sample.
+    pub fn add(&mut self, sample: &CameraSample) {
+        self.radiance += sample.radiance;
+        self.depth = self.depth.min(sample.depth);
+        self.normal += sample.normal;
+        self.albedo += sample.albedo;
+        self.steps += sample.steps as f32;
+        self.gradient += sample.gradient;
+        self.count += 1;
+    }
+
+    /// Writes the mean into pixel `i` of `fb`: the sums divided by the count (by 1 when no
+    /// sample was added, leaving black and all-miss), the nearest depth as it is.
+    pub(super) fn write_mean(&self, fb: &mut Framebuffer, i: usize) {
+        let n = self.count.max(1) as f32;
+        fb.pixels[i] = self.radiance / n;
+        fb.depth[i] = self.depth;
+        fb.normal[i] = self.normal / n;
+        fb.albedo[i] = self.albedo / n;
+        fb.steps[i] = self.steps / n;
+        fb.gradient[i] = self.gradient / n;
+    }
+}
+
+/// The running [`PixelSums`] of every pixel of a `width`×`height` image, row-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SampleSums {
+    /// Width.
+    pub width: u32,
+    /// Height.
+    pub height: u32,
+    /// Row-major sums.
+    pub pixels: Vec<PixelSums>,
+}
+
+impl SampleSums {
+    /// No samples yet.
+    pub fn new(width: u32, height: u32) -> Self {
+        SampleSums {
+            width,
+            height,
+            pixels: vec![PixelSums::default(); (width * height) as usize],
+        }
+    }
+
+    /// Adds a sample to pixel (x, y).
+    pub fn add(&mut self, x: u32, y: u32, sample: &CameraSample) {
+        self.pixels[(y * self.width + x) as usize].add(sample);
+    }
+
+    /// Adds one sample to every pixel of `tile`; `samples` holds them row by row.
+    pub fn add_tile(&mut self, tile: Tile, samples: &[CameraSample]) {
+        assert_eq!(
+            samples.len(),
+            (tile.w * tile.h) as usize,
+            "one sample a pixel"
+        );
+        for (j, row) in samples.chunks_exact(tile.w as usize).enumerate() {
+            let start = ((tile.y0 + j as u32) * self.width + tile.x0) as usize;
+            for (sums, sample) in self.pixels[start..start + row.len()].iter_mut().zip(row) {
+                sums.add(sample);
+            }
+        }
+    }
+
+    /// Adds a pass: one sample for every pixel of the image, row by row.
+    pub fn add_pass(&mut self, samples: &[CameraSample]) {
+        let whole = Tile {
+            x0: 0,
+            y0: 0,
+            w: self.width,
+            h: self.height,
+        };
+        self.add_tile(whole, samples);
+    }
+
+    /// The image of the samples so far: per pixel the means and the nearest depth (see
+    /// [`Framebuffer`]).
+    pub fn mean(&self) -> Framebuffer {
+        let mut fb = Framebuffer::new(self.width, self.height);
+        for (i, sums) in self.pixels.iter().enumerate() {
+            sums.write_mean(&mut fb, i);
+        }
+        fb
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::hash3;
+
+    /// A varied sample: hashed values with misses, negative zeros and large and tiny
+    /// magnitudes, so that summation order and rounding show.
+    fn sample(pixel: u32, s: u32) -> CameraSample {
+        let f = |k: u32| {
+            let h = hash3(pixel, s, k);
+            (h % 20000) as f32 / 997.0 - 10.0
+        };
+        let miss = hash3(pixel, s, 99) % 4 == 0;
+        CameraSample {
+            radiance: Vec3::new(f(0) * 1e3, f(1), f(2) * 1e-4),
+            depth: if miss { f32::INFINITY } else { f(3).abs() },
+            normal: if miss {
+                Vec3::ZERO
+            } else {
+                Vec3::new(f(4), -0.0, f(5))
+            },
+            albedo: Vec3::new(f(6).abs(), f(7).abs(), 0.1),
+            steps: hash3(pixel, s, 8) % 300,
+            gradient: f(9).abs(),
+        }
+    }
+
+    /// The per-sample average written out: sums from zero in sample order, divided by the count.
+    fn average(samples: &[CameraSample]) -> [u32; 12] {
+        let n = samples.len() as f32;
+        let sum3 =
+            |f: fn(&CameraSample) -> Vec3| samples.iter().map(f).fold(Vec3::ZERO, |a, b| a + b) / n;
+        let sum1 = |f: fn(&CameraSample) -> f32| samples.iter().map(f).fold(0.0, |a, b| a + b) / n;
+        let depth = samples
+            .iter()
+            .map(|s| s.depth)
+            .fold(f32::INFINITY, f32::min);
+        let r = sum3(|s| s.radiance);
+        let nn = sum3(|s| s.normal);
+        let a = sum3(|s| s.albedo);
+        [
+            r.x,
+            r.y,
+            r.z,
+            depth,
+            nn.x,
+            nn.y,
+            nn.z,
+            a.x,
+            a.y,
+            a.z,
+            sum1(|s| s.steps as f32),
+            sum1(|s| s.gradient),
+        ]
+        .map(f32::to_bits)
+    }
+
+    fn bits(fb: &Framebuffer, i: usize) -> [u32; 12] {
+        let (r, n, a) = (fb.pixels[i], fb.normal[i], fb.albedo[i]);
+        [
+            r.x,
+            r.y,
+            r.z,
+            fb.depth[i],
+            n.x,
+            n.y,
+            n.z,
+            a.x,
+            a.y,
+            a.z,
+            fb.steps[i],
+            fb.gradient[i],
+        ]
+        .map(f32::to_bits)
+    }
+
+    #[test]
+    fn passes_average_like_the_per_sample_formula() {
+        let (w, h, n) = (7, 5, 9);
+        let mut passes = SampleSums::new(w, h);
+        for s in 0..n {
+            let pass: Vec<_> = (0..w * h).map(|p| sample(p, s)).collect();
+            passes.add_pass(&pass);
+        }
+        let fb = passes.mean();
+        let mut by_pixel = Framebuffer::new(w, h);
+        for p in 0..w * h {
+            let samples: Vec<_> = (0..n).map(|s| sample(p, s)).collect();
+            assert_eq!(bits(&fb, p as usize), average(&samples), "pixel {p}");
+            by_pixel.set(p % w, p / w, &samples);
+            assert_eq!(passes.pixels[p as usize].count, n);
+        }
+        assert_eq!(fb, by_pixel);
+    }
+
+    #[test]
+    fn the_order_of_samples_shows_in_the_bits() {
+        // What makes the bit-exact comparisons of progressive rendering meaningful: f32 sums
+        // depend on their order, so passes accumulated out of order are caught.
+        let (w, h, n) = (7, 5, 9);
+        let mut forward = SampleSums::new(w, h);
+        let mut backward = SampleSums::new(w, h);
+        for s in 0..n {
+            for p in 0..w * h {
+                forward.add(p % w, p / w, &sample(p, s));
+                backward.add(p % w, p / w, &sample(p, n - 1 - s));
+            }
+        }
+        assert_ne!(forward.mean().pixels, backward.mean().pixels);
+    }
+
+    #[test]
+    fn tiles_land_on_their_pixels() {
+        let mut sums = SampleSums::new(6, 4);
+        let tile = Tile {
+            x0: 2,
+            y0: 1,
+            w: 3,
+            h: 2,
+        };
+        let samples: Vec<_> = (0..6).map(|p| sample(p, 0)).collect();
+        sums.add_tile(tile, &samples);
+        for y in 0..4 {
+            for x in 0..6 {
+                let inside = (2..5).contains(&x) && (1..3).contains(&y);
+                let p = &sums.pixels[(y * 6 + x) as usize];
+                assert_eq!(p.count, inside as u32, "({x}, {y})");
+                if inside {
+                    let s = &samples[((y - 1) * 3 + x - 2) as usize];
+                    assert_eq!(p.radiance, s.radiance);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn no_samples_is_black_and_all_miss() {
+        let fb = SampleSums::new(3, 2).mean();
+        assert_eq!(fb, Framebuffer::new(3, 2));
+    }
+}

@@ -1,0 +1,19 @@
+//! `hytrace view`: an interactive window on a scene — orbit, pan, zoom and fly; previews that
+//! hold the frame rate while the camera moves and refine to `render`'s image when it rests;
+//! debug views and switches; hot reload of the scene file; screenshots; scripts.
+//!
+//! Everything but the window itself ([`window`], [`present`], [`watch`]) works without a
+//! display: the camera ([`orbit`]), the input handling and schedule ([`session`]), the render
+//! thread ([`worker`]) and scripts ([`script`]) are what the tests and the benchmark drive.
+
+pub mod input;
+pub mod orbit;
+#[cfg(feature = "viewer")]
+pub mod present;
+pub mod script;
+pub mod session;
+#[cfg(feature = "viewer")]
+pub mod watch;
+#[cfg(feature = "viewer")]
+pub mod window;
+pub mod worker;

@@ -1,0 +1,815 @@
+//! The viewer's window: winit events in, the render thread's frames out through wgpu, with the
+//! heads-up line, screenshots, scripts and hot reload.
+
+use super::input::{Button, Input, KEY_HELP, Key};
+use super::present::Presenter;
+use super::script::Step;
+use super::session::{Action, Controls, Frame, Schedule, Switches};
+use super::watch::FileWatch;
+use super::worker::{Job, Report, Worker};
+use crate::render::exr::Aov;
+use crate::render::output::{ToneMapping, write_image};
+use crate::render::view::picture;
+use crate::render::{Framebuffer, RenderOptions, draw};
+use crate::scene::Scene;
+use crate::scene::file::ToneMap;
+use glam::Vec3;
+use image::{Rgb, RgbImage};
+use std::collections::VecDeque;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use winit::application::ApplicationHandler;
+use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
+use winit::event_loop::{ActiveEventLoop, ControlFlow, EventLoop, EventLoopProxy};
+use winit::keyboard::{Key as WinitKey, NamedKey};
+use winit::window::{Window, WindowId};
+
+/// Loads the scene (again, on every reload).
+pub type Loader = Arc<dyn Fn() -> anyhow::Result<Scene> + Send + Sync>;
+
+/// How the viewer is set up (from the command line).
+pub struct ViewerConfig {
+    /// What the window's title calls the scene.
+    pub title: String,
+    /// Loads the scene; called again after every change of a watched file.
+    pub load: Loader,
+    /// The scene file itself, watched for changes (None for the built-in showcase).
+    pub scene_file: Option<PathBuf>,
+    /// Window size in pixels (None: the scene's image size).
+    pub size: Option<(u32, u32)>,
+    /// Samples per pixel of the refined image (None: the scene's).
+    pub samples: Option<u32>,
+    /// Exposure in stops (None: the scene's).
+    pub exposure: Option<f32>,
+    /// Tone-mapping operator (None: the scene's).
+    pub tonemap: Option<ToneMap>,
+    /// EXR channels written beside each PNG screenshot.
+    pub aov: Vec<Aov>,
+    /// Render threads (None: all cores).
+    pub threads: Option<usize>,
+    /// Longest time a preview frame may take.
+    pub frame_budget: Duration,
+    /// Scripted steps, run from the first frame on.
+    pub script: Vec<Step>,
+    /// Close after this many frames.
+    pub frames: Option<u64>,
+    /// Where `P` writes screenshots (numbered files).
+    pub screenshot_dir: PathBuf,
+}
+
+/// What other threads tell the window.
+enum Wake {
+    Worker(Report),
+    FilesChanged,
+    Loaded(Result<Box<Scene>, String>),
+}
+
+/// Opens the window and runs until it closes. Fails with one line when there is no display
+/// or no adapter to present with.
+pub fn run(config: ViewerConfig) -> anyhow::Result<()> {
+    let scene = (config.load)()?;
+    let event_loop = EventLoop::<Wake>::with_user_event().build().map_err(|e| {
+        anyhow::anyhow!(
+            "cannot open a window: {e} (no display: is DISPLAY or WAYLAND_DISPLAY set?)"
+        )
+    })?;
+    let proxy = event_loop.create_proxy();
+    let mut app = Viewer::new(config, scene, proxy)?;
+    event_loop.run_app(&mut app)?;
+    match app.fatal.take() {
+        Some(e) => Err(e),
+        None => Ok(()),
+    }
+}
+
+/// The frame the render thread is working on.
+#[derive(Debug, Clone, Copy)]
+struct InFlight {
+    generation: u64,
+    frame: Frame,
+}
+
+/// The script's progress.
+struct ScriptRun {
+    steps: VecDeque<Step>,
+    resume_at: Instant,
+    /// Reloads seen when a `wait-reload` started.
+    reloads_at_wait: Option<u64>,
+}
+
+/// The viewer's state on the window's thread.
+struct Viewer {
+    config: ViewerConfig,
+    proxy: EventLoopProxy<Wake>,
+    window: Option<Arc<Window>>,
+    presenter: Option<Presenter>,
+    worker: Worker,
+    controls: Controls,
+    schedule: Schedule,
+    /// Grows with every change to what is rendered; frames of older generations are stale.
+    generation: u64,
+    in_flight: Option<InFlight>,
+    ready: bool,
+    /// The last frame and whether it is the refined one of the current generation.
+    shown: Option<(Box<Framebuffer>, Frame)>,
+    /// The picture as the window shows it (window size, heads-up line drawn in).
+    composed: Option<RgbImage>,
+    tone_operator: ToneMap,
+    max_steps: u32,
+    backend: String,
+    last_frame_ms: f64,
+    frame_times: VecDeque<Instant>,
+    frames_shown: u64,
+    error: Option<String>,
+    reloads: u64,
+    reload_at: Option<Instant>,
+    watch: Option<FileWatch>,
+    screenshots: Vec<PathBuf>,
+    next_screenshot: u32,
+    script: Option<ScriptRun>,
+    fatal: Option<anyhow::Error>,
+    quit: bool,
+}
+
+impl Viewer {
+    fn new(
+        config: ViewerConfig,
+        scene: Scene,
+        proxy: EventLoopProxy<Wake>,
+    ) -> anyhow::Result<Self> {
+        let size = config
+            .size
+            .unwrap_or((scene.image.width, scene.image.height));
+        let mut controls = Controls::new(&scene, size);
+        if let Some(e) = config.exposure {
+            controls.switches.exposure = e;
+        }
+        let now = Instant::now();
+        let mut schedule = Schedule::new(
+            config.samples.unwrap_or(scene.image.samples),
+            config.frame_budget,
+            now,
+        );
+        schedule.changed(now);
+        let tone_operator = config.tonemap.unwrap_or(scene.image.tonemap);
+        let max_steps = scene.tracer.max_steps;
+        let files = watched_files(config.scene_file.as_deref(), &scene);
+        let worker_proxy = proxy.clone();
+        let worker = Worker::start(scene, controls.switches, config.threads, move |r| {
+            let _ = worker_proxy.send_event(Wake::Worker(r));
+        })?;
+        // frames of generation 1 are the ones wanted first
+        worker.want(1);
+        let watch = watch(&files, &proxy)?;
+        let script = (!config.script.is_empty()).then(|| ScriptRun {
+            steps: config.script.iter().cloned().collect(),
+            resume_at: now,
+            reloads_at_wait: None,
+        });
+        Ok(Viewer {
+            config,
+            proxy,
+            window: None,
+            presenter: None,
+            worker,
+            controls,
+            schedule,
+            generation: 1,
+            in_flight: None,
+            ready: false,
+            shown: None,
+            composed: None,
+            tone_operator,
+            max_steps,
+            backend: "CPU".into(),
+            last_frame_ms: 0.0,
+            frame_times: VecDeque::new(),
+            frames_shown: 0,
+            error: None,
+            reloads: 0,
+            reload_at: None,
+            watch,
+            screenshots: Vec::new(),
+            next_screenshot: 1,
+            script,
+            fatal: None,
+            quit: false,
+        })
+    }
+
+    fn fail(&mut self, event_loop: &ActiveEventLoop, error: anyhow::Error) {
+        if self.fatal.is_none() {
+            self.fatal = Some(error);
+        }
+        event_loop.exit();
+    }
+
+    /// Something about the image changed: newer frames are wanted, refinement starts over.
+    fn changed(&mut self) {
+        self.generation += 1;
+        self.worker.want(self.generation);
+        self.schedule.changed(Instant::now());
+    }
+
+    fn act(&mut self, action: Action) {
+        match action {
+            Action::Nothing => {}
+            Action::Camera => self.changed(),
+            Action::Tracing => {
+                self.worker.send(Job::Switches(self.controls.switches));
+                self.ready = false;
+                self.changed();
+            }
+            Action::Display => self.compose(),
+            Action::Pick { u, v } => {
+                let (w, h) = self.controls.window;
+                self.worker.send(Job::Pick {
+                    camera: self.controls.pose.camera(),
+                    u,
+                    v,
+                    aspect: w.max(1) as f32 / h.max(1) as f32,
+                });
+            }
+            Action::PrintCamera => {
+                let mut out = std::io::stdout().lock();
+                let _ = writeln!(out, "{}", self.controls.pose.to_ron());
+                let _ = out.flush();
+            }
+            Action::Screenshot => {
+                let path = loop {
+                    let p = self
+                        .config
+                        .screenshot_dir
+                        .join(format!("hytrace-view-{:03}.png", self.next_screenshot));
+                    self.next_screenshot += 1;
+                    if !p.exists() {
+                        break p;
+                    }
+                };
+                eprintln!(
+                    "screenshot: {} (when the image has all its samples)",
+                    path.display()
+                );
+                self.screenshots.push(path);
+            }
+            Action::Help => {
+                eprintln!("hytrace view keys:");
+                for (k, what) in KEY_HELP {
+                    eprintln!("  {k:<32} {what}");
+                }
+            }
+            Action::Quit => self.quit = true,
+        }
+    }
+
+    fn input(&mut self, input: Input) {
+        let action = self.controls.handle(input);
+        self.act(action);
+    }
+
+    /// The refined image of the current camera, if it has all its samples.
+    fn refined(&self) -> Option<&Framebuffer> {
+        if !self.schedule.converged() || self.in_flight.is_some() {
+            return None;
+        }
+        match &self.shown {
+            Some((fb, Frame::Refine { .. })) => Some(fb),
+            _ => None,
+        }
+    }
+
+    fn tone(&self) -> ToneMapping {
+        ToneMapping {
+            exposure: self.controls.switches.exposure,
+            operator: self.tone_operator,
+        }
+    }
+
+    /// Writes a screenshot as `hytrace render` writes the same camera, size and samples:
+    /// the picture of the current view, and an EXR beside it when AOVs were asked for.
+    fn write_screenshot(&self, path: &Path, fb: &Framebuffer) -> Result<(), String> {
+        let view = self.controls.switches.view;
+        write_image(
+            fb,
+            path,
+            view,
+            self.tone(),
+            self.max_steps,
+            &self.config.aov,
+        )
+        .map_err(|e| format!("{e:#}"))?;
+        let is_exr = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+        if !self.config.aov.is_empty() && !is_exr {
+            let exr = path.with_extension("exr");
+            write_image(
+                fb,
+                &exr,
+                view,
+                self.tone(),
+                self.max_steps,
+                &self.config.aov,
+            )
+            .map_err(|e| format!("{e:#}"))?;
+        }
+        Ok(())
+    }
+
+    /// Writes the screenshots waiting for the refined image.
+    fn flush_screenshots(&mut self) {
+        if self.screenshots.is_empty() {
+            return;
+        }
+        let Some(fb) = self.refined().cloned() else {
+            return;
+        };
+        for path in std::mem::take(&mut self.screenshots) {
+            match self.write_screenshot(&path, &fb) {
+                Ok(()) => eprintln!("wrote {}", path.display()),
+                Err(e) => eprintln!("error: {e}"),
+            }
+        }
+    }
+
+    /// Sends the next frame the schedule wants, if the render thread is free.
+    fn schedule_frame(&mut self) {
+        if self.in_flight.is_some() || !self.ready {
+            return;
+        }
+        let window = self.controls.window;
+        let frame = self
+            .schedule
+            .next(Instant::now(), window, self.controls.dragging());
+        let options = match frame {
+            Frame::Idle => return,
+            Frame::Preview { width, height } => {
+                self.schedule.preview_started();
+                RenderOptions::single_sample(width, height)
+            }
+            Frame::Refine { .. } => RenderOptions {
+                samples: self.schedule.samples,
+                ..RenderOptions::single_sample(window.0, window.1)
+            },
+        };
+        let sample = match frame {
+            Frame::Refine { sample } => sample,
+            _ => 0,
+        };
+        self.worker.send(Job::Frame {
+            generation: self.generation,
+            camera: self.controls.pose.camera(),
+            options: RenderOptions {
+                threads: self.config.threads,
+                ..options
+            },
+            sample,
+        });
+        self.in_flight = Some(InFlight {
+            generation: self.generation,
+            frame,
+        });
+    }
+
+    fn report(&mut self, report: Report) {
+        match report {
+            Report::Ready { build, backend } => {
+                self.ready = true;
+                self.backend = backend;
+                if build > Duration::from_millis(200) {
+                    eprintln!(
+                        "acceleration structures built in {:.2} s",
+                        build.as_secs_f64()
+                    );
+                }
+            }
+            Report::Abandoned => self.in_flight = None,
+            Report::Picked(point) => {
+                if let Some(p) = point {
+                    self.controls.pose.aim_at(p);
+                    self.changed();
+                }
+            }
+            Report::Frame {
+                generation,
+                sample,
+                image,
+                elapsed,
+            } => {
+                let Some(done) = self.in_flight.take() else {
+                    return;
+                };
+                if generation != self.generation || done.generation != generation {
+                    return;
+                }
+                match done.frame {
+                    Frame::Preview { width, height } => {
+                        self.schedule.preview_done(width * height, elapsed)
+                    }
+                    Frame::Refine { .. } => self.schedule.refined_sample(sample),
+                    Frame::Idle => {}
+                }
+                self.last_frame_ms = elapsed.as_secs_f64() * 1e3;
+                self.shown = Some((image, done.frame));
+                self.frames_shown += 1;
+                let now = Instant::now();
+                self.frame_times.push_back(now);
+                while self
+                    .frame_times
+                    .front()
+                    .is_some_and(|t| now.duration_since(*t) > Duration::from_secs(1))
+                {
+                    self.frame_times.pop_front();
+                }
+                self.compose();
+                self.flush_screenshots();
+            }
+        }
+    }
+
+    /// The heads-up line.
+    fn heads_up(&self) -> String {
+        let (w, h) = self.controls.window;
+        let progress = match self.shown.as_ref().map(|s| s.1) {
+            Some(Frame::Preview { width, height }) => format!("preview {width}x{height}"),
+            Some(Frame::Refine { sample }) => {
+                format!("{}/{} spp {w}x{h}", sample + 1, self.schedule.samples)
+            }
+            _ => "rendering".into(),
+        };
+        let adapter = self
+            .presenter
+            .as_ref()
+            .map(|p| p.adapter().name.clone())
+            .unwrap_or_default();
+        format!(
+            "{progress} | {:.0} ms/frame | {} fps | {} | present: {adapter} | {}",
+            self.last_frame_ms,
+            self.frame_times.len(),
+            self.backend,
+            self.controls.switches.describe()
+        )
+    }
+
+    /// Makes the window's picture of the last frame and asks for it to be drawn.
+    fn compose(&mut self) {
+        let Some((fb, _)) = &self.shown else { return };
+        let (w, h) = self.controls.window;
+        let small = picture(fb, self.controls.switches.view, self.tone(), self.max_steps);
+        let mut img = if (small.width(), small.height()) == (w, h) {
+            small
+        } else {
+            upscale_nearest(&small, w, h)
+        };
+        let mut lines = vec![(self.heads_up(), [235, 235, 235])];
+        if let Some(e) = &self.error {
+            lines.push((
+                "the scene did not reload; still showing the last good one:".into(),
+                [255, 120, 100],
+            ));
+            for part in wrap(e, (w / 8).max(8) as usize - 1) {
+                lines.push((part, [255, 120, 100]));
+            }
+        }
+        let band = lines.len() as u32 * draw::LINE + 4;
+        darken(&mut img, band);
+        for (i, (text, colour)) in lines.iter().enumerate() {
+            let text: String = text
+                .chars()
+                .map(|c| if c.is_ascii() { c } else { '?' })
+                .collect();
+            draw::text(&mut img, 4, 2 + i as u32 * draw::LINE, &text, *colour);
+        }
+        self.composed = Some(img);
+        if let Some(w) = &self.window {
+            w.request_redraw();
+        }
+    }
+
+    fn present(&mut self, event_loop: &ActiveEventLoop) {
+        let (Some(p), Some(img)) = (&mut self.presenter, &self.composed) else {
+            return;
+        };
+        let rgba = rgb_to_rgba(img);
+        if let Err(e) = p.present(&rgba, img.width(), img.height()) {
+            self.fail(event_loop, anyhow::anyhow!("cannot present the frame: {e}"));
+        }
+    }
+
+    /// Starts loading the scene again on a thread of its own.
+    fn reload(&mut self) {
+        let load = self.config.load.clone();
+        let proxy = self.proxy.clone();
+        std::thread::spawn(move || {
+            let result = load().map(Box::new).map_err(|e| format!("{e:#}"));
+            let _ = proxy.send_event(Wake::Loaded(result));
+        });
+    }
+
+    fn loaded(&mut self, result: Result<Box<Scene>, String>) {
+        self.reloads += 1;
+        match result {
+            Ok(scene) => {
+                if self.error.take().is_some() {
+                    eprintln!("reloaded: the scene is good again");
+                } else {
+                    eprintln!("reloaded");
+                }
+                self.controls.reloaded(&scene);
+                let view = self.controls.switches.view;
+                self.controls.switches = Switches {
+                    view,
+                    exposure: self.config.exposure.unwrap_or(scene.image.exposure),
+                    ..Switches::of_scene(&scene)
+                };
+                self.tone_operator = self.config.tonemap.unwrap_or(scene.image.tonemap);
+                self.max_steps = scene.tracer.max_steps;
+                if self.config.samples.is_none() {
+                    self.schedule.samples = scene.image.samples.max(1);
+                }
+                let files = watched_files(self.config.scene_file.as_deref(), &scene);
+                if self.watch.as_ref().map(|w| w.files().len()) != Some(files.len()) {
+                    match watch(&files, &self.proxy) {
+                        Ok(w) => self.watch = w,
+                        Err(e) => eprintln!("error: {e}"),
+                    }
+                }
+                self.worker.send(Job::Scene(scene, self.controls.switches));
+                self.ready = false;
+                self.changed();
+            }
+            Err(e) => {
+                eprintln!("error: {e}");
+                self.error = Some(e);
+                self.compose();
+            }
+        }
+    }
+
+    /// Runs script steps that are due; returns when the script waits.
+    fn run_script(&mut self, event_loop: &ActiveEventLoop) {
+        loop {
+            let now = Instant::now();
+            let Some(run) = &self.script else { return };
+            if now < run.resume_at {
+                return;
+            }
+            let Some(step) = run.steps.front().cloned() else {
+                self.script = None;
+                return;
+            };
+            let done = match step {
+                Step::Wait(d) => {
+                    if let Some(run) = &mut self.script {
+                        run.resume_at = now + d;
+                    }
+                    true
+                }
+                Step::Converge => self.refined().is_some(),
+                Step::WaitReload => {
+                    let reloads = self.reloads;
+                    let run = self.script.as_mut().expect("checked above");
+                    let seen = *run.reloads_at_wait.get_or_insert(reloads);
+                    if reloads != seen {
+                        run.reloads_at_wait = None;
+                    }
+                    reloads != seen
+                }
+                Step::Input(i) => {
+                    self.input(i);
+                    true
+                }
+                Step::PrintCamera => {
+                    self.act(Action::PrintCamera);
+                    true
+                }
+                Step::Screenshot(path) => match self.refined().cloned() {
+                    Some(fb) => {
+                        if let Err(e) = self.write_screenshot(&path, &fb) {
+                            return self.fail(event_loop, anyhow::anyhow!("{e}"));
+                        }
+                        true
+                    }
+                    None => false,
+                },
+                Step::WindowShot(path) => match &self.composed {
+                    Some(img) => {
+                        if let Err(e) = crate::render::output::save_png(img, &path) {
+                            return self.fail(event_loop, e);
+                        }
+                        true
+                    }
+                    None => false,
+                },
+                Step::Quit => {
+                    self.quit = true;
+                    true
+                }
+            };
+            if !done {
+                return;
+            }
+            if let Some(run) = &mut self.script {
+                run.steps.pop_front();
+            }
+            if self.quit {
+                return;
+            }
+        }
+    }
+}
+
+impl ApplicationHandler<Wake> for Viewer {
+    fn resumed(&mut self, event_loop: &ActiveEventLoop) {
+        if self.window.is_some() {
+            return;
+        }
+        let (w, h) = self.controls.window;
+        let attributes = Window::default_attributes()
+            .with_title(format!("hytrace — {}", self.config.title))
+            .with_inner_size(winit::dpi::PhysicalSize::new(w, h))
+            .with_resizable(true);
+        let window = match event_loop.create_window(attributes) {
+            Ok(w) => Arc::new(w),
+            Err(e) => return self.fail(event_loop, anyhow::anyhow!("cannot open a window: {e}")),
+        };
+        match Presenter::new(window.clone(), event_loop.owned_display_handle()) {
+            Ok(p) => self.presenter = Some(p),
+            Err(e) => return self.fail(event_loop, anyhow::anyhow!("{e}")),
+        }
+        let size = window.inner_size();
+        if size.width > 0 && size.height > 0 && (size.width, size.height) != (w, h) {
+            self.controls.window = (size.width, size.height);
+            self.changed();
+        }
+        self.window = Some(window);
+    }
+
+    fn window_event(&mut self, event_loop: &ActiveEventLoop, _: WindowId, event: WindowEvent) {
+        match event {
+            WindowEvent::CloseRequested => self.quit = true,
+            WindowEvent::Resized(size) => {
+                if size.width > 0 && size.height > 0 {
+                    if let Some(p) = &mut self.presenter {
+                        p.resize(size.width, size.height);
+                    }
+                    if (size.width, size.height) != self.controls.window {
+                        self.controls.window = (size.width, size.height);
+                        self.changed();
+                        self.compose();
+                    }
+                }
+            }
+            WindowEvent::RedrawRequested => self.present(event_loop),
+            WindowEvent::CursorMoved { position, .. } => self.input(Input::Move {
+                x: position.x as f32,
+                y: position.y as f32,
+            }),
+            WindowEvent::MouseInput { state, button, .. } => {
+                let button = match button {
+                    MouseButton::Left => Button::Left,
+                    MouseButton::Middle => Button::Middle,
+                    _ => return,
+                };
+                self.input(match state {
+                    ElementState::Pressed => Input::Press(button),
+                    ElementState::Released => Input::Release(button),
+                });
+            }
+            WindowEvent::MouseWheel { delta, .. } => {
+                let notches = match delta {
+                    MouseScrollDelta::LineDelta(_, y) => y,
+                    // touchpads scroll in pixels: about 40 to a notch
+                    MouseScrollDelta::PixelDelta(p) => p.y as f32 / 40.0,
+                };
+                self.input(Input::Scroll(notches));
+            }
+            WindowEvent::ModifiersChanged(m) => self.input(Input::Shift(m.state().shift_key())),
+            WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => {
+                let key = match &event.logical_key {
+                    WinitKey::Named(NamedKey::Escape) => Key::Escape,
+                    WinitKey::Named(NamedKey::F1) => Key::F1,
+                    WinitKey::Character(s) => match s.chars().next() {
+                        Some(c) => Key::Char(c.to_ascii_lowercase()),
+                        None => return,
+                    },
+                    _ => return,
+                };
+                // held keys repeat for moving and exposure only, not for one-shot commands
+                let repeats = matches!(
+                    key,
+                    Key::Char('w' | 'a' | 's' | 'd' | 'q' | 'e' | '+' | '=' | '-')
+                );
+                if !event.repeat || repeats {
+                    self.input(Input::Key(key));
+                }
+            }
+            _ => {}
+        }
+    }
+
+    fn user_event(&mut self, _: &ActiveEventLoop, wake: Wake) {
+        match wake {
+            Wake::Worker(r) => self.report(r),
+            Wake::FilesChanged => {
+                // editors write a file in several steps: load once they have finished
+                self.reload_at = Some(Instant::now() + Duration::from_millis(100));
+            }
+            Wake::Loaded(result) => self.loaded(result),
+        }
+    }
+
+    fn about_to_wait(&mut self, event_loop: &ActiveEventLoop) {
+        if self.window.is_none() {
+            return;
+        }
+        if self.reload_at.is_some_and(|t| Instant::now() >= t) {
+            self.reload_at = None;
+            self.reload();
+        }
+        self.run_script(event_loop);
+        if self.config.frames.is_some_and(|n| self.frames_shown >= n) {
+            self.quit = true;
+        }
+        if self.quit {
+            event_loop.exit();
+            return;
+        }
+        self.schedule_frame();
+        let wake = [
+            self.reload_at,
+            self.script.as_ref().map(|s| s.resume_at),
+            self.schedule.wake_at(),
+        ]
+        .into_iter()
+        .flatten()
+        .min();
+        event_loop.set_control_flow(match wake {
+            Some(t) if t > Instant::now() => ControlFlow::WaitUntil(t),
+            Some(_) => ControlFlow::WaitUntil(Instant::now() + Duration::from_millis(5)),
+            None => ControlFlow::Wait,
+        });
+    }
+}
+
+/// The scene file and the mesh files it names.
+fn watched_files(scene_file: Option<&Path>, scene: &Scene) -> Vec<PathBuf> {
+    let mut files: Vec<PathBuf> = scene_file.map(Path::to_path_buf).into_iter().collect();
+    files.extend(scene.meshes.files().into_iter().map(Path::to_path_buf));
+    files
+}
+
+fn watch(files: &[PathBuf], proxy: &EventLoopProxy<Wake>) -> anyhow::Result<Option<FileWatch>> {
+    if files.is_empty() {
+        return Ok(None);
+    }
+    let proxy = proxy.clone();
+    FileWatch::new(files, move || {
+        let _ = proxy.send_event(Wake::FilesChanged);
+    })
+    .map(Some)
+    .map_err(|e| anyhow::anyhow!(e))
+}
+
+/// `img` scaled to `w`×`h` by repeating pixels (a preview is shown blocky, not blurred, so it
+/// reads as a preview).
+fn upscale_nearest(img: &RgbImage, w: u32, h: u32) -> RgbImage {
+    let (sw, sh) = (img.width().max(1), img.height().max(1));
+    RgbImage::from_fn(w, h, |x, y| {
+        *img.get_pixel(
+            ((x as u64 * sw as u64) / w as u64) as u32,
+            ((y as u64 * sh as u64) / h as u64) as u32,
+        )
+    })
+}
+
+/// Darkens the top `rows` rows so the heads-up text reads on any picture.
+fn darken(img: &mut RgbImage, rows: u32) {
+    for y in 0..rows.min(img.height()) {
+        for x in 0..img.width() {
+            let p = img.get_pixel_mut(x, y);
+            let c = Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32) * 0.35;
+            *p = Rgb([c.x as u8, c.y as u8, c.z as u8]);
+        }
+    }
+}
+
+fn rgb_to_rgba(img: &RgbImage) -> Vec<u8> {
+    let mut out = Vec::with_capacity(img.as_raw().len() / 3 * 4);
+    for p in img.as_raw().chunks_exact(3) {
+        out.extend_from_slice(&[p[0], p[1], p[2], 255]);
+    }
+    out
+}
+
+/// `text` cut into lines of at most `width` characters (an error can be long).
+fn wrap(text: &str, width: usize) -> Vec<String> {
+    let chars: Vec<char> = text.chars().collect();
+    chars
+        .chunks(width.max(1))
+        .take(6)
+        .map(|c| c.iter().collect())
+        .collect()
+}
