@@ -73,8 +73,7 @@ fn main() {
 /// none and stays quiet, instead of printing "XDG_RUNTIME_DIR is invalid" on every run that
 /// touches the GPU, whatever the outcome.
 fn quiet_wayland_probe() {
-    let usable = std::env::var_os("XDG_RUNTIME_DIR")
-        .is_some_and(|d| Path::new(&d).is_absolute());
+    let usable = std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|d| Path::new(&d).is_absolute());
     if !usable {
         // SAFETY: called first thing in main, before any thread exists that could read the
         // environment concurrently.

@@ -79,14 +79,14 @@ pub enum Backend {
 }
 
 /// The tracer chosen for a render.
-enum Chosen {
+pub(crate) enum Chosen {
     Cpu,
     #[cfg(feature = "gpu")]
     Gpu(Box<hytrace::gpu::context::GpuContext>),
 }
 
 /// Picks the backend. `auto` says on one line which it took (unless `quiet`).
-fn choose_backend(backend: Backend, quiet: bool, verbose: bool) -> Result<Chosen> {
+pub(crate) fn choose_backend(backend: Backend, quiet: bool, verbose: bool) -> Result<Chosen> {
     let say = |line: String| {
         if !quiet || verbose {
             eprintln!("{line}");

@@ -43,9 +43,9 @@ pub struct ViewArgs {
     /// fits.
     #[arg(long, default_value_t = 30.0)]
     fps: f32,
-    /// Where to render. `auto` renders on the CPU unless wgpu finds a hardware GPU; a
-    /// software Vulkan driver (lavapipe) only presents the window. `cpu` always renders on
-    /// the CPU.
+    /// Where to render, as for `render`: `auto` renders on a hardware GPU when wgpu finds
+    /// one and otherwise on the CPU (a software Vulkan driver such as lavapipe then only
+    /// presents the window); `gpu` renders on any adapter; `cpu` always on the CPU.
     #[arg(long, value_enum, default_value = "auto")]
     backend: Backend,
     /// Run the steps of this script (timed camera moves, keys, screenshots, quit); see the
@@ -136,6 +136,7 @@ fn run_viewer(_: ViewArgs) -> Result<()> {
 
 #[cfg(feature = "viewer")]
 fn run_viewer(args: ViewArgs) -> Result<()> {
+    use super::render::Chosen;
     use hytrace::viewer::script::{self, Step};
     use hytrace::viewer::window::{ViewerConfig, run};
     use std::sync::Arc;
@@ -148,12 +149,10 @@ fn run_viewer(args: ViewArgs) -> Result<()> {
     if let Some(out) = &args.screenshot {
         steps.extend([Step::Converge, Step::Screenshot(out.clone()), Step::Quit]);
     }
-    if args.backend == Backend::Gpu {
-        bail!(
-            "--backend gpu: the viewer renders on the CPU and presents with wgpu; rendering \
-             its frames on the GPU is not built yet"
-        );
-    }
+    let gpu = match super::render::choose_backend(args.backend, false, false)? {
+        Chosen::Cpu => None,
+        Chosen::Gpu(ctx) => Some(*ctx),
+    };
     let (path, camera) = (args.scene.clone(), args.camera.clone());
     let load = Arc::new(move || crate::load_any(path.as_deref(), camera.as_deref()));
     let is_scene_file = args.scene.as_ref().filter(|p| {
@@ -192,5 +191,6 @@ fn run_viewer(args: ViewArgs) -> Result<()> {
         script: steps,
         frames: args.frames,
         screenshot_dir: args.screenshot_dir,
+        gpu,
     })
 }

@@ -7,6 +7,7 @@ use super::script::Step;
 use super::session::{Action, Controls, Frame, Schedule, Switches};
 use super::watch::FileWatch;
 use super::worker::{Job, Report, Worker};
+use crate::gpu::context::GpuContext;
 use crate::render::exr::Aov;
 use crate::render::output::{ToneMapping, write_image};
 use crate::render::view::picture;
@@ -57,6 +58,8 @@ pub struct ViewerConfig {
     pub frames: Option<u64>,
     /// Where `P` writes screenshots (numbered files).
     pub screenshot_dir: PathBuf,
+    /// The GPU that renders the frames (None: the CPU renders them).
+    pub gpu: Option<GpuContext>,
 }
 
 /// What other threads tell the window.
@@ -123,6 +126,8 @@ struct Viewer {
     frame_times: VecDeque<Instant>,
     frames_shown: u64,
     error: Option<String>,
+    /// Why the GPU gave up on the scene or a frame (the CPU renders instead).
+    gpu_fault: Option<String>,
     reloads: u64,
     reload_at: Option<Instant>,
     watch: Option<FileWatch>,
@@ -135,7 +140,7 @@ struct Viewer {
 
 impl Viewer {
     fn new(
-        config: ViewerConfig,
+        mut config: ViewerConfig,
         scene: Scene,
         proxy: EventLoopProxy<Wake>,
     ) -> anyhow::Result<Self> {
@@ -157,7 +162,8 @@ impl Viewer {
         let max_steps = scene.tracer.max_steps;
         let files = watched_files(config.scene_file.as_deref(), &scene);
         let worker_proxy = proxy.clone();
-        let worker = Worker::start(scene, controls.switches, config.threads, move |r| {
+        let gpu = config.gpu.take();
+        let worker = Worker::start(scene, controls.switches, config.threads, gpu, move |r| {
             let _ = worker_proxy.send_event(Wake::Worker(r));
         })?;
         // frames of generation 1 are the ones wanted first
@@ -188,6 +194,7 @@ impl Viewer {
             frame_times: VecDeque::new(),
             frames_shown: 0,
             error: None,
+            gpu_fault: None,
             reloads: 0,
             reload_at: None,
             watch,
@@ -386,6 +393,11 @@ impl Viewer {
                 }
             }
             Report::Abandoned => self.in_flight = None,
+            Report::Failed(e) => {
+                eprintln!("error: {e}");
+                self.gpu_fault = Some(e);
+                self.compose();
+            }
             Report::Picked(point) => {
                 if let Some(p) = point {
                     self.controls.pose.aim_at(p);
@@ -471,6 +483,11 @@ impl Viewer {
             ));
             for part in wrap(e, (w / 8).max(8) as usize - 1) {
                 lines.push((part, [255, 120, 100]));
+            }
+        }
+        if let Some(e) = &self.gpu_fault {
+            for part in wrap(e, (w / 8).max(8) as usize - 1) {
+                lines.push((part, [255, 200, 90]));
             }
         }
         let band = lines.len() as u32 * draw::LINE + 4;

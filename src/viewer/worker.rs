@@ -1,8 +1,11 @@
 //! The viewer's render thread: it owns the scene and its tracer (built once per scene, kept
 //! across frames and switches), renders the frames the window asks for, and abandons a frame
-//! as soon as a newer one is wanted.
+//! as soon as a newer one is wanted. Frames render on the CPU, or on a GPU through the same
+//! sample passes `hytrace render --backend gpu` adds up.
 
 use super::session::Switches;
+use crate::gpu::context::GpuContext;
+use crate::gpu::render::{GpuPasses, GpuRenderer, PreparedScene};
 use crate::render::progressive::SampleSums;
 use crate::render::{Framebuffer, RenderOptions, cpu};
 use crate::scene::camera::Camera;
@@ -62,6 +65,8 @@ pub enum Report {
     Abandoned,
     /// The answer to a pick: the hit point, if the ray hit.
     Picked(Option<Vec3>),
+    /// The GPU could not render a frame or prepare a scene: the window shows why.
+    Failed(String),
     /// The tracer of a new scene or new switches is ready.
     Ready {
         /// Time taken to build it (zero when structures were reused).
@@ -79,12 +84,14 @@ pub struct Worker {
 }
 
 impl Worker {
-    /// Starts the render thread on `scene`, with `threads` rayon workers (None: all cores);
-    /// every report goes to `report`, which must not block.
+    /// Starts the render thread on `scene`, with `threads` rayon workers (None: all cores),
+    /// rendering frames on `gpu` when one is given and on the CPU otherwise; every report
+    /// goes to `report`, which must not block.
     pub fn start(
         scene: Scene,
         switches: Switches,
         threads: Option<usize>,
+        gpu: Option<GpuContext>,
         report: impl Fn(Report) + Send + 'static,
     ) -> anyhow::Result<Worker> {
         let pool = rayon::ThreadPoolBuilder::new()
@@ -96,7 +103,16 @@ impl Worker {
         let want = wanted.clone();
         let thread = std::thread::Builder::new()
             .name("hytrace render".into())
-            .spawn(move || serve(scene, switches, &pool, &inbox, &want, &report))?;
+            .spawn(move || {
+                // the kernel compiles once; scenes and switches only upload buffers
+                let mut gpu = gpu.map(|ctx| GpuFrames {
+                    renderer: GpuRenderer::new(&ctx),
+                    ctx,
+                    prepared: None,
+                    passes: None,
+                });
+                serve(scene, switches, &pool, gpu.as_mut(), &inbox, &want, &report)
+            })?;
         Ok(Worker {
             jobs,
             wanted,
@@ -135,11 +151,59 @@ enum Next {
     Stop,
 }
 
+/// Frames on a GPU: its context, the compiled kernel, the scene uploaded for the current
+/// switches, and the device-side sums of the refining image.
+struct GpuFrames {
+    ctx: GpuContext,
+    renderer: GpuRenderer,
+    prepared: Option<PreparedScene>,
+    passes: Option<GpuPasses>,
+}
+
+impl GpuFrames {
+    /// The adapter, for the heads-up line.
+    fn describe(&self) -> String {
+        format!("GPU {}", self.ctx.adapter_name())
+    }
+
+    /// Adds pass `sample` of `camera`'s image to the device-side sums; pass 0 starts them.
+    fn add_pass(
+        &mut self,
+        camera: &Camera,
+        options: &RenderOptions,
+        sample: u32,
+    ) -> anyhow::Result<()> {
+        let Some(prepared) = &self.prepared else {
+            anyhow::bail!("the scene is not on the GPU");
+        };
+        let size = (options.width, options.height);
+        let mut passes = match self.passes.take() {
+            Some(p) if (p.width(), p.height()) == size => p,
+            _ => GpuPasses::new(&self.ctx, &self.renderer, size.0, size.1)?,
+        };
+        if sample == 0 {
+            passes.clear();
+        }
+        let passes = self.passes.insert(passes);
+        self.renderer
+            .render_pass(&self.ctx, prepared, camera, options, sample, passes)
+    }
+
+    /// The mean of the passes added so far, read back from the device.
+    fn mean(&self) -> anyhow::Result<Framebuffer> {
+        match &self.passes {
+            Some(p) => Ok(p.read(&self.ctx)?.mean()),
+            None => anyhow::bail!("no pass was rendered"),
+        }
+    }
+}
+
 /// The render thread's loop: a tracer per scene and switches, frames until either changes.
 fn serve(
     mut scene: Scene,
     mut switches: Switches,
     pool: &rayon::ThreadPool,
+    mut gpu: Option<&mut GpuFrames>,
     inbox: &Receiver<Job>,
     wanted: &AtomicU64,
     report: &dyn Fn(Report),
@@ -155,15 +219,32 @@ fn serve(
             // built on the render threads, as cpu::render builds it
             None => pool.install(|| SceneTracer::new(&scene)),
         };
+        // the CPU tracer serves picks on either backend
+        let mut backend = "CPU".to_string();
+        let mut on_gpu = None;
+        if let Some(g) = gpu.as_deref_mut() {
+            g.passes = None;
+            g.prepared = None;
+            match g.renderer.prepare(&g.ctx, &scene) {
+                Ok(p) => {
+                    g.prepared = Some(p);
+                    backend = g.describe();
+                    on_gpu = Some(g);
+                }
+                Err(e) => report(Report::Failed(format!(
+                    "the GPU cannot take this scene, rendering it on the CPU: {e:#}"
+                ))),
+            }
+        }
         report(Report::Ready {
             build: if reused {
                 Duration::ZERO
             } else {
                 start.elapsed()
             },
-            backend: "CPU".into(),
+            backend,
         });
-        let next = frames(&tracer, pool, inbox, wanted, report);
+        let next = frames(&tracer, pool, on_gpu, inbox, wanted, report);
         match next {
             Next::Switches(s) => {
                 switches = s;
@@ -184,6 +265,7 @@ fn serve(
 fn frames(
     tracer: &SceneTracer,
     pool: &rayon::ThreadPool,
+    mut gpu: Option<&mut GpuFrames>,
     inbox: &Receiver<Job>,
     wanted: &AtomicU64,
     report: &dyn Fn(Report),
@@ -214,18 +296,12 @@ fn frames(
                 sample,
             } => {
                 let start = Instant::now();
-                let fresh = match &sums {
-                    Some((g, o, added, _)) => {
-                        sample == 0 || *g != generation || *o != options || *added != sample
-                    }
-                    None => true,
-                };
-                if fresh {
-                    if sample != 0 {
-                        // an accumulation that is not there to continue: start again
-                        report(Report::Abandoned);
-                        continue;
-                    }
+                let continues = sums.as_ref().is_some_and(|(g, o, added, _)| {
+                    sample != 0 && *g == generation && *o == options && *added == sample
+                });
+                if !continues {
+                    // a new accumulation; when the one asked to continue is not there (a GPU
+                    // fault fell back to the CPU), its earlier samples are rendered first
                     sums = Some((
                         generation,
                         options,
@@ -233,23 +309,50 @@ fn frames(
                         SampleSums::new(options.width, options.height),
                     ));
                 }
-                let (_, _, added, acc) = sums.as_mut().expect("set above");
                 let cancelled = || wanted.load(Ordering::Relaxed) != generation;
-                let rendered = pool.install(|| {
-                    cpu::render_pass(tracer, &camera, &options, sample, acc, &cancelled)
-                });
-                if !rendered {
-                    sums = None;
-                    report(Report::Abandoned);
-                    continue;
+                let (_, _, added, acc) = sums.as_mut().expect("set above");
+                let mut outcome = Ok(true);
+                while outcome.as_ref().is_ok_and(|&done| done) && *added <= sample {
+                    let pass = *added;
+                    outcome = match gpu.as_deref_mut() {
+                        // a GPU pass is not cut short; a stale one is dropped before it starts
+                        Some(_) if cancelled() => Ok(false),
+                        Some(g) => g.add_pass(&camera, &options, pass).map(|()| true),
+                        None => Ok(pool.install(|| {
+                            cpu::render_pass(tracer, &camera, &options, pass, acc, &cancelled)
+                        })),
+                    };
+                    if outcome.as_ref().is_ok_and(|&done| done) {
+                        *added += 1;
+                    }
                 }
-                *added += 1;
-                report(Report::Frame {
-                    generation,
-                    sample,
-                    image: Box::new(acc.mean()),
-                    elapsed: start.elapsed(),
-                });
+                let image = match (outcome, gpu.as_deref_mut()) {
+                    (Ok(true), Some(g)) => g.mean(),
+                    (Ok(true), None) => Ok(acc.mean()),
+                    (Ok(false), _) => {
+                        sums = None;
+                        report(Report::Abandoned);
+                        continue;
+                    }
+                    (Err(e), _) => Err(e),
+                };
+                match image {
+                    Ok(image) => report(Report::Frame {
+                        generation,
+                        sample,
+                        image: Box::new(image),
+                        elapsed: start.elapsed(),
+                    }),
+                    Err(e) => {
+                        report(Report::Failed(format!(
+                            "the GPU failed to render a frame, rendering on the CPU from now \
+                             on: {e:#}"
+                        )));
+                        gpu = None;
+                        sums = None;
+                        report(Report::Abandoned);
+                    }
+                }
             }
         }
     }
