@@ -149,7 +149,9 @@ fn run_viewer(args: ViewArgs) -> Result<()> {
     if let Some(out) = &args.screenshot {
         steps.extend([Step::Converge, Step::Screenshot(out.clone()), Step::Quit]);
     }
-    let gpu = match super::render::choose_backend(args.backend, false, false)? {
+    hytrace::viewer::window::check_display()?;
+    // the heads-up line says which backend renders, so `auto` chooses without a word
+    let gpu = match super::render::choose_backend(args.backend, true, false)? {
         Chosen::Cpu => None,
         Chosen::Gpu(ctx) => Some(*ctx),
     };

@@ -39,9 +39,12 @@ impl Presenter {
             .with_display_handle(Box::new(display)),
         );
         let size = window.inner_size();
-        let surface = instance
-            .create_surface(window)
-            .map_err(|e| format!("cannot draw into the window with Vulkan: {e}"))?;
+        let surface = instance.create_surface(window).map_err(|e| {
+            format!(
+                "cannot draw into the window: no Vulkan driver makes a surface for it ({e}); \
+                     a software one comes with Debian's mesa-vulkan-drivers"
+            )
+        })?;
         let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
             power_preference: wgpu::PowerPreference::HighPerformance,
             force_fallback_adapter: false,

@@ -69,6 +69,24 @@ enum Wake {
     Loaded(Result<Box<Scene>, String>),
 }
 
+/// Fails with one line when the environment names no display to open a window on (X11's
+/// DISPLAY, Wayland's WAYLAND_DISPLAY or WAYLAND_SOCKET), before anything else is set up;
+/// winit's own message for this names its source file.
+pub fn check_display() -> anyhow::Result<()> {
+    let named = |v: &str| std::env::var_os(v).is_some_and(|d| !d.is_empty());
+    if cfg!(target_os = "linux")
+        && !["DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"]
+            .iter()
+            .any(|v| named(v))
+    {
+        anyhow::bail!(
+            "cannot open a window: no display (neither DISPLAY nor WAYLAND_DISPLAY is set); \
+             `hytrace render` writes images without one"
+        );
+    }
+    Ok(())
+}
+
 /// Opens the window and runs until it closes. Fails with one line when there is no display
 /// or no adapter to present with.
 pub fn run(config: ViewerConfig) -> anyhow::Result<()> {
@@ -260,6 +278,8 @@ impl Viewer {
                     path.display()
                 );
                 self.screenshots.push(path);
+                // a refined image already on screen is written now, otherwise on arrival
+                self.flush_screenshots();
             }
             Action::Help => {
                 eprintln!("hytrace view keys:");
