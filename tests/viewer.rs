@@ -623,3 +623,43 @@ fn bad_scene_and_script_are_one_line() {
     );
     assert_one_line_failure(&out, "bad script", "bad.txt:2");
 }
+
+#[test]
+fn the_view_key_shows_the_debug_views_render_draws() {
+    let x = Xvfb::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let views = ["normals", "depth"];
+    let shots: Vec<PathBuf> = views
+        .iter()
+        .map(|v| dir.path().join(format!("{v}.png")))
+        .collect();
+    let script = dir.path().join("views.txt");
+    std::fs::write(
+        &script,
+        format!(
+            "key v\nconverge\nscreenshot {}\nkey v\nconverge\nscreenshot {}\nquit\n",
+            shots[0].display(),
+            shots[1].display()
+        ),
+    )
+    .expect("write script");
+    let size = [
+        "--width",
+        "96",
+        "--height",
+        "72",
+        "--spp",
+        "2",
+        "--backend",
+        "cpu",
+    ];
+    let mut args = size.to_vec();
+    args.extend(["--script", script.to_str().expect("utf-8")]);
+    let out = run(x.view(&args), "view keys");
+    assert_ok(&out, "view keys");
+    for (view, shot) in views.iter().zip(&shots) {
+        let png = dir.path().join(format!("render-{view}.png"));
+        render(None, &png, &[&size[..], &["--view", view]].concat());
+        assert_same_image(shot, &png);
+    }
+}

@@ -26,45 +26,85 @@ pub struct RenderArgs {
     /// What to draw: the shaded image or a debug view of the first hits.
     #[arg(long, value_enum, default_value = "shaded")]
     view: View,
-    /// Exposure in stops (overrides the scene).
-    #[arg(long, allow_negative_numbers = true)]
-    exposure: Option<f32>,
-    /// Tone-mapping operator (overrides the scene).
-    #[arg(long, value_enum)]
-    tonemap: Option<ToneMap>,
-    /// Extra EXR channels: depth, normal, albedo, steps (comma-separated); EXR output only.
-    #[arg(long, value_enum, value_delimiter = ',')]
-    aov: Vec<Aov>,
-    /// Image width (overrides the scene).
-    #[arg(long)]
-    width: Option<u32>,
-    /// Image height (overrides the scene).
-    #[arg(long)]
-    height: Option<u32>,
-    /// Samples per pixel (overrides the scene).
-    #[arg(long)]
-    spp: Option<u32>,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
-    threads: Option<usize>,
+    #[command(flatten)]
+    image: ImageArgs,
     /// Mesh BVH build quality (overrides the scene's `tracer.bvh`).
     #[arg(long, value_enum)]
     bvh: Option<hytrace::accel::bvh::BuildQuality>,
     /// Normal estimator (overrides the scene).
     #[arg(long, value_enum)]
     normals: Option<hytrace::scene::file::NormalMethod>,
-    /// Where to render. `auto` (the default) uses a hardware GPU when wgpu finds one and
-    /// otherwise the CPU; it treats a software Vulkan driver such as Mesa's lavapipe
-    /// (llvmpipe) as no GPU, since it runs on the CPU and is slower than the CPU tracer.
-    /// `gpu` uses any adapter, lavapipe included, and fails when there is none.
-    #[arg(long, value_enum, default_value = "auto")]
-    backend: Backend,
     /// Say more: the backend and GPU adapter used.
     #[arg(short, long)]
     verbose: bool,
     /// No progress bar.
     #[arg(short, long)]
     quiet: bool,
+}
+
+/// The image flags `render` and `view` share: size, samples, threads, exposure, tone
+/// mapping, AOV channels and backend.
+#[derive(clap::Args)]
+pub(crate) struct ImageArgs {
+    /// Image width (overrides the scene; for `view`, the window's).
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Image height (overrides the scene; for `view`, the window's).
+    #[arg(long)]
+    pub height: Option<u32>,
+    /// Samples per pixel (overrides the scene; for `view`, those the image refines to when
+    /// the camera rests).
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// Render threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Exposure in stops (overrides the scene).
+    #[arg(long, allow_negative_numbers = true)]
+    pub exposure: Option<f32>,
+    /// Tone-mapping operator (overrides the scene).
+    #[arg(long, value_enum)]
+    pub tonemap: Option<ToneMap>,
+    /// Extra EXR channels: depth, normal, albedo, steps (comma-separated); for `render` in
+    /// an .exr output, for `view` in an EXR beside each screenshot.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub aov: Vec<Aov>,
+    /// Where to render. `auto` (the default) uses a hardware GPU when wgpu finds one and
+    /// otherwise the CPU; it treats a software Vulkan driver such as Mesa's lavapipe
+    /// (llvmpipe) as no GPU, since it runs on the CPU and is slower than the CPU tracer.
+    /// `gpu` uses any adapter, lavapipe included, and fails when there is none.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub backend: Backend,
+}
+
+impl ImageArgs {
+    /// Checks the values given on the command line (the scene's own are checked on load).
+    pub fn check(&self) -> Result<()> {
+        for side in [self.width, self.height].into_iter().flatten() {
+            if side == 0 || side > MAX_IMAGE_SIDE {
+                bail!("--width and --height must be in 1..={MAX_IMAGE_SIDE} (got {side})");
+            }
+        }
+        if let (Some(w), Some(h)) = (self.width, self.height) {
+            if w as u64 * h as u64 > MAX_PIXELS {
+                bail!("image size {w}×{h} is too large (at most {MAX_PIXELS} pixels)");
+            }
+        }
+        if let Some(s) = self.spp {
+            if s == 0 || s > MAX_SAMPLES {
+                bail!("--spp {s} is out of range 1..={MAX_SAMPLES}");
+            }
+        }
+        if self.threads == Some(0) {
+            bail!("--threads must be at least 1");
+        }
+        if let Some(e) = self.exposure {
+            if !e.is_finite() || e.abs() > 64.0 {
+                bail!("--exposure {e} is out of range -64..=64 stops");
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Which tracer renders the image.
@@ -156,9 +196,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
     if let Some(n) = args.normals {
         scene.tracer.normals = n;
     }
-    let width = args.width.unwrap_or(scene.image.width);
-    let height = args.height.unwrap_or(scene.image.height);
-    let samples = args.spp.unwrap_or(scene.image.samples);
+    let width = args.image.width.unwrap_or(scene.image.width);
+    let height = args.image.height.unwrap_or(scene.image.height);
+    let samples = args.image.spp.unwrap_or(scene.image.samples);
     if width == 0 || height == 0 {
         bail!("--width and --height must be at least 1 (got {width}×{height})");
     }
@@ -173,16 +213,16 @@ pub fn run(args: RenderArgs) -> Result<()> {
     if samples == 0 || samples > MAX_SAMPLES {
         bail!("--spp {samples} is out of range 1..={MAX_SAMPLES}");
     }
-    if args.threads == Some(0) {
+    if args.image.threads == Some(0) {
         bail!("--threads must be at least 1");
     }
-    let exposure = args.exposure.unwrap_or(scene.image.exposure);
+    let exposure = args.image.exposure.unwrap_or(scene.image.exposure);
     if !exposure.is_finite() || exposure.abs() > 64.0 {
         bail!("--exposure {exposure} is out of range -64..=64 stops");
     }
     let tone = ToneMapping {
         exposure,
-        operator: args.tonemap.unwrap_or(scene.image.tonemap),
+        operator: args.image.tonemap.unwrap_or(scene.image.tonemap),
     };
     let ext = args
         .output
@@ -208,7 +248,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
             );
         }
     }
-    if !args.aov.is_empty() && !exr {
+    if !args.image.aov.is_empty() && !exr {
         bail!("--aov needs an .exr output (PNG holds only the picture; see --view)");
     }
     if exr && args.view != View::Shaded {
@@ -218,10 +258,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
         width,
         height,
         samples,
-        threads: args.threads,
+        threads: args.image.threads,
         progress: !args.quiet && std::io::stderr().is_terminal(),
     };
-    let backend = choose_backend(args.backend, args.quiet, args.verbose)?;
+    let backend = choose_backend(args.image.backend, args.quiet, args.verbose)?;
     let start = Instant::now();
     let (fb, used) = match &backend {
         Chosen::Cpu => (cpu::render(&scene, &opts)?, "CPU"),
@@ -235,7 +275,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         args.view,
         tone,
         scene.tracer.max_steps,
-        &args.aov,
+        &args.image.aov,
     )?;
     if !args.quiet {
         eprintln!(

@@ -1,10 +1,7 @@
 //! `hytrace view`: the interactive window.
 
-use super::render::Backend;
+use super::render::ImageArgs;
 use anyhow::{Result, bail};
-use hytrace::render::exr::Aov;
-use hytrace::scene::file::ToneMap;
-use hytrace::scene::{MAX_IMAGE_SIDE, MAX_PIXELS, MAX_SAMPLES};
 use hytrace::viewer::input::KEY_HELP;
 use std::path::PathBuf;
 
@@ -18,36 +15,12 @@ pub struct ViewArgs {
     /// For a mesh file: start from the file's camera with this name or number (from 0).
     #[arg(long)]
     camera: Option<String>,
-    /// Window width (default: the scene's image width).
-    #[arg(long)]
-    width: Option<u32>,
-    /// Window height (default: the scene's image height).
-    #[arg(long)]
-    height: Option<u32>,
-    /// Samples per pixel the image refines to when the camera rests (default: the scene's).
-    #[arg(long)]
-    spp: Option<u32>,
-    /// Exposure in stops (overrides the scene; + and - change it).
-    #[arg(long, allow_negative_numbers = true)]
-    exposure: Option<f32>,
-    /// Tone-mapping operator (overrides the scene).
-    #[arg(long, value_enum)]
-    tonemap: Option<ToneMap>,
-    /// With each PNG screenshot, an EXR of these channels too: depth, normal, albedo, steps.
-    #[arg(long, value_enum, value_delimiter = ',')]
-    aov: Vec<Aov>,
-    /// Render threads (default: all cores).
-    #[arg(long)]
-    threads: Option<usize>,
+    #[command(flatten)]
+    image: ImageArgs,
     /// Frames per second to hold while the camera moves: previews render at the size that
     /// fits.
     #[arg(long, default_value_t = 30.0)]
     fps: f32,
-    /// Where to render, as for `render`: `auto` renders on a hardware GPU when wgpu finds
-    /// one and otherwise on the CPU (a software Vulkan driver such as lavapipe then only
-    /// presents the window); `gpu` renders on any adapter; `cpu` always on the CPU.
-    #[arg(long, value_enum, default_value = "auto")]
-    backend: Backend,
     /// Run the steps of this script (timed camera moves, keys, screenshots, quit); see the
     /// README.
     #[arg(long)]
@@ -73,29 +46,7 @@ fn keys_help() -> String {
 
 /// Opens the window.
 pub fn run(args: ViewArgs) -> Result<()> {
-    if let Some(w) = args.width.or(args.height) {
-        if w == 0 || w > MAX_IMAGE_SIDE {
-            bail!("--width and --height must be in 1..={MAX_IMAGE_SIDE} (got {w})");
-        }
-    }
-    if let (Some(w), Some(h)) = (args.width, args.height) {
-        if w as u64 * h as u64 > MAX_PIXELS {
-            bail!("window {w}×{h} is too large (at most {MAX_PIXELS} pixels)");
-        }
-    }
-    if let Some(s) = args.spp {
-        if s == 0 || s > MAX_SAMPLES {
-            bail!("--spp {s} is out of range 1..={MAX_SAMPLES}");
-        }
-    }
-    if args.threads == Some(0) {
-        bail!("--threads must be at least 1");
-    }
-    if let Some(e) = args.exposure {
-        if !e.is_finite() || e.abs() > 64.0 {
-            bail!("--exposure {e} is out of range -64..=64 stops");
-        }
-    }
+    args.image.check()?;
     if !(args.fps.is_finite() && (1.0..=240.0).contains(&args.fps)) {
         bail!("--fps {} is out of range 1..=240", args.fps);
     }
@@ -151,7 +102,7 @@ fn run_viewer(args: ViewArgs) -> Result<()> {
     }
     hytrace::viewer::window::check_display()?;
     // the heads-up line says which backend renders, so `auto` chooses without a word
-    let gpu = match super::render::choose_backend(args.backend, true, false)? {
+    let gpu = match super::render::choose_backend(args.image.backend, true, false)? {
         Chosen::Cpu => None,
         Chosen::Gpu(ctx) => Some(*ctx),
     };
@@ -166,7 +117,7 @@ fn run_viewer(args: ViewArgs) -> Result<()> {
         Some(p) => p.display().to_string(),
         None => "built-in showcase".into(),
     };
-    let size = match (args.width, args.height) {
+    let size = match (args.image.width, args.image.height) {
         (None, None) => None,
         (w, h) => {
             let scene = load()?;
@@ -184,11 +135,11 @@ fn run_viewer(args: ViewArgs) -> Result<()> {
             args.scene.clone()
         }),
         size,
-        samples: args.spp,
-        exposure: args.exposure,
-        tonemap: args.tonemap,
-        aov: args.aov,
-        threads: args.threads,
+        samples: args.image.spp,
+        exposure: args.image.exposure,
+        tonemap: args.image.tonemap,
+        aov: args.image.aov,
+        threads: args.image.threads,
         frame_budget: Duration::from_secs_f32(1.0 / args.fps),
         script: steps,
         frames: args.frames,

@@ -16,6 +16,8 @@
 //! screenshot out.png           # as the P key, to this file (.png, or .exr with --aov)
 //! window-shot shown.png        # what the window shows, the heads-up line included
 //! wait-reload                  # wait until the scene file has been reloaded (or failed to)
+//! stats                        # print frame rate while moving and time to converge, since
+//!                              # the last `stats`, as one line on stdout
 //! quit
 //! ```
 
@@ -40,6 +42,8 @@ pub enum Step {
     WindowShot(PathBuf),
     /// Wait for the next reload of the scene file.
     WaitReload,
+    /// Print the frame statistics gathered since the last `stats` and start again.
+    Stats,
     /// Close the window.
     Quit,
 }
@@ -186,6 +190,10 @@ fn parse_line(line: &str, steps: &mut Vec<Step>) -> Result<(), String> {
             arity(0..=0)?;
             steps.push(Step::WaitReload);
         }
+        "stats" => {
+            arity(0..=0)?;
+            steps.push(Step::Stats);
+        }
         "quit" => {
             arity(0..=0)?;
             steps.push(Step::Quit);
@@ -193,7 +201,7 @@ fn parse_line(line: &str, steps: &mut Vec<Step>) -> Result<(), String> {
         other => {
             return Err(format!(
                 "unknown command `{other}` (wait, converge, drag, click, scroll, key, \
-                 print-camera, screenshot, window-shot, wait-reload, quit)"
+                 print-camera, screenshot, window-shot, wait-reload, stats, quit)"
             ));
         }
     }

@@ -4,7 +4,7 @@
 use super::input::{Button, Input, KEY_HELP, Key};
 use super::present::Presenter;
 use super::script::Step;
-use super::session::{Action, Controls, Frame, Schedule, Switches};
+use super::session::{Action, Controls, Frame, FrameStats, Schedule, Switches};
 use super::watch::FileWatch;
 use super::worker::{Job, Report, Worker};
 use crate::gpu::context::GpuContext;
@@ -146,6 +146,8 @@ struct Viewer {
     error: Option<String>,
     /// Why the GPU gave up on the scene or a frame (the CPU renders instead).
     gpu_fault: Option<String>,
+    /// Frame statistics since the last script `stats`.
+    stats: FrameStats,
     reloads: u64,
     reload_at: Option<Instant>,
     watch: Option<FileWatch>,
@@ -213,6 +215,7 @@ impl Viewer {
             frames_shown: 0,
             error: None,
             gpu_fault: None,
+            stats: FrameStats::default(),
             reloads: 0,
             reload_at: None,
             watch,
@@ -232,9 +235,19 @@ impl Viewer {
     }
 
     /// Something about the image changed: newer frames are wanted, refinement starts over.
+    ///
+    /// A preview in flight is left to finish and is shown (it is at most one frame behind
+    /// the camera): abandoning it at every mouse move would starve a drag of frames whenever
+    /// a preview takes longer than the time between two moves. Refinement passes, which take
+    /// the full image's time, are abandoned at once.
     fn changed(&mut self) {
         self.generation += 1;
-        self.worker.want(self.generation);
+        if !self
+            .in_flight
+            .is_some_and(|f| matches!(f.frame, Frame::Preview { .. }))
+        {
+            self.worker.want(self.generation);
+        }
         self.schedule.changed(Instant::now());
     }
 
@@ -385,6 +398,7 @@ impl Viewer {
             Frame::Refine { sample } => sample,
             _ => 0,
         };
+        self.worker.want(self.generation);
         self.worker.send(Job::Frame {
             generation: self.generation,
             camera: self.controls.pose.camera(),
@@ -433,18 +447,32 @@ impl Viewer {
                 let Some(done) = self.in_flight.take() else {
                     return;
                 };
-                if generation != self.generation || done.generation != generation {
+                let stale = generation != self.generation;
+                let preview = matches!(done.frame, Frame::Preview { .. });
+                if done.generation != generation || (stale && !preview) {
                     return;
                 }
                 match done.frame {
                     Frame::Preview { width, height } => {
-                        self.schedule.preview_done(width * height, elapsed)
+                        self.schedule.preview_done(width * height, elapsed);
+                        self.stats
+                            .preview(width as u64 * height as u64, elapsed, Instant::now());
                     }
-                    Frame::Refine { .. } => self.schedule.refined_sample(sample),
+                    Frame::Refine { .. } => {
+                        self.schedule.refined_sample(sample);
+                        if self.schedule.converged() {
+                            self.stats.converged_after =
+                                Some(self.schedule.last_change().elapsed());
+                            self.stats.samples = self.schedule.samples;
+                        }
+                    }
                     Frame::Idle => {}
                 }
                 self.last_frame_ms = elapsed.as_secs_f64() * 1e3;
                 self.shown = Some((image, done.frame));
+                // the render thread starts the next frame while this one is composed and
+                // presented
+                self.schedule_frame();
                 self.frames_shown += 1;
                 let now = Instant::now();
                 self.frame_times.push_back(now);
@@ -495,18 +523,22 @@ impl Viewer {
         } else {
             upscale_nearest(&small, w, h)
         };
-        let mut lines = vec![(self.heads_up(), [235, 235, 235])];
+        let columns = (w / 8).max(8) as usize - 1;
+        let mut lines: Vec<(String, [u8; 3])> = wrap(&self.heads_up(), columns)
+            .into_iter()
+            .map(|l| (l, [235, 235, 235]))
+            .collect();
         if let Some(e) = &self.error {
             lines.push((
                 "the scene did not reload; still showing the last good one:".into(),
                 [255, 120, 100],
             ));
-            for part in wrap(e, (w / 8).max(8) as usize - 1) {
+            for part in wrap(e, columns) {
                 lines.push((part, [255, 120, 100]));
             }
         }
         if let Some(e) = &self.gpu_fault {
-            for part in wrap(e, (w / 8).max(8) as usize - 1) {
+            for part in wrap(e, columns) {
                 lines.push((part, [255, 200, 90]));
             }
         }
@@ -616,6 +648,10 @@ impl Viewer {
                 }
                 Step::Input(i) => {
                     self.input(i);
+                    true
+                }
+                Step::Stats => {
+                    println!("{}", std::mem::take(&mut self.stats).describe());
                     true
                 }
                 Step::PrintCamera => {
@@ -843,10 +879,28 @@ fn rgb_to_rgba(img: &RgbImage) -> Vec<u8> {
 
 /// `text` cut into lines of at most `width` characters (an error can be long).
 fn wrap(text: &str, width: usize) -> Vec<String> {
-    let chars: Vec<char> = text.chars().collect();
-    chars
-        .chunks(width.max(1))
-        .take(6)
-        .map(|c| c.iter().collect())
-        .collect()
+    let width = width.max(1);
+    let mut lines: Vec<String> = Vec::new();
+    let mut line = String::new();
+    for word in text.split(' ') {
+        let fits = line.chars().count() + 1 + word.chars().count() <= width;
+        if !line.is_empty() && !fits {
+            lines.push(std::mem::take(&mut line));
+        }
+        if !line.is_empty() {
+            line.push(' ');
+        }
+        line.push_str(word);
+        // a word longer than a line is cut
+        while line.chars().count() > width {
+            let head: String = line.chars().take(width).collect();
+            line = line.chars().skip(width).collect();
+            lines.push(head);
+        }
+    }
+    if !line.is_empty() {
+        lines.push(line);
+    }
+    lines.truncate(6);
+    lines
 }
