@@ -290,6 +290,35 @@ fn gpu_backend_screenshot_equals_gpu_render() {
     assert_same_image(&shot, &png);
 }
 
+/// The screenshot `shot` of a moved camera equals `render` of the showcase from the camera the
+/// viewer printed, at 160×120 and 2 samples on the CPU.
+fn assert_printed_camera_renders_shot(printed: &str, shot: &Path, dir: &Path, what: &str) {
+    let moved = with_camera(SHOWCASE, printed);
+    assert_ne!(
+        scene_camera(&moved).trim(),
+        scene_camera(SHOWCASE).trim(),
+        "{what} moved the camera"
+    );
+    let scene = dir.join("moved.ron");
+    std::fs::write(&scene, moved).expect("write scene");
+    let png = dir.join("render.png");
+    render(
+        Some(&scene),
+        &png,
+        &[
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "--spp",
+            "2",
+            "--backend",
+            "cpu",
+        ],
+    );
+    assert_same_image(shot, &png);
+}
+
 #[test]
 fn scripted_orbit_moves_the_camera_that_c_prints() {
     let x = Xvfb::start();
@@ -327,30 +356,7 @@ fn scripted_orbit_moves_the_camera_that_c_prints() {
     let out = run(x.view(&args), "scripted orbit");
     assert_ok(&out, "scripted orbit");
     let printed = String::from_utf8_lossy(&out.stdout);
-    let moved = with_camera(SHOWCASE, &printed);
-    assert_ne!(
-        scene_camera(&moved).trim(),
-        scene_camera(SHOWCASE).trim(),
-        "the script moved the camera"
-    );
-    let scene = dir.path().join("moved.ron");
-    std::fs::write(&scene, moved).expect("write scene");
-    let png = dir.path().join("render.png");
-    render(
-        Some(&scene),
-        &png,
-        &[
-            "--width",
-            "160",
-            "--height",
-            "120",
-            "--spp",
-            "2",
-            "--backend",
-            "cpu",
-        ],
-    );
-    assert_same_image(&shot, &png);
+    assert_printed_camera_renders_shot(&printed, &shot, dir.path(), "the script");
 }
 
 #[test]
@@ -418,30 +424,7 @@ fn real_input_events_orbit_print_and_screenshot() {
     assert_ok(&out, "viewer under xdotool");
     assert!(shot.exists(), "P wrote no screenshot");
     let printed = String::from_utf8_lossy(&out.stdout);
-    let moved = with_camera(SHOWCASE, &printed);
-    assert_ne!(
-        scene_camera(&moved).trim(),
-        scene_camera(SHOWCASE).trim(),
-        "the drag moved the camera"
-    );
-    let scene = dir.path().join("moved.ron");
-    std::fs::write(&scene, moved).expect("write scene");
-    let png = dir.path().join("render.png");
-    render(
-        Some(&scene),
-        &png,
-        &[
-            "--width",
-            "160",
-            "--height",
-            "120",
-            "--spp",
-            "2",
-            "--backend",
-            "cpu",
-        ],
-    );
-    assert_same_image(&shot, &png);
+    assert_printed_camera_renders_shot(&printed, &shot, dir.path(), "the drag");
 }
 
 /// Waits until `path` exists (the viewer's script wrote it).

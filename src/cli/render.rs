@@ -4,7 +4,8 @@ use anyhow::{Result, bail};
 use hytrace::render::exr::Aov;
 use hytrace::render::output::ToneMapping;
 use hytrace::render::view::View;
-use hytrace::render::{RenderOptions, cpu, output};
+use hytrace::render::write::write_image;
+use hytrace::render::{RenderOptions, cpu};
 use hytrace::scene::file::ToneMap;
 use hytrace::scene::{MAX_IMAGE_SIDE, MAX_PIXELS, MAX_SAMPLES};
 use std::io::IsTerminal;
@@ -269,7 +270,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         Chosen::Gpu(ctx) => (hytrace::gpu::render::render(&scene, &opts, ctx)?, "GPU"),
     };
     let elapsed = start.elapsed();
-    output::write_image(
+    write_image(
         &fb,
         &args.output,
         args.view,

@@ -8,6 +8,7 @@ pub mod output;
 pub mod progressive;
 pub mod slice;
 pub mod view;
+pub mod write;
 
 use crate::shade::integrator::CameraSample;
 use glam::Vec3;

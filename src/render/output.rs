@@ -50,27 +50,6 @@ pub fn to_srgb8(c: Vec3) -> [u8; 3] {
     [q(c.x), q(c.y), q(c.z)]
 }
 
-/// Writes a render as `hytrace render` does, by the file's extension: `.exr` stores the linear
-/// radiance and the `aov` channels; anything else is a PNG of the picture `view` makes.
-pub fn write_image(
-    fb: &super::Framebuffer,
-    path: &Path,
-    view: super::view::View,
-    tone: ToneMapping,
-    max_steps: u32,
-    aov: &[super::exr::Aov],
-) -> anyhow::Result<()> {
-    let exr = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .is_some_and(|e| e.eq_ignore_ascii_case("exr"));
-    if exr {
-        super::exr::write_exr(fb, aov, path)
-    } else {
-        save_png(&super::view::picture(fb, view, tone, max_steps), path)
-    }
-}
-
 /// Writes a picture as PNG.
 pub fn save_png(img: &image::RgbImage, path: &Path) -> anyhow::Result<()> {
     img.save_with_format(path, image::ImageFormat::Png)
