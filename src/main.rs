@@ -21,7 +21,7 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Render a scene to a PNG (the built-in showcase when no scene is given).
+    /// Render a scene to a PNG or an EXR (the built-in showcase when no scene is given).
     Render(cli::render::RenderArgs),
     /// Open a window on a scene: orbit, zoom, fly, debug views, hot reload, screenshots.
     View(cli::view::ViewArgs),
@@ -32,7 +32,7 @@ enum Command {
     /// Benchmark: meshes against Embree, SDF steppers, scaling (Markdown tables, --json).
     Bench(cli::bench::BenchArgs),
     /// Compare our tracer with Embree 4 ray by ray (hit/miss, |Δt|, shadow rays) against the
-    /// thresholds of issue #5; exit status 1 when one fails (needs the `embree` feature).
+    /// analytic thresholds (README); exit status 1 when one fails (needs the `embree` feature).
     Validate(cli::validate::ValidateArgs),
     /// Render a scene with our CPU tracer and with our shading over Embree's hits; write both,
     /// a side-by-side sheet, a difference heatmap and PSNR/SSIM (needs the `embree` feature).

@@ -646,3 +646,55 @@ fn the_view_key_shows_the_debug_views_render_draws() {
         assert_same_image(shot, &png);
     }
 }
+
+#[test]
+fn a_resized_window_refines_to_render_at_its_new_size() {
+    let x = Xvfb::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let shot = dir.path().join("resized.png");
+    let script = dir.path().join("resize.txt");
+    // the wait leaves time for the resize below to arrive before the screenshot is taken
+    std::fs::write(
+        &script,
+        format!("wait 2\nconverge\nscreenshot {}\nquit\n", shot.display()),
+    )
+    .expect("write script");
+    let child = x
+        .view(&[
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "--spp",
+            "1",
+            "--backend",
+            "cpu",
+            "--script",
+            script.to_str().expect("utf-8"),
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn hytrace view");
+    let id = x.xdotool(&["search", "--sync", "--name", "hytrace"]);
+    let id = id.lines().next().expect("the viewer's window").to_string();
+    x.xdotool(&["windowsize", "--sync", &id, "200", "150"]);
+    let out = finish(child, "resized viewer");
+    assert_ok(&out, "resized viewer");
+    let png = dir.path().join("render.png");
+    render(
+        None,
+        &png,
+        &[
+            "--width",
+            "200",
+            "--height",
+            "150",
+            "--spp",
+            "1",
+            "--backend",
+            "cpu",
+        ],
+    );
+    assert_same_image(&shot, &png);
+}

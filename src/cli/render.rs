@@ -188,6 +188,17 @@ fn describe(ctx: &hytrace::gpu::context::GpuContext) -> String {
     )
 }
 
+/// What the scene holds, for the summary line: SDF objects and mesh instances.
+fn contents(scene: &hytrace::scene::Scene) -> String {
+    let plural = |n: usize, one: &str| format!("{n} {one}{}", if n == 1 { "" } else { "s" });
+    let sdf = plural(scene.objects.len(), "SDF object");
+    match scene.meshes.instances.len() {
+        0 => sdf,
+        n if scene.objects.is_empty() => plural(n, "mesh instance"),
+        n => format!("{sdf} and {}", plural(n, "mesh instance")),
+    }
+}
+
 /// Renders and writes the image.
 pub fn run(args: RenderArgs) -> Result<()> {
     let mut scene = crate::load_any(args.scene.as_deref(), args.camera.as_deref())?;
@@ -280,12 +291,12 @@ pub fn run(args: RenderArgs) -> Result<()> {
     )?;
     if !args.quiet {
         eprintln!(
-            "{}: {}×{} px, {} spp, {} object(s), rendered on the {} in {:.3} s → {}",
+            "{}: {}×{} px, {} spp, {}, rendered on the {} in {:.3} s → {}",
             scene.source_name,
             width,
             height,
             samples,
-            scene.objects.len(),
+            contents(&scene),
             used,
             elapsed.as_secs_f64(),
             args.output.display()

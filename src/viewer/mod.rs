@@ -3,8 +3,9 @@
 //! debug views and switches; hot reload of the scene file; screenshots; scripts.
 //!
 //! Everything but the window itself ([`window`], [`present`], [`watch`]) works without a
-//! display: the camera ([`orbit`]), the input handling and schedule ([`session`]), the render
-//! thread ([`worker`]) and scripts ([`script`]) are what the tests and the benchmark drive.
+//! display: the camera ([`orbit`]), the input handling and schedule ([`session`]) and scripts
+//! ([`script`]) are what the unit tests drive; the render thread (`worker`, on the CPU or a
+//! GPU) comes with the `viewer` feature.
 
 pub mod input;
 pub mod orbit;
@@ -16,4 +17,5 @@ pub mod session;
 pub mod watch;
 #[cfg(feature = "viewer")]
 pub mod window;
+#[cfg(feature = "viewer")]
 pub mod worker;

@@ -724,16 +724,15 @@ impl ApplicationHandler<Wake> for Viewer {
     fn window_event(&mut self, event_loop: &ActiveEventLoop, _: WindowId, event: WindowEvent) {
         match event {
             WindowEvent::CloseRequested => self.quit = true,
-            WindowEvent::Resized(size) => {
-                if size.width > 0 && size.height > 0 {
-                    if let Some(p) = &mut self.presenter {
-                        p.resize(size.width, size.height);
-                    }
-                    if (size.width, size.height) != self.controls.window {
-                        self.controls.window = (size.width, size.height);
-                        self.changed();
-                        self.compose();
-                    }
+            // a minimised window reports a size of zero: keep the last one
+            WindowEvent::Resized(size) if size.width > 0 && size.height > 0 => {
+                if let Some(p) = &mut self.presenter {
+                    p.resize(size.width, size.height);
+                }
+                if (size.width, size.height) != self.controls.window {
+                    self.controls.window = (size.width, size.height);
+                    self.changed();
+                    self.compose();
                 }
             }
             WindowEvent::RedrawRequested => self.present(event_loop),
