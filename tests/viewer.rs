@@ -698,3 +698,56 @@ fn a_resized_window_refines_to_render_at_its_new_size() {
     );
     assert_same_image(&shot, &png);
 }
+
+#[test]
+fn a_click_on_a_surface_makes_it_the_pivot() {
+    let x = Xvfb::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let shot = dir.path().join("picked.png");
+    let script = dir.path().join("pick.txt");
+    // the lower middle of the showcase is ground or an object, never sky
+    std::fs::write(
+        &script,
+        format!(
+            "wait 0.3\nclick 80 100\nwait 0.5\nconverge\nprint-camera\nscreenshot {}\nquit\n",
+            shot.display()
+        ),
+    )
+    .expect("write script");
+    let args = [
+        "--width",
+        "160",
+        "--height",
+        "120",
+        "--spp",
+        "2",
+        "--backend",
+        "cpu",
+        "--script",
+        script.to_str().expect("utf-8"),
+    ];
+    let out = run(x.view(&args), "pick");
+    assert_ok(&out, "pick");
+    let printed = String::from_utf8_lossy(&out.stdout);
+    let look_at = |camera: &str| {
+        let at = camera.find("look_at:").expect("look_at") + "look_at:".len();
+        let text = &camera[at..camera[at..].find(')').expect("end") + at];
+        text.trim()
+            .trim_start_matches('(')
+            .split(',')
+            .map(|v| v.trim().parse::<f32>().expect("a number"))
+            .collect::<Vec<f32>>()
+    };
+    let before = look_at(scene_camera(SHOWCASE));
+    let after = look_at(&printed);
+    let moved = before
+        .iter()
+        .zip(&after)
+        .map(|(a, b)| (a - b).abs())
+        .sum::<f32>();
+    assert!(
+        moved > 0.1,
+        "the pivot moved to the hit: {before:?} → {after:?}"
+    );
+    assert_printed_camera_renders_shot(&printed, &shot, dir.path(), "the click");
+}
