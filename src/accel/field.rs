@@ -30,6 +30,7 @@ use crate::sdf::tape::{Registers, Tape};
 use glam::Vec3;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap as HashMap;
+use std::mem::MaybeUninit;
 
 /// Deepest subdivision: cells of 1/256 of the box along each axis.
 pub const MAX_DEPTH: u32 = 8;
@@ -204,21 +205,20 @@ impl PathEntry {
     }
 }
 
-/// The nodes from the root to the last leaf found, for [`FieldOctree::locate_along`].
+/// The nodes from the root to the last leaf found, for [`FieldOctree::locate_along`]. Only
+/// the first `len` entries are written: a cursor is made for every query, most never look a
+/// point up, and zeroing 250 bytes for each showed in profiles.
 #[derive(Debug, Clone, Copy)]
 pub struct Path {
-    entries: [PathEntry; MAX_DEPTH as usize + 1],
+    entries: [MaybeUninit<PathEntry>; MAX_DEPTH as usize + 1],
     len: usize,
 }
 
 impl Default for Path {
+    #[inline]
     fn default() -> Self {
         Path {
-            entries: [PathEntry {
-                node: Node(0),
-                lo: Vec3::ZERO,
-                hi: Vec3::ZERO,
-            }; MAX_DEPTH as usize + 1],
+            entries: [MaybeUninit::uninit(); MAX_DEPTH as usize + 1],
             len: 0,
         }
     }
@@ -227,7 +227,17 @@ impl Default for Path {
 impl Path {
     #[inline]
     fn top(&self) -> &PathEntry {
-        &self.entries[self.len - 1]
+        assert!(self.len > 0, "an empty path has no top");
+        // SAFETY: entries below `len` are written (`set` is the only writer of `len`).
+        unsafe { self.entries[self.len - 1].assume_init_ref() }
+    }
+
+    /// Writes entry i and keeps the entries below it: the path is then i + 1 long.
+    #[inline]
+    fn set(&mut self, i: usize, e: PathEntry) {
+        assert!(i <= self.len, "a path grows one entry at a time");
+        self.entries[i] = MaybeUninit::new(e);
+        self.len = i + 1;
     }
 }
 
@@ -456,12 +466,15 @@ impl FieldOctree {
                 path.len = 0;
                 return None;
             }
-            path.len = 1;
-            path.entries[0] = PathEntry {
-                node: self.nodes[0],
-                lo: self.lo,
-                hi: self.hi,
-            };
+            path.len = 0;
+            path.set(
+                0,
+                PathEntry {
+                    node: self.nodes[0],
+                    lo: self.lo,
+                    hi: self.hi,
+                },
+            );
         }
         let mut e = *path.top();
         while e.node.0 & LEAF_BIT == 0 {
@@ -473,8 +486,7 @@ impl FieldOctree {
                 lo: Vec3::select(up, mid, e.lo),
                 hi: Vec3::select(up, e.hi, mid),
             };
-            path.entries[path.len] = e;
-            path.len += 1;
+            path.set(path.len, e);
         }
         let leaf = &self.leaves[(e.node.0 & !LEAF_BIT) as usize];
         Some(Cell {
