@@ -20,6 +20,7 @@ use crate::geom::Ray;
 use crate::scene::MAX_BOUNCES;
 use crate::sdf::tape::MaterialVec;
 use crate::trace::{Hit, Surface};
+use arrayvec::ArrayVec;
 use glam::Vec3;
 
 /// What one camera sample sees: its radiance and the first hit's auxiliary values (AOVs).
@@ -48,6 +49,9 @@ struct PendingRay {
     bounces: u32,
     inside: Option<(Surface, f32)>,
 }
+
+/// The pending rays of one camera path, on the stack of the thread that follows it.
+type PathStack = ArrayVec<PendingRay, { MAX_BOUNCES as usize + 2 }>;
 
 /// Paths lighter than this are not followed.
 const MIN_WEIGHT: f32 = 1e-3;
@@ -144,8 +148,8 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
     let scene = tracer.scene();
     let max_bounces = scene.shading.max_bounces.min(MAX_BOUNCES);
     // Depth-first: each step pops one ray and pushes at most two, so the stack never holds
-    // more than max_bounces + 1 entries (a fixed array of MAX_BOUNCES + 2 on the GPU).
-    let mut stack = Vec::with_capacity(MAX_BOUNCES as usize + 2);
+    // more than max_bounces + 1 entries (a fixed array of MAX_BOUNCES + 2 here, as on the GPU).
+    let mut stack = PathStack::new();
     stack.push(PendingRay {
         ray,
         weight: Vec3::ONE,
@@ -162,7 +166,7 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
     };
     let mut primary = true;
     while let Some(item) = stack.pop() {
-        let spawn = |stack: &mut Vec<PendingRay>, ray: Ray, weight: Vec3, inside| {
+        let spawn = |stack: &mut PathStack, ray: Ray, weight: Vec3, inside| {
             if item.bounces < max_bounces && weight.max_element() >= MIN_WEIGHT {
                 stack.push(PendingRay {
                     ray,

@@ -356,7 +356,7 @@ impl<'a> SceneTracer<'a> {
                 }
             }
         }
-        let mut regs = Registers::new();
+        let mut regs = Registers::pooled();
         for r in 0..n {
             out[r] = self.finish_hit(&rays[r], best[r], steps[r], mesh_hits[r], &mut regs);
         }
@@ -375,7 +375,7 @@ impl<'a> SceneTracer<'a> {
         if let Some(h) = &mesh_hit {
             limit = h.t;
         }
-        let mut regs = Registers::new();
+        let mut regs = Registers::pooled();
         let mut best: Option<(f32, usize)> = None;
         let mut steps = 0;
         self.accel.visit(ray, tmin, &mut limit, |i, t0, t1, limit| {
@@ -457,7 +457,7 @@ impl<'a> SceneTracer<'a> {
             Shadow::SoftImproved(k) => (k, true),
         };
         let s = &self.scene.tracer;
-        let mut regs = Registers::new();
+        let mut regs = Registers::pooled();
         let mut res: f32 = 1.0;
         let mut limit = tmax.min(s.max_distance);
         // k·h/t < 1 only where h < t/k ≤ limit/k: objects farther than that from the ray
@@ -607,7 +607,7 @@ impl<'a> SceneTracer<'a> {
     /// acceleration structure with a zero-length ray, so ambient occlusion costs the same with
     /// ten objects or ten thousand — and every other object is at least `reach` away.
     pub fn distance(&self, p: Vec3, reach: f32) -> f32 {
-        let mut regs = Registers::new();
+        let mut regs = Registers::pooled();
         let mut d = reach;
         let probe = Ray {
             origin: p,
@@ -675,7 +675,7 @@ impl<'a> SceneTracer<'a> {
                 return Some((h.t, if n.dot(ray.direction) < 0.0 { -n } else { n }));
             }
         };
-        let mut regs = Registers::new();
+        let mut regs = Registers::pooled();
         let mut field = self.fields[object].cursor(&mut regs);
         let t = sphere::exit(&mut field, ray, 0.0, tmax.min(s.max_distance), s)?;
         let n = normal::estimate(&mut field, ray.at(t), normal::step_for(s, t), s.normals).0;
@@ -689,7 +689,7 @@ impl<'a> SceneTracer<'a> {
             return true;
         }
         let s = &self.scene.tracer;
-        let mut regs = Registers::new();
+        let mut regs = Registers::pooled();
         let mut blocked = false;
         let mut limit = tmax.min(s.max_distance);
         self.accel.visit(ray, tmin, &mut limit, |i, t0, t1, _| {

@@ -1,0 +1,40 @@
+//! Per-frame CPU render time with the acceleration structures built once, as the viewer
+//! renders: `cargo run --release --example frame_time -- [scene.ron] [width] [height] [frames]`
+//! (no scene: the built-in showcase). Prints the build time and the minimum and median of
+//! the frames' times, each one pass of [`cpu::render_pass`] at one sample per pixel.
+
+use hytrace::render::progressive::SampleSums;
+use hytrace::render::{RenderOptions, cpu};
+use hytrace::scene::Scene;
+use hytrace::trace::SceneTracer;
+use std::path::Path;
+use std::time::Instant;
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let scene = match args.first().map(String::as_str) {
+        Some(path) if path != "-" => Scene::load(Path::new(path))?,
+        _ => Scene::load(Path::new("assets/scenes/showcase.ron"))?,
+    };
+    let number = |i: usize, default: u32| args.get(i).map_or(Ok(default), |a| a.parse());
+    let (width, height, frames) = (number(1, 640)?, number(2, 360)?, number(3, 10)?);
+    let opts = RenderOptions::single_sample(width, height);
+    let start = Instant::now();
+    let tracer = SceneTracer::new(&scene);
+    println!("build {:.1} ms", start.elapsed().as_secs_f64() * 1e3);
+    let mut times = Vec::new();
+    for _ in 0..frames {
+        let mut sums = SampleSums::new(width, height);
+        let start = Instant::now();
+        let finished = cpu::render_pass(&tracer, &scene.camera, &opts, 0, &mut sums, &|| false);
+        times.push(start.elapsed().as_secs_f64() * 1e3);
+        assert!(finished, "nobody cancels the pass");
+    }
+    times.sort_by(f64::total_cmp);
+    println!(
+        "{width}x{height}: min {:.1} ms, median {:.1} ms over {frames} frames",
+        times[0],
+        times[times.len() / 2]
+    );
+    Ok(())
+}
