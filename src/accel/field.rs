@@ -1001,10 +1001,11 @@ mod tests {
         let mut rng = Rng::new(11);
         for i in 0..400_000 {
             let mut gradient = [[0.0; 3]; 2];
-            for a in 0..3 {
+            let [low, high] = &mut gradient;
+            for (l, h) in low.iter_mut().zip(high.iter_mut()) {
                 let (x, y) = (bound(&mut rng), bound(&mut rng));
-                gradient[0][a] = if x < y { x } else { y };
-                gradient[1][a] = if x < y { y } else { x };
+                *l = if x < y { x } else { y };
+                *h = if x < y { y } else { x };
             }
             let leaf = Leaf {
                 tape: 0,
