@@ -425,7 +425,9 @@ impl Tape {
 
     /// The distance and the blended material at `p` (`materials` is the scene's table).
     pub fn eval_material(&self, p: Vec3, materials: &[MaterialVec]) -> (f32, MaterialVec) {
-        let mut regs = [0.0f32; MAX_REGISTERS];
+        // the value registers from the pool (zeroing 1 KiB for every hit showed in profiles)
+        let mut pooled = Registers::pooled();
+        let regs: &mut [f32; MAX_REGISTERS] = &mut (*pooled).0;
         let mut mats = [[0.0; MATERIAL_FLOATS]; MAX_MATERIAL_REGISTERS];
         regs[0] = p.x;
         regs[1] = p.y;
