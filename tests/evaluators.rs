@@ -356,7 +356,7 @@ fn octrees_of_the_shipped_scenes_match_the_whole_tape_at_every_leaf() {
 
 #[test]
 fn packets_give_each_ray_its_own_answer_on_every_shipped_object() {
-    use hytrace::trace::packet::{Lane, PacketScratch, trace_hart_packet};
+    use hytrace::trace::packet::{BUNDLE, Lane, PacketScratch, trace_hart_packet};
     use hytrace::trace::{SceneTracer, TraceResult, sphere::trace_hart};
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/scenes");
     let mut rng = Rng::new(21);
@@ -391,15 +391,10 @@ fn packets_give_each_ray_its_own_answer_on_every_shipped_object() {
                         Some(Lane { ray: *r, t0, t1 })
                     })
                     .collect();
-                for chunk in lanes.chunks(8) {
-                    let mut out = [TraceResult::of_points(None, 0); 8];
-                    trace_hart_packet(
-                        field,
-                        chunk,
-                        &scene.tracer,
-                        &mut scratch,
-                        &mut out[..chunk.len()],
-                    );
+                // one SIMD pass's worth, and whole bundles (lanes grouped by leaf across them)
+                for chunk in lanes.chunks(8).chain(lanes.chunks(BUNDLE)) {
+                    let mut out = vec![TraceResult::of_points(None, 0); chunk.len()];
+                    trace_hart_packet(field, chunk, &scene.tracer, &mut scratch, &mut out);
                     for (lane, got) in chunk.iter().zip(&out) {
                         let alone = trace_hart(
                             &mut tracer.cursor(i, &mut regs),
@@ -420,5 +415,74 @@ fn packets_give_each_ray_its_own_answer_on_every_shipped_object() {
                 }
             }
         }
+    }
+}
+
+#[test]
+fn bundled_shadow_rays_give_each_ray_its_own_visibility() {
+    use hytrace::scene::Shadow;
+    use hytrace::trace::{SceneTracer, ShadowQuery};
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/scenes");
+    let mut rng = Rng::new(34);
+    for file in scene_files(&dir).unwrap() {
+        let scene = Scene::load(&file).unwrap_or_else(|e| panic!("{e}"));
+        let tracer = SceneTracer::new(&scene);
+        let b = scene.finite_bounds();
+        // rays from a grid of points on a plane through the scene toward one point (a
+        // light's shadow rays: coherent), in every shadow kind, plus scattered ones
+        let light = b.max + Vec3::new(0.5, 2.0, 0.7);
+        let mut queries = Vec::new();
+        for (k, shadow) in [
+            Shadow::Hard,
+            Shadow::Soft(8.0),
+            Shadow::SoftImproved(16.0),
+            Shadow::None,
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            for j in 0..24 {
+                for i in 0..24 {
+                    let o = b.min
+                        + (b.max - b.min)
+                            * Vec3::new(i as f32 / 23.0, 0.3 + 0.02 * k as f32, j as f32 / 23.0);
+                    let to = light - o;
+                    let ray = hytrace::geom::Ray::new(o, to.normalize());
+                    queries.push(ShadowQuery {
+                        ray,
+                        tmin: 1e-3,
+                        tmax: to.length(),
+                        shadow,
+                    });
+                }
+            }
+            for _ in 0..64 {
+                let o = rng.in_box(b.min, b.max);
+                queries.push(ShadowQuery {
+                    ray: hytrace::geom::Ray::new(o, rng.direction()),
+                    tmin: 1e-3,
+                    tmax: 10.0,
+                    shadow,
+                });
+            }
+        }
+        let mut bundled = vec![0.0; queries.len()];
+        tracer.visibilities(&queries, &mut bundled);
+        let mut open = 0;
+        for (q, got) in queries.iter().zip(&bundled) {
+            let alone = tracer.visibility(&q.ray, q.tmin, q.tmax, q.shadow);
+            assert_eq!(
+                got.to_bits(),
+                alone.to_bits(),
+                "{}: bundled {got} vs alone {alone} for {q:?}",
+                file.display()
+            );
+            open += (alone > 0.0 && alone < 1.0) as usize;
+        }
+        assert!(
+            open > 0 || scene.objects.is_empty(),
+            "{}: no penumbra sampled",
+            file.display()
+        );
     }
 }

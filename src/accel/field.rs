@@ -486,40 +486,47 @@ impl FieldOctree {
         }
     }
 
-    /// Stores a subtree built apart at node `slot`: its nodes after the tree's, its tapes
-    /// merged with the tree's.
+    /// Stores a subtree built apart at node `slot`: the nodes reachable from its root after
+    /// the tree's (children still together), the tapes they use merged with the tree's.
     fn graft(&mut self, slot: usize, sub: SubTree, dedup: &mut [Dedup; 2]) {
-        let tapes: Vec<u32> = sub
-            .tapes
-            .into_iter()
-            .map(|t| dedup[0].add(&mut self.tapes, t).0)
-            .collect();
-        let shading: Vec<u32> = sub
-            .shading
-            .into_iter()
-            .map(|t| dedup[1].add(&mut self.shading, t).0)
-            .collect();
-        let leaf_base = self.leaves.len() as u32;
-        self.leaves.extend(sub.leaves.into_iter().map(|l| Leaf {
-            tape: tapes[l.tape as usize],
-            shading: if l.shading == WHOLE_SHADING {
+        let mut tapes: Vec<Option<Tape>> = sub.tapes.into_iter().map(Some).collect();
+        let mut shading: Vec<Option<Tape>> = sub.shading.into_iter().map(Some).collect();
+        let mut tape_at: Vec<u32> = vec![u32::MAX; tapes.len()];
+        let mut shading_at: Vec<u32> = vec![u32::MAX; shading.len()];
+        // (local node, its place in the tree)
+        let mut todo = vec![(0usize, slot)];
+        while let Some((local, at)) = todo.pop() {
+            let n = sub.nodes[local].0;
+            if n & LEAF_BIT == 0 {
+                let first = self.nodes.len();
+                self.nodes[at] = Node(first as u32);
+                self.nodes.extend(std::iter::repeat_n(Node(0), 8));
+                todo.extend((0..8).map(|i| (n as usize + i, first + i)));
+                continue;
+            }
+            let l = sub.leaves[(n & !LEAF_BIT) as usize];
+            let t = l.tape as usize;
+            if tape_at[t] == u32::MAX {
+                let tape = tapes[t].take().expect("each tape is merged once");
+                tape_at[t] = dedup[0].add(&mut self.tapes, tape).0;
+            }
+            let shade = if l.shading == WHOLE_SHADING {
                 0
             } else {
-                shading[l.shading as usize]
-            },
-            ..l
-        }));
-        // local node i ≥ 1 goes to base + i − 1; local node 0 to `slot`
-        let base = self.nodes.len() as u32;
-        let place = |n: Node| {
-            if n.0 & LEAF_BIT != 0 {
-                Node(LEAF_BIT | (leaf_base + (n.0 & !LEAF_BIT)))
-            } else {
-                Node(base + n.0 - 1)
-            }
-        };
-        self.nodes[slot] = place(sub.nodes[0]);
-        self.nodes.extend(sub.nodes[1..].iter().map(|&n| place(n)));
+                let k = l.shading as usize;
+                if shading_at[k] == u32::MAX {
+                    let tape = shading[k].take().expect("each tape is merged once");
+                    shading_at[k] = dedup[1].add(&mut self.shading, tape).0;
+                }
+                shading_at[k]
+            };
+            self.nodes[at] = Node(LEAF_BIT | self.leaves.len() as u32);
+            self.leaves.push(Leaf {
+                tape: tape_at[t],
+                shading: shade,
+                ..l
+            });
+        }
     }
 
     /// The box the tree covers.
@@ -665,6 +672,15 @@ struct Dedup {
 }
 
 impl Dedup {
+    /// The instructions storing `tape` would add: 0 if it is stored already.
+    fn cost(&self, tape: &Tape) -> usize {
+        if self.seen.contains_key(&Self::key(tape)) {
+            0
+        } else {
+            tape.len()
+        }
+    }
+
     fn key(tape: &Tape) -> Vec<u8> {
         let mut key: Vec<u8> = bytemuck::cast_slice(tape.instrs()).to_vec();
         key.push(tape.result());
@@ -782,6 +798,9 @@ fn build_subtree(job: Job) -> SubTree {
         reserved,
     }];
     let mut depth = job.depth;
+    // the programs of the boxes split, for the leaf a box becomes if its children all turn
+    // out empty (or full)
+    let mut programs: HashMap<usize, SsaTape> = HashMap::default();
     while !level.is_empty() {
         let mut proposals: Vec<Proposal> = level
             .into_iter()
@@ -802,6 +821,7 @@ fn build_subtree(job: Job) -> SubTree {
                     budget.instructions += c.reserved as i64;
                     let first = sub.nodes.len();
                     sub.nodes[c.slot] = Node(first as u32);
+                    programs.insert(c.slot, c.sp.program.clone());
                     sub.nodes.extend(std::iter::repeat_n(Node(0), 8));
                     for (i, k) in (*children).into_iter().enumerate() {
                         let (clo, chi) = child_box(c.lo, c.hi, i);
@@ -842,6 +862,47 @@ fn build_subtree(job: Job) -> SubTree {
         next.sort_by_key(|c| c.slot);
         level = next;
         depth += 1;
+    }
+    // Eight empty (or eight full) leaves are one: a ray passes the box at once. Bottom up
+    // (children come after their parents), while the budget pays for the box's tape.
+    for slot in (0..sub.nodes.len()).rev() {
+        let first = sub.nodes[slot].0;
+        if first & LEAF_BIT != 0 || !programs.contains_key(&slot) {
+            continue;
+        }
+        let children: Vec<&Leaf> = (0..8)
+            .map_while(|i| {
+                let n = sub.nodes[first as usize + i].0;
+                (n & LEAF_BIT != 0).then(|| &sub.leaves[(n & !LEAF_BIT) as usize])
+            })
+            .collect();
+        let Some(kind) = children.first().map(|l| l.verdict) else {
+            continue;
+        };
+        if children.len() < 8
+            || kind == Verdict::Surface
+            || children.iter().any(|l| l.verdict != kind)
+        {
+            continue;
+        }
+        let min_value = children
+            .iter()
+            .map(|l| l.min_value)
+            .fold(f32::INFINITY, f32::min);
+        let leaf = uniform_leaf(&programs[&slot], kind, min_value);
+        if dedup[0].cost(&leaf.tape) as i64 > budget.instructions {
+            continue;
+        }
+        let (tape, added) = dedup[0].add(&mut sub.tapes, leaf.tape);
+        budget.instructions -= added as i64;
+        sub.nodes[slot] = Node(LEAF_BIT | sub.leaves.len() as u32);
+        sub.leaves.push(Leaf {
+            tape,
+            shading: WHOLE_SHADING,
+            verdict: kind,
+            gradient: leaf.gradient,
+            min_value,
+        });
     }
     sub
 }
@@ -1112,12 +1173,20 @@ impl<'a> RayWalk<'a> {
 
     /// The next leaf along the ray, or `None` past `to` or the tree.
     #[inline]
+    ///
+    /// The frame being looked at is held in registers, apart from the stack: a frame goes
+    /// to the stack only when the walk descends below it, and is read back once its children
+    /// are done. (Reading back a frame just stored, field by field with other widths than it
+    /// was written with, defeats the CPU's store-to-load forwarding: that stall was a quarter
+    /// of the time of a march through a sparse union of spheres.)
     pub fn next_leaf(&mut self) -> Option<Crossed<'a>> {
-        while self.len > 0 {
-            let top = self.len as usize - 1;
-            let f = self.stack[top];
+        if self.len == 0 {
+            return None;
+        }
+        self.len -= 1;
+        let mut f = self.stack[self.len as usize];
+        loop {
             if f.node.0 & LEAF_BIT != 0 {
-                self.len -= 1;
                 let enter = f.t0.max_element();
                 if enter > self.to {
                     self.len = 0;
@@ -1132,7 +1201,11 @@ impl<'a> RayWalk<'a> {
                 });
             }
             if f.next >= 8 {
+                if self.len == 0 {
+                    return None;
+                }
                 self.len -= 1;
+                f = self.stack[self.len as usize];
                 continue;
             }
             // Child `c` in the mirrored frame: bit 0 = x, 1 = y, 2 = z, as stored.
@@ -1149,7 +1222,7 @@ impl<'a> RayWalk<'a> {
             } else {
                 2
             };
-            self.stack[top].next = if c & (1 << exit_axis) != 0 {
+            f.next = if c & (1 << exit_axis) != 0 {
                 8
             } else {
                 (c | (1 << exit_axis)) as u8
@@ -1159,9 +1232,24 @@ impl<'a> RayWalk<'a> {
             }
             // mirrored axes take the other half of the stored children
             let real = c ^ self.mirror as usize;
-            self.push(self.tree.nodes[f.node.0 as usize + real], ct0, ct1);
+            let node = self.tree.nodes[f.node.0 as usize + real];
+            if f.next < 8 {
+                // siblings are left: this frame is needed again
+                self.stack[self.len as usize] = f;
+                self.len += 1;
+            }
+            let next = if node.0 & LEAF_BIT != 0 {
+                0
+            } else {
+                first_child(ct0, 0.5 * (ct0 + ct1))
+            };
+            f = Frame {
+                node,
+                t0: ct0,
+                t1: ct1,
+                next,
+            };
         }
-        None
     }
 }
 

@@ -111,11 +111,17 @@ fn pass(
     true
 }
 
-/// Sample `sample` of every pixel of a tile as `camera` sees it, in row order. Each sample's camera rays are traced a tile row
-/// at a time: the row's closest hits come from one [`SceneTracer::closest_hits`] call and the
-/// shadow rays of their local shading from one [`SceneTracer::visibilities`] call (packets),
-/// then each ray's path is followed on its own. The answers are those of tracing every ray
-/// alone, so the image does not depend on this grouping.
+/// Rows of a tile whose camera rays are traced together: a band of 4 rows of 32 pixels fills a
+/// ray bundle ([`crate::trace::packet::BUNDLE`]), whose lanes share SIMD passes wherever they
+/// stand in one leaf, across the rows as along them.
+const BAND_ROWS: u32 = 4;
+
+/// Sample `sample` of every pixel of a tile as `camera` sees it, in row order. Each sample's
+/// camera rays are traced a band of [`BAND_ROWS`] tile rows at a time: the band's closest hits
+/// come from one [`SceneTracer::closest_hits`] call and the shadow rays of their local shading
+/// from one [`SceneTracer::visibilities`] call (bundles), then each ray's path is followed on
+/// its own. The answers are those of tracing every ray alone, so the image does not depend on
+/// this grouping.
 fn render_tile(
     tracer: &SceneTracer,
     materials: &[MaterialVec],
@@ -127,21 +133,26 @@ fn render_tile(
     let scene = tracer.scene();
     let lights = scene.lights.len();
     let mut out = Vec::with_capacity((tile.w * tile.h) as usize);
-    let mut rays = Vec::with_capacity(tile.w as usize);
-    let mut hits = vec![None; tile.w as usize];
-    let mut surfaces = Vec::with_capacity(tile.w as usize);
+    let band = (tile.w * BAND_ROWS) as usize;
+    let mut rays = Vec::with_capacity(band);
+    let mut hits = Vec::with_capacity(band);
+    let mut surfaces = Vec::with_capacity(band);
     let mut queries = Vec::new();
     let mut owners = Vec::new();
     let mut answers = Vec::new();
-    let mut visibility = vec![1.0f32; tile.w as usize * lights];
-    for y in tile.y0..tile.y0 + tile.h {
+    let mut visibility = vec![1.0f32; band * lights];
+    for y0 in (tile.y0..tile.y0 + tile.h).step_by(BAND_ROWS as usize) {
         rays.clear();
-        for x in tile.x0..tile.x0 + tile.w {
-            let (dx, dy) = sample_offset(x, y, sample, opts.samples);
-            rays.push(camera_ray(camera, opts, x as f32 + dx, y as f32 + dy));
+        for y in y0..(y0 + BAND_ROWS).min(tile.y0 + tile.h) {
+            for x in tile.x0..tile.x0 + tile.w {
+                let (dx, dy) = sample_offset(x, y, sample, opts.samples);
+                rays.push(camera_ray(camera, opts, x as f32 + dx, y as f32 + dy));
+            }
         }
+        hits.clear();
+        hits.resize(rays.len(), None);
         tracer.closest_hits(&rays, 0.0, f32::INFINITY, &mut hits);
-        // the row's shadow rays, light by light (rays toward one light are coherent)
+        // the band's shadow rays, light by light (rays toward one light are coherent)
         surfaces.clear();
         surfaces.extend(rays.iter().zip(&hits).map(|(ray, hit)| {
             hit.map(|h| integrator::surfaced(tracer, materials, ray, &h))

@@ -331,13 +331,13 @@ impl<'a> SceneTracer<'a> {
         let mut best: Vec<Option<(f32, usize)>> = vec![None; n];
         let mut steps = vec![0u32; n];
         let mut pending = Vec::with_capacity(n);
-        let mut lanes = Vec::with_capacity(packet::PACKET);
-        let mut results = [TraceResult::of_points(None, 0); packet::PACKET];
+        let mut lanes = Vec::with_capacity(packet::BUNDLE);
+        let mut results = [TraceResult::of_points(None, 0); packet::BUNDLE];
         // the walk's pruning: an object whose bounds start past the ray's nearest hit so far
         while candidates.round(|r, t0| t0 <= limits[r], &mut pending) {
             for group in pending.chunk_by(|a, b| a.0 == b.0) {
                 let object = group[0].0;
-                for chunk in group.chunks(packet::PACKET) {
+                for chunk in group.chunks(packet::BUNDLE) {
                     lanes.clear();
                     lanes.extend(chunk.iter().map(|&(_, r, t0, t1)| packet::Lane {
                         ray: rays[r],
@@ -532,7 +532,7 @@ impl<'a> SceneTracer<'a> {
             }
         }
         let mut candidates = Candidates::with_tmins(&self.accel, &rays, &tmins, &limits, |_| 0.0);
-        let mut results = [TraceResult::of_points(None, 0); packet::PACKET];
+        let mut results = [TraceResult::of_points(None, 0); packet::BUNDLE];
         candidates.in_packets(
             &rays,
             &mut blocked,
@@ -578,7 +578,7 @@ impl<'a> SceneTracer<'a> {
         // k·h/t < 1 only where h < t/k ≤ limit/k: objects farther than that cannot darken
         let mut candidates =
             Candidates::with_tmins(&self.accel, &rays, &tmins, &limits, |r| limits[r] / k);
-        let mut values = [0.0f32; packet::PACKET];
+        let mut values = [0.0f32; packet::BUNDLE];
         candidates.in_packets(
             &rays,
             &mut res,
@@ -798,7 +798,7 @@ impl Candidates {
     }
 
     /// Marches the candidates round after round while `keep(state, ray)` holds: each round's
-    /// (object, ray) pairs are grouped by object into packets of at most [`packet::PACKET`]
+    /// (object, ray) pairs are grouped by object into bundles of at most [`packet::BUNDLE`]
     /// lanes and handed to `visit(state, object, lanes, rays of the lanes)`.
     fn in_packets<S: ?Sized>(
         &mut self,
@@ -808,11 +808,11 @@ impl Candidates {
         mut visit: impl FnMut(&mut S, usize, &[packet::Lane], &[usize]),
     ) {
         let mut pending = Vec::new();
-        let mut lanes = Vec::with_capacity(packet::PACKET);
-        let mut lane_rays = Vec::with_capacity(packet::PACKET);
+        let mut lanes = Vec::with_capacity(packet::BUNDLE);
+        let mut lane_rays = Vec::with_capacity(packet::BUNDLE);
         while self.round(|r, _| keep(state, r), &mut pending) {
             for group in pending.chunk_by(|a, b| a.0 == b.0) {
-                for chunk in group.chunks(packet::PACKET) {
+                for chunk in group.chunks(packet::BUNDLE) {
                     lanes.clear();
                     lane_rays.clear();
                     for &(_, r, t0, t1) in chunk {

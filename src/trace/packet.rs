@@ -1,6 +1,9 @@
-//! Coherent rays marched together: up to eight rays of a tile row sphere-traced through one
-//! object at once, every sample of the rays that stand in the same leaf evaluated by one pass
-//! of that leaf's tape on SIMD lanes ([`crate::sdf::simd`]).
+//! Coherent rays marched together: a bundle of up to [`BUNDLE`] rays of a tile's band of rows
+//! sphere-traced through one object at once, round by round, the samples of the rays that
+//! stand in the same leaf evaluated together, eight per pass of that leaf's tape on SIMD
+//! lanes ([`crate::sdf::simd`]). Neighbouring rows share leaves as much as neighbouring
+//! pixels of a row do: over the small leaves of a large union, eight rays of one row stood in
+//! 1.6 leaves on average, so most passes filled a lane or two.
 //!
 //! Each ray keeps its own march — its parts ([`super::sphere`]'s leaves and whole-tape
 //! stretches), its t, its step count — and takes exactly the steps [`super::sphere::trace_hart`]
@@ -20,8 +23,27 @@ use crate::sdf::simd::{PacketRegisters, SimdLevel, eval8};
 use crate::sdf::tape::Registers;
 use arrayvec::ArrayVec;
 
-/// Rays per packet: the AVX2 lane count.
+/// Rays per evaluation pass: the AVX2 lane count.
 pub const PACKET: usize = 8;
+
+/// Rays marched together at most (the lanes of a round are grouped by leaf across them):
+/// four rows of a 32-pixel tile.
+pub const BUNDLE: usize = 128;
+
+/// A set of a bundle's lanes.
+type Lanes = u128;
+const _: () = assert!(BUNDLE <= Lanes::BITS as usize);
+
+/// The lanes of `set`, lowest first.
+fn members(mut set: Lanes) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (set != 0).then(|| {
+            let i = set.trailing_zeros() as usize;
+            set &= set - 1;
+            i
+        })
+    })
+}
 
 /// One ray of a packet: what it marches over, and its answer when done.
 #[derive(Debug, Clone, Copy)]
@@ -72,7 +94,7 @@ struct State<'f> {
     done: Option<Option<f32>>,
 }
 
-/// Hart's march of up to [`PACKET`] rays through one object's field; `out[i]` is what
+/// Hart's march of up to [`BUNDLE`] rays through one object's field; `out[i]` is what
 /// [`super::sphere::trace_hart`] returns for `lanes[i]` alone.
 pub fn trace_hart_packet(
     field: &ObjectField,
@@ -81,9 +103,9 @@ pub fn trace_hart_packet(
     scratch: &mut PacketScratch,
     out: &mut [TraceResult],
 ) {
-    assert!(lanes.len() <= PACKET && out.len() == lanes.len());
+    assert!(lanes.len() <= BUNDLE && out.len() == lanes.len());
     let PacketScratch { simd, regs, level } = scratch;
-    let mut states: ArrayVec<State, PACKET> = {
+    let mut states: Vec<State> = {
         let cursor = field.cursor(regs);
         lanes
             .iter()
@@ -98,7 +120,7 @@ pub fn trace_hart_packet(
     };
     loop {
         // Every unfinished lane at the part that holds its t (the next one once past it).
-        let mut active = 0u32;
+        let mut active: Lanes = 0;
         for (i, st) in states.iter_mut().enumerate() {
             if st.done.is_some() {
                 continue;
@@ -133,62 +155,66 @@ pub fn trace_hart_packet(
         if active == 0 {
             break;
         }
-        // One pass per tape among the active lanes: lanes in one leaf share it.
+        // The active lanes by tape (lanes in one leaf share it), eight per pass.
         while active != 0 {
             let first = active.trailing_zeros() as usize;
             let tape = states[first].part.expect("an active lane has a part").tape;
-            let mut group = 0u32;
-            let mut xyz = [[0.0f32; PACKET]; 3];
-            for i in 0..lanes.len() {
-                let p = if active & (1 << i) != 0
-                    && std::ptr::eq(states[i].part.expect("active").tape, tape)
-                {
-                    group |= 1 << i;
-                    lanes[i].ray.at(states[i].t)
-                } else {
-                    // a lane outside the group evaluates the first lane's point, unused
-                    lanes[first].ray.at(states[first].t)
-                };
-                for a in 0..3 {
-                    xyz[a][i] = p[a];
-                }
-            }
-            for axis in xyz.iter_mut() {
-                let v = axis[first];
-                axis[lanes.len()..].fill(v);
-            }
-            let d = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
+            let group = members(active)
+                .filter(|&i| std::ptr::eq(states[i].part.expect("active").tape, tape))
+                .fold(0 as Lanes, |g, i| g | 1 << i);
             active &= !group;
-            for (i, st) in states.iter_mut().enumerate() {
-                if group & (1 << i) == 0 {
-                    continue;
+            let mut pass: ArrayVec<usize, PACKET> = ArrayVec::new();
+            let mut rest = group;
+            while rest != 0 {
+                pass.clear();
+                pass.extend(members(rest).take(PACKET));
+                for &i in &pass {
+                    rest &= !(1 << i);
                 }
-                st.steps += 1;
-                let part = st.part.expect("active");
-                let (ray, t) = (&lanes[i].ray, st.t);
-                let eps = epsilon_at(s, t);
-                if d[i] < eps {
-                    let mut cursor = field.cursor(regs);
-                    match crossing::confirm(
-                        &mut cursor,
-                        ray,
-                        t,
-                        d[i],
-                        lanes[i].t1,
-                        s,
-                        &mut st.steps,
-                    ) {
-                        Candidate::Hit(t) => st.done = Some(Some(t)),
-                        Candidate::Continue(next) => st.t = next,
+                let mut xyz = [[0.0f32; PACKET]; 3];
+                for k in 0..PACKET {
+                    // spare SIMD lanes evaluate the pass's first point, unused
+                    let i = pass[k.min(pass.len() - 1)];
+                    let p = lanes[i].ray.at(states[i].t);
+                    for a in 0..3 {
+                        xyz[a][k] = p[a];
                     }
-                } else {
-                    st.t = t + hart_step(d[i], &part, t, eps);
+                }
+                let d = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
+                for (k, &i) in pass.iter().enumerate() {
+                    march_step(field, &mut states[i], &lanes[i], d[k], s, regs);
                 }
             }
         }
     }
     for (o, st) in out.iter_mut().zip(&states) {
         *o = TraceResult::of_points(st.done.flatten(), st.steps);
+    }
+}
+
+/// One lane's step from the field value `d` at its t: a hit confirmed or refuted, or Hart's
+/// step.
+#[inline]
+fn march_step(
+    field: &ObjectField,
+    st: &mut State,
+    lane: &Lane,
+    d: f32,
+    s: &TracerSettings,
+    regs: &mut Registers,
+) {
+    st.steps += 1;
+    let part = st.part.expect("active");
+    let (ray, t) = (&lane.ray, st.t);
+    let eps = epsilon_at(s, t);
+    if d < eps {
+        let mut cursor = field.cursor(regs);
+        match crossing::confirm(&mut cursor, ray, t, d, lane.t1, s, &mut st.steps) {
+            Candidate::Hit(t) => st.done = Some(Some(t)),
+            Candidate::Continue(next) => st.t = next,
+        }
+    } else {
+        st.t = t + hart_step(d, &part, t, eps);
     }
 }
 
@@ -202,7 +228,7 @@ struct Shadowed<'f> {
     done: bool,
 }
 
-/// Quilez's penumbra ([`super::sphere::penumbra`]) of up to [`PACKET`] shadow rays through
+/// Quilez's penumbra ([`super::sphere::penumbra`]) of up to [`BUNDLE`] shadow rays through
 /// one object, sampled where each ray alone samples it; `out[i]` is what the scalar march
 /// returns for `lanes[i]`.
 #[allow(clippy::too_many_arguments)]
@@ -215,9 +241,9 @@ pub fn penumbra_packet(
     scratch: &mut PacketScratch,
     out: &mut [f32],
 ) {
-    assert!(lanes.len() <= PACKET && out.len() == lanes.len());
+    assert!(lanes.len() <= BUNDLE && out.len() == lanes.len());
     let PacketScratch { simd, regs, level } = scratch;
-    let mut states: ArrayVec<Shadowed, PACKET> = {
+    let mut states: Vec<Shadowed> = {
         let cursor = field.cursor(regs);
         lanes
             .iter()
@@ -231,9 +257,9 @@ pub fn penumbra_packet(
             })
             .collect()
     };
-    let mut tapes: [Option<&crate::sdf::tape::Tape>; PACKET] = [None; PACKET];
+    let mut tapes: Vec<Option<&crate::sdf::tape::Tape>> = vec![None; lanes.len()];
     loop {
-        let mut active = 0u32;
+        let mut active: Lanes = 0;
         for (i, st) in states.iter_mut().enumerate() {
             if !st.done {
                 tapes[i] = Some(st.along.tape(st.t));
@@ -243,46 +269,49 @@ pub fn penumbra_packet(
         if active == 0 {
             break;
         }
+        // The active lanes by tape, eight per pass.
         while active != 0 {
             let first = active.trailing_zeros() as usize;
             let tape = tapes[first].expect("active");
-            let mut group = 0u32;
-            let mut xyz = [[0.0f32; PACKET]; 3];
-            let fallback = lanes[first].ray.at(states[first].t);
-            for i in 0..PACKET {
-                let p = if i < lanes.len()
-                    && active & (1 << i) != 0
-                    && std::ptr::eq(tapes[i].expect("active"), tape)
-                {
-                    group |= 1 << i;
-                    lanes[i].ray.at(states[i].t)
-                } else {
-                    fallback
-                };
-                for (axis, v) in xyz.iter_mut().zip(p.to_array()) {
-                    axis[i] = v;
-                }
-            }
-            let h = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
+            let group = members(active)
+                .filter(|&i| std::ptr::eq(tapes[i].expect("active"), tape))
+                .fold(0 as Lanes, |g, i| g | 1 << i);
             active &= !group;
-            for (i, st) in states.iter_mut().enumerate() {
-                if group & (1 << i) == 0 {
-                    continue;
+            let mut pass: ArrayVec<usize, PACKET> = ArrayVec::new();
+            let mut rest = group;
+            while rest != 0 {
+                pass.clear();
+                pass.extend(members(rest).take(PACKET));
+                for &i in &pass {
+                    rest &= !(1 << i);
                 }
-                let t = st.t;
-                st.samples += 1;
-                if h[i] < epsilon_at(s, t) {
-                    st.res = 0.0;
-                    st.done = true;
-                    continue;
+                let mut xyz = [[0.0f32; PACKET]; 3];
+                for j in 0..PACKET {
+                    // spare SIMD lanes evaluate the pass's first point, unused
+                    let i = pass[j.min(pass.len() - 1)];
+                    let p = lanes[i].ray.at(states[i].t);
+                    for a in 0..3 {
+                        xyz[a][j] = p[a];
+                    }
                 }
-                st.res = st
-                    .res
-                    .min(penumbra_estimate(h[i], st.previous, t, k, improved));
-                st.previous = h[i];
-                st.t = t + h[i];
-                if st.t > lanes[i].t1 || st.res < 1e-4 || st.samples >= s.max_steps {
-                    st.done = true;
+                let h = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
+                for (j, &i) in pass.iter().enumerate() {
+                    let st = &mut states[i];
+                    let t = st.t;
+                    st.samples += 1;
+                    if h[j] < epsilon_at(s, t) {
+                        st.res = 0.0;
+                        st.done = true;
+                        continue;
+                    }
+                    st.res = st
+                        .res
+                        .min(penumbra_estimate(h[j], st.previous, t, k, improved));
+                    st.previous = h[j];
+                    st.t = t + h[j];
+                    if st.t > lanes[i].t1 || st.res < 1e-4 || st.samples >= s.max_steps {
+                        st.done = true;
+                    }
                 }
             }
         }
