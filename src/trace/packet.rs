@@ -85,6 +85,31 @@ impl Default for PacketScratch {
     }
 }
 
+/// The next pass of up to [`PACKET`] lanes of `rest` (taken out of it), lowest first, with
+/// their points (`point` of each lane) on SIMD lanes; spare SIMD lanes repeat the pass's first
+/// point, unused.
+#[inline]
+fn next_pass(
+    rest: &mut Lanes,
+    point: impl Fn(usize) -> glam::Vec3,
+) -> Option<(ArrayVec<usize, PACKET>, [[f32; PACKET]; 3])> {
+    if *rest == 0 {
+        return None;
+    }
+    let pass: ArrayVec<usize, PACKET> = members(*rest).take(PACKET).collect();
+    for &i in &pass {
+        *rest &= !(1 << i);
+    }
+    let mut xyz = [[0.0f32; PACKET]; 3];
+    for k in 0..PACKET {
+        let p = point(pass[k.min(pass.len() - 1)]);
+        for a in 0..3 {
+            xyz[a][k] = p[a];
+        }
+    }
+    Some((pass, xyz))
+}
+
 /// Where one lane's march stands.
 struct State<'f> {
     parts: Parts<'f>,
@@ -163,23 +188,8 @@ pub fn trace_hart_packet(
                 .filter(|&i| std::ptr::eq(states[i].part.expect("active").tape, tape))
                 .fold(0 as Lanes, |g, i| g | 1 << i);
             active &= !group;
-            let mut pass: ArrayVec<usize, PACKET> = ArrayVec::new();
             let mut rest = group;
-            while rest != 0 {
-                pass.clear();
-                pass.extend(members(rest).take(PACKET));
-                for &i in &pass {
-                    rest &= !(1 << i);
-                }
-                let mut xyz = [[0.0f32; PACKET]; 3];
-                for k in 0..PACKET {
-                    // spare SIMD lanes evaluate the pass's first point, unused
-                    let i = pass[k.min(pass.len() - 1)];
-                    let p = lanes[i].ray.at(states[i].t);
-                    for a in 0..3 {
-                        xyz[a][k] = p[a];
-                    }
-                }
+            while let Some((pass, xyz)) = next_pass(&mut rest, |i| lanes[i].ray.at(states[i].t)) {
                 let d = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
                 for (k, &i) in pass.iter().enumerate() {
                     march_step(field, &mut states[i], &lanes[i], d[k], s, regs);
@@ -277,23 +287,8 @@ pub fn penumbra_packet(
                 .filter(|&i| std::ptr::eq(tapes[i].expect("active"), tape))
                 .fold(0 as Lanes, |g, i| g | 1 << i);
             active &= !group;
-            let mut pass: ArrayVec<usize, PACKET> = ArrayVec::new();
             let mut rest = group;
-            while rest != 0 {
-                pass.clear();
-                pass.extend(members(rest).take(PACKET));
-                for &i in &pass {
-                    rest &= !(1 << i);
-                }
-                let mut xyz = [[0.0f32; PACKET]; 3];
-                for j in 0..PACKET {
-                    // spare SIMD lanes evaluate the pass's first point, unused
-                    let i = pass[j.min(pass.len() - 1)];
-                    let p = lanes[i].ray.at(states[i].t);
-                    for a in 0..3 {
-                        xyz[a][j] = p[a];
-                    }
-                }
+            while let Some((pass, xyz)) = next_pass(&mut rest, |i| lanes[i].ray.at(states[i].t)) {
                 let h = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
                 for (j, &i) in pass.iter().enumerate() {
                     let st = &mut states[i];
