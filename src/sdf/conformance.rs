@@ -572,6 +572,42 @@ mod tests {
     }
 
     #[test]
+    fn a_material_that_is_one_entry_is_read_without_evaluating() {
+        let mut table = [[0.0f32; crate::sdf::tape::MATERIAL_FLOATS]; 3];
+        table[1][0] = 0.25;
+        table[2][0] = 1.0;
+        let materials = |n: &str| Some(if n == "a" { 1 } else { 2 });
+        // one material: constant, and what evaluating the tape gives everywhere
+        let one = lower(
+            &parse_node("Material(name: \"b\", shape: Union([Sphere(radius: 1), Box(half_extents: (2, 0.1, 2))]))"),
+            &materials,
+            0,
+        )
+        .unwrap();
+        assert!(one.shading.has_constant_material());
+        // a blend: evaluated, so its value follows the point
+        let blend = lower(
+            &parse_node("SmoothUnion(k: 1.0, shapes: [Material(name: \"a\", shape: Transform(translate: (-1, 0, 0), shape: Sphere(radius: 0.8))), Material(name: \"b\", shape: Transform(translate: (1, 0, 0), shape: Sphere(radius: 0.8)))])"),
+            &materials,
+            0,
+        )
+        .unwrap();
+        assert!(!blend.shading.has_constant_material());
+        let mut rng = crate::rng::Rng::new(3);
+        for _ in 0..200 {
+            let p = rng.in_box(Vec3::splat(-3.0), Vec3::splat(3.0));
+            for low in [&one, &blend] {
+                assert_eq!(
+                    low.shading.material_at(p, &table),
+                    low.shading.eval_material(p, &table).1,
+                    "at {p}"
+                );
+            }
+        }
+        assert_eq!(one.shading.material_at(Vec3::ZERO, &table)[0], 1.0);
+    }
+
+    #[test]
     fn smooth_min_is_the_documented_polynomial() {
         // f = a(1−h) + b·h − k·h(1−h), h = clamp(½ + ½(a−b)/k, 0, 1), for planes a = x, b = −x + c
         let t = tape(

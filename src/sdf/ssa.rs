@@ -562,10 +562,16 @@ impl SsaTape {
             };
             instrs.push(ins);
         }
+        // a material that is one table entry, not a blend: shading needs no evaluation
+        let constant_material = material
+            .map(|m| &self.ops[m as usize])
+            .filter(|op| op.op == Op::MatLoad)
+            .map(|op| op.imm);
         Ok(Tape {
             instrs,
             result: reg[self.result as usize],
             material_result: material.map(|m| reg[m as usize]),
+            constant_material,
             registers: used_v,
             material_registers: used_m,
         })

@@ -286,6 +286,8 @@ pub struct Tape {
     pub(crate) instrs: Vec<Instr>,
     pub(crate) result: u8,
     pub(crate) material_result: Option<u8>,
+    /// The material table entry a shading tape's material is, when it is not a blend.
+    pub(crate) constant_material: Option<u32>,
     pub(crate) registers: usize,
     pub(crate) material_registers: usize,
 }
@@ -459,6 +461,24 @@ impl Tape {
             .map(|r| mats[mreg(r)])
             .unwrap_or_else(|| materials.first().copied().unwrap_or([0.0; MATERIAL_FLOATS]));
         (regs[self.result as usize], m)
+    }
+
+    /// The blended material at `p`: [`Self::eval_material`]'s, without evaluating anything
+    /// when the material is one table entry (an object of one material, or a leaf where one
+    /// branch of every blend is decided).
+    pub fn material_at(&self, p: Vec3, materials: &[MaterialVec]) -> MaterialVec {
+        match self.constant_material {
+            Some(k) => materials
+                .get(k as usize)
+                .copied()
+                .unwrap_or([0.0; MATERIAL_FLOATS]),
+            None => self.eval_material(p, materials).1,
+        }
+    }
+
+    /// Whether [`Self::material_at`] is the same at every point.
+    pub fn has_constant_material(&self) -> bool {
+        self.constant_material.is_some()
     }
 
     /// Central-difference gradient with step h (6 evaluations).

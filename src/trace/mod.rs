@@ -628,10 +628,14 @@ impl<'a> SceneTracer<'a> {
     pub fn material_at(&self, hit: &Hit, p: Vec3, materials: &[MaterialVec]) -> MaterialParams {
         match hit.surface {
             Surface::Sdf(object) => {
-                let (_, m) = self.fields[object]
-                    .shading_at(p)
-                    .eval_material(p, materials);
-                MaterialParams::from_vec(&m)
+                let field = &self.fields[object];
+                // one material over the whole object: no leaf to find
+                let tape = if field.whole_shading.has_constant_material() {
+                    &field.whole_shading
+                } else {
+                    field.shading_at(p)
+                };
+                MaterialParams::from_vec(&tape.material_at(p, materials))
             }
             Surface::Mesh { material, tint, .. } => {
                 let mut m = self.scene.materials[material as usize];
