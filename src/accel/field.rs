@@ -426,63 +426,31 @@ impl FieldOctree {
             .compile()
             .expect("the source program compiles (it was lowered)");
         let (_, added) = dedup[1].add(&mut tree.shading, whole_shading);
-        let mut simplifier = Simplifier::new();
-        let mut jobs = Vec::new();
         let root = Job {
-            sp: simplifier.specialise(program, lo, hi),
+            sp: Simplifier::new().specialise(program, lo, hi),
             lo,
             hi,
             depth: 0,
-            slot: 0,
             nodes: nodes.saturating_sub(1),
             instructions: instructions.saturating_sub(added),
         };
-        tree.split_top(root, &mut simplifier, &mut jobs);
-        let subtrees: Vec<(usize, SubTree)> = jobs
-            .into_par_iter()
-            .map(|job| (job.slot, build_subtree(job)))
-            .collect();
-        for (slot, sub) in subtrees {
-            tree.graft(slot, sub, &mut dedup);
-        }
+        tree.store_top(build_top(root), 0, &mut dedup);
         tree
     }
 
-    /// Splits the boxes above [`PARALLEL_DEPTH`] in the tree, and leaves a job for each box
-    /// at that depth (or above it, where a box is not split).
-    fn split_top(&mut self, job: Job, simplifier: &mut Simplifier, jobs: &mut Vec<Job>) {
-        let splits = job.depth < PARALLEL_DEPTH
-            && job.sp.verdict == Verdict::Surface
-            && job.sp.len >= MIN_TAPE
-            && job.nodes >= 8;
-        if !splits {
-            jobs.push(job);
-            return;
-        }
-        let first = self.nodes.len();
-        self.nodes[job.slot] = Node(first as u32);
-        self.nodes.extend(std::iter::repeat_n(Node(0), 8));
-        let children: Vec<Specialised> = (0..8)
-            .map(|i| {
-                let (clo, chi) = child_box(job.lo, job.hi, i);
-                simplifier.specialise(&job.sp.program, clo, chi)
-            })
-            .collect();
-        let total = children.iter().map(|c| c.len).sum::<usize>().max(1) as u128;
-        let nodes = job.nodes - 8;
-        for (i, c) in children.into_iter().enumerate() {
-            let (clo, chi) = child_box(job.lo, job.hi, i);
-            let instructions = (job.instructions as u128 * c.len as u128 / total) as usize;
-            let child = Job {
-                sp: c,
-                lo: clo,
-                hi: chi,
-                depth: job.depth + 1,
-                slot: first + i,
-                nodes: nodes / 8,
-                instructions,
-            };
-            self.split_top(child, simplifier, jobs);
+    /// Stores the top of a tree at node `slot`: its splits as inner nodes, its subtrees
+    /// grafted below them, in octant order.
+    fn store_top(&mut self, top: Top, slot: usize, dedup: &mut [Dedup; 2]) {
+        match top {
+            Top::Subtree(sub) => self.graft(slot, sub, dedup),
+            Top::Split(children) => {
+                let first = self.nodes.len();
+                self.nodes[slot] = Node(first as u32);
+                self.nodes.extend(std::iter::repeat_n(Node(0), 8));
+                for (i, child) in children.into_iter().enumerate() {
+                    self.store_top(child, first + i, dedup);
+                }
+            }
         }
     }
 
@@ -751,10 +719,57 @@ struct Job {
     lo: Vec3,
     hi: Vec3,
     depth: u32,
-    /// Its node in the tree.
-    slot: usize,
     nodes: usize,
     instructions: usize,
+}
+
+/// The top [`PARALLEL_DEPTH`] levels of a tree: boxes split regardless, and the subtrees below
+/// them.
+enum Top {
+    Split(Vec<Top>),
+    Subtree(SubTree),
+}
+
+/// The top of the tree of `job`'s box: split while above [`PARALLEL_DEPTH`] (the top levels
+/// always are, see [`CULL_DEPTH`]), the budget shared among the children in proportion to
+/// their tapes, the children built in parallel; below, one subtree per box. Each box's
+/// children are specialised only when it is built, so few programs are alive at once (every
+/// box of the second level holding its program cost a 100,000-sphere union 650 MB).
+fn build_top(job: Job) -> Top {
+    let splits = job.depth < PARALLEL_DEPTH
+        && job.sp.verdict == Verdict::Surface
+        && job.sp.len >= MIN_TAPE
+        && job.nodes >= 8;
+    if !splits {
+        return Top::Subtree(build_subtree(job));
+    }
+    let mut simplifier = Simplifier::new();
+    let children: Vec<Specialised> = (0..8)
+        .map(|i| {
+            let (clo, chi) = child_box(job.lo, job.hi, i);
+            simplifier.specialise(&job.sp.program, clo, chi)
+        })
+        .collect();
+    drop(job.sp);
+    let total = children.iter().map(|c| c.len).sum::<usize>().max(1) as u128;
+    let nodes = (job.nodes - 8) / 8;
+    let jobs: Vec<Job> = children
+        .into_iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let (clo, chi) = child_box(job.lo, job.hi, i);
+            let instructions = (job.instructions as u128 * c.len as u128 / total) as usize;
+            Job {
+                sp: c,
+                lo: clo,
+                hi: chi,
+                depth: job.depth + 1,
+                nodes,
+                instructions,
+            }
+        })
+        .collect();
+    Top::Split(jobs.into_par_iter().map(build_top).collect())
 }
 
 /// A subtree built apart: nodes (0 its root) and leaves as in the tree, indexing its own
