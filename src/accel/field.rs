@@ -836,7 +836,7 @@ fn build_subtree(job: Job) -> SubTree {
                     budget.instructions += c.reserved as i64;
                     let first = sub.nodes.len();
                     sub.nodes[c.slot] = Node(first as u32);
-                    programs.insert(c.slot, c.sp.program.clone());
+                    programs.insert(c.slot, c.sp.program);
                     sub.nodes.extend(std::iter::repeat_n(Node(0), 8));
                     for (i, k) in (*children).into_iter().enumerate() {
                         let (clo, chi) = child_box(c.lo, c.hi, i);

@@ -20,7 +20,7 @@ use crate::accel::field::ObjectField;
 use crate::geom::Ray;
 use crate::scene::TracerSettings;
 use crate::sdf::simd::{PacketRegisters, SimdLevel, eval8};
-use crate::sdf::tape::Registers;
+use crate::sdf::tape::{Registers, Tape};
 use arrayvec::ArrayVec;
 
 /// Rays per evaluation pass: the AVX2 lane count.
@@ -83,6 +83,18 @@ impl Default for PacketScratch {
     fn default() -> Self {
         Self::new()
     }
+}
+
+/// The lanes of `active` that share the lowest one's tape (taken out of `active`), and that
+/// tape.
+#[inline]
+fn next_group<'t>(active: &mut Lanes, tape_of: impl Fn(usize) -> &'t Tape) -> (&'t Tape, Lanes) {
+    let tape = tape_of(active.trailing_zeros() as usize);
+    let group = members(*active)
+        .filter(|&i| std::ptr::eq(tape_of(i), tape))
+        .fold(0 as Lanes, |g, i| g | 1 << i);
+    *active &= !group;
+    (tape, group)
 }
 
 /// The next pass of up to [`PACKET`] lanes of `rest` (taken out of it), lowest first, with
@@ -182,13 +194,9 @@ pub fn trace_hart_packet(
         }
         // The active lanes by tape (lanes in one leaf share it), eight per pass.
         while active != 0 {
-            let first = active.trailing_zeros() as usize;
-            let tape = states[first].part.expect("an active lane has a part").tape;
-            let group = members(active)
-                .filter(|&i| std::ptr::eq(states[i].part.expect("active").tape, tape))
-                .fold(0 as Lanes, |g, i| g | 1 << i);
-            active &= !group;
-            let mut rest = group;
+            let (tape, mut rest) = next_group(&mut active, |i| {
+                states[i].part.expect("an active lane has a part").tape
+            });
             while let Some((pass, xyz)) = next_pass(&mut rest, |i| lanes[i].ray.at(states[i].t)) {
                 let d = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
                 for (k, &i) in pass.iter().enumerate() {
@@ -267,7 +275,7 @@ pub fn penumbra_packet(
             })
             .collect()
     };
-    let mut tapes: Vec<Option<&crate::sdf::tape::Tape>> = vec![None; lanes.len()];
+    let mut tapes: Vec<Option<&Tape>> = vec![None; lanes.len()];
     loop {
         let mut active: Lanes = 0;
         for (i, st) in states.iter_mut().enumerate() {
@@ -281,13 +289,7 @@ pub fn penumbra_packet(
         }
         // The active lanes by tape, eight per pass.
         while active != 0 {
-            let first = active.trailing_zeros() as usize;
-            let tape = tapes[first].expect("active");
-            let group = members(active)
-                .filter(|&i| std::ptr::eq(tapes[i].expect("active"), tape))
-                .fold(0 as Lanes, |g, i| g | 1 << i);
-            active &= !group;
-            let mut rest = group;
+            let (tape, mut rest) = next_group(&mut active, |i| tapes[i].expect("active"));
             while let Some((pass, xyz)) = next_pass(&mut rest, |i| lanes[i].ray.at(states[i].t)) {
                 let h = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
                 for (j, &i) in pass.iter().enumerate() {
