@@ -129,6 +129,23 @@ fn finish(mut child: Child, what: &str) -> Output {
 }
 
 /// Runs a command to the end, with the deadline.
+/// The options of a window of `width`×`height` refining to `spp` samples on the CPU and run
+/// by `script`.
+fn scripted<'a>(width: &'a str, height: &'a str, spp: &'a str, script: &'a Path) -> Vec<&'a str> {
+    vec![
+        "--width",
+        width,
+        "--height",
+        height,
+        "--spp",
+        spp,
+        "--backend",
+        "cpu",
+        "--script",
+        script.to_str().expect("utf-8"),
+    ]
+}
+
 fn run(mut command: Command, what: &str) -> Output {
     let child = command
         .stdout(Stdio::piped())
@@ -341,18 +358,7 @@ fn scripted_orbit_moves_the_camera_that_c_prints() {
         ),
     )
     .expect("write script");
-    let args = [
-        "--width",
-        "160",
-        "--height",
-        "120",
-        "--spp",
-        "2",
-        "--backend",
-        "cpu",
-        "--script",
-        script.to_str().expect("utf-8"),
-    ];
+    let args = scripted("160", "120", "2", &script);
     let out = run(x.view(&args), "scripted orbit");
     assert_ok(&out, "scripted orbit");
     let printed = String::from_utf8_lossy(&out.stdout);
@@ -487,19 +493,8 @@ fn hot_reload_follows_edits_and_survives_a_broken_one() {
         ),
     )
     .expect("write script");
-    let args = [
-        scene.to_str().expect("utf-8"),
-        "--width",
-        "120",
-        "--height",
-        "90",
-        "--spp",
-        "1",
-        "--backend",
-        "cpu",
-        "--script",
-        script.to_str().expect("utf-8"),
-    ];
+    let mut args = vec![scene.to_str().expect("utf-8")];
+    args.extend(scripted("120", "90", "1", &script));
     let mut child = x
         .view(&args)
         .stdout(Stdio::piped())
@@ -660,18 +655,7 @@ fn a_resized_window_refines_to_render_at_its_new_size() {
     )
     .expect("write script");
     let child = x
-        .view(&[
-            "--width",
-            "160",
-            "--height",
-            "120",
-            "--spp",
-            "1",
-            "--backend",
-            "cpu",
-            "--script",
-            script.to_str().expect("utf-8"),
-        ])
+        .view(&scripted("160", "120", "1", &script))
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -714,18 +698,7 @@ fn a_click_on_a_surface_makes_it_the_pivot() {
         ),
     )
     .expect("write script");
-    let args = [
-        "--width",
-        "160",
-        "--height",
-        "120",
-        "--spp",
-        "2",
-        "--backend",
-        "cpu",
-        "--script",
-        script.to_str().expect("utf-8"),
-    ];
+    let args = scripted("160", "120", "2", &script);
     let out = run(x.view(&args), "pick");
     assert_ok(&out, "pick");
     let printed = String::from_utf8_lossy(&out.stdout);
