@@ -182,6 +182,16 @@ impl Cell<'_> {
         p.cmpge(self.lo).all() && p.cmple(self.hi).all()
     }
 
+    /// Whether [`FieldOctree::locate`] may answer this box for p without descending from the
+    /// root: p in the box, half open above as the descent splits (a point on a face between
+    /// two leaves belongs to the upper one). A cached leaf that merely touches p would give a
+    /// point's tape by history, and a ray's answer would then depend on what was looked up
+    /// before; this way the tape at a point is a function of the point.
+    #[inline]
+    pub fn owns(&self, p: Vec3) -> bool {
+        p.cmpge(self.lo).all() && p.cmplt(self.hi).all()
+    }
+
     /// Where the ray leaves the box (the far end of its slab interval).
     #[inline]
     pub fn exit(&self, ray: &Ray, inv_dir: Vec3) -> f32 {
@@ -203,9 +213,11 @@ struct PathEntry {
 }
 
 impl PathEntry {
+    /// Whether the descent from the root to p passes this node (half open above, as
+    /// [`Cell::owns`]; the root's own box is checked closed apart).
     #[inline]
     fn holds(&self, p: Vec3) -> bool {
-        p.cmpge(self.lo).all() && p.cmple(self.hi).all()
+        p.cmpge(self.lo).all() && p.cmplt(self.hi).all()
     }
 }
 
@@ -1061,8 +1073,18 @@ impl<'f, 'r> FieldCursor<'f, 'r> {
     /// The region holding p: the cached leaf if p is still in it.
     #[inline]
     pub fn region(&mut self, p: Vec3) -> Region<'f> {
-        if let Some(c) = self.cell {
-            if c.contains(p) {
+        let mut cell = self.cell;
+        let found = self.region_cached(p, &mut cell);
+        self.cell = cell;
+        found
+    }
+
+    /// [`Self::region`] with the leaf cache `cell` of the caller's (rays of a bundle keep one
+    /// each and share the cursor's path); what it answers depends on p alone.
+    #[inline]
+    pub fn region_cached(&mut self, p: Vec3, cell: &mut Option<Cell<'f>>) -> Region<'f> {
+        if let Some(c) = *cell {
+            if c.owns(p) {
                 return Region {
                     tape: c.tape,
                     cell: Some(c),
@@ -1075,7 +1097,7 @@ impl<'f, 'r> FieldCursor<'f, 'r> {
         };
         match found {
             Some(c) => {
-                self.cell = Some(c);
+                *cell = Some(c);
                 Region {
                     tape: c.tape,
                     cell: Some(c),
@@ -1430,5 +1452,49 @@ mod tests {
             "longest crossed tape {longest} of {} ({stats:?}, full tree {full_stats:?})",
             full.whole_len
         );
+    }
+
+    #[test]
+    fn the_tape_at_a_point_does_not_depend_on_the_lookups_before() {
+        // Points on the faces between leaves, each looked up by a fresh cursor and by one
+        // that has just found the leaf on the lower side of the face: the same leaf both ways,
+        // so that a ray marched alone and in a bundle evaluates the same tapes.
+        let lowered = tiles(12, 6);
+        let tree = FieldOctree::build(&lowered.program, lowered.bounds).expect("a tree");
+        let field = ObjectField {
+            octree: Some(tree.clone()),
+            whole: Tape::default(),
+            whole_shading: Tape::default(),
+        };
+        let mut rng = Rng::new(3);
+        let mut regs = Registers::new();
+        let mut checked = 0;
+        for _ in 0..2000 {
+            let p = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+            let p = tree.lo + p * (tree.hi - tree.lo);
+            let Some(cell) = tree.locate(p) else { continue };
+            for axis in 0..3 {
+                // a point on the cell's upper face, and one just below it
+                let mut on = p;
+                on[axis] = cell.hi[axis];
+                let mut below = on;
+                below[axis] = f32::from_bits(on[axis].to_bits() - 1);
+                if on[axis] >= tree.hi[axis] || !cell.contains(below) {
+                    continue;
+                }
+                let fresh = field.cursor(&mut regs).region(on).cell.map(|c| c.lo);
+                let mut primed = field.cursor(&mut regs);
+                assert!(primed.region(below).cell.is_some());
+                let after = primed.region(on).cell.map(|c| c.lo);
+                assert_eq!(fresh, after, "{on} after {below}");
+                assert_eq!(
+                    fresh.map(|lo| lo[axis]),
+                    Some(on[axis]),
+                    "the upper leaf owns {on}"
+                );
+                checked += 1;
+            }
+        }
+        assert!(checked > 1000, "{checked} faces");
     }
 }

@@ -45,61 +45,145 @@ pub fn confirm(
     s: &TracerSettings,
     steps: &mut u32,
 ) -> Candidate {
-    // Already inside (the ray starts in the solid, or a bound field let a step overshoot):
-    // the crossing is behind; keep Hart's answer.
-    if d <= 0.0 {
-        return Candidate::Hit(t);
+    let mut check = match Confirmation::start(t, d, t1, s) {
+        Progress::Evaluate(c) => c,
+        Progress::Decided(answer) => return answer,
+    };
+    loop {
+        let value = field.eval(ray.at(check.at()));
+        *steps += 1;
+        check = match check.feed(value, t1, s) {
+            Progress::Evaluate(c) => c,
+            Progress::Decided(answer) => return answer,
+        };
     }
-    let eps = epsilon_at(s, t);
-    // The secant over one ε.
-    let ts = (t + eps).min(t1);
-    if ts <= t {
-        return Candidate::Continue(t + eps);
+}
+
+/// A confirmation under way, one field value at a time: [`confirm`] drives it point after
+/// point, and a bundle of rays drives many at once, their points evaluated together
+/// ([`super::packet`]), with the same sequence of points and so the same answer.
+#[derive(Debug, Clone, Copy)]
+pub struct Confirmation {
+    stage: Stage,
+    /// ε at the candidate.
+    eps: f32,
+}
+
+#[derive(Debug, Clone, Copy)]
+enum Stage {
+    /// Waiting for the field at `ts`, one ε past the candidate at `t` (where it was `d`).
+    Secant { t: f32, d: f32, ts: f32 },
+    /// Waiting for the field at `tp`, Newton's prediction from the secant (`ds` at `ts`).
+    Probe { ts: f32, ds: f32, tp: f32 },
+    /// Waiting for the field at the middle of the bracket; `done` halvings so far.
+    Bisect {
+        outside: f32,
+        inside: f32,
+        done: u32,
+    },
+}
+
+/// What a confirmation needs next.
+#[derive(Debug, Clone, Copy)]
+pub enum Progress {
+    /// The field at [`Confirmation::at`].
+    Evaluate(Confirmation),
+    /// Nothing: the candidate is decided.
+    Decided(Candidate),
+}
+
+impl Confirmation {
+    /// Starts confirming the candidate at `t`, where the field is `d < ε(t)`, before `t1`.
+    pub fn start(t: f32, d: f32, t1: f32, s: &TracerSettings) -> Progress {
+        // Already inside (the ray starts in the solid, or a bound field let a step
+        // overshoot): the crossing is behind; keep Hart's answer.
+        if d <= 0.0 {
+            return Progress::Decided(Candidate::Hit(t));
+        }
+        let eps = epsilon_at(s, t);
+        // The secant over one ε.
+        let ts = (t + eps).min(t1);
+        if ts <= t {
+            return Progress::Decided(Candidate::Continue(t + eps));
+        }
+        Progress::Evaluate(Confirmation {
+            stage: Stage::Secant { t, d, ts },
+            eps,
+        })
     }
-    let ds = field.eval(ray.at(ts));
-    *steps += 1;
-    if ds <= 0.0 {
-        return Candidate::Hit(bisect(field, ray, t, ts, s, steps));
+
+    /// The ray parameter whose field value [`Self::feed`] wants.
+    #[inline]
+    pub fn at(&self) -> f32 {
+        match self.stage {
+            Stage::Secant { ts, .. } => ts,
+            Stage::Probe { tp, .. } => tp,
+            Stage::Bisect {
+                outside, inside, ..
+            } => 0.5 * (outside + inside),
+        }
     }
-    let slope = (ds - d) / (ts - t);
-    if slope < 0.0 {
-        // Newton's prediction of the crossing, probed one ε past.
-        let tp = (ts + ds / -slope + eps).min(t1);
-        if tp > ts {
-            let dp = field.eval(ray.at(tp));
-            *steps += 1;
-            if dp <= 0.0 {
-                return Candidate::Hit(bisect(field, ray, ts, tp, s, steps));
+
+    /// The next step, given the field `value` at [`Self::at`].
+    pub fn feed(self, value: f32, t1: f32, s: &TracerSettings) -> Progress {
+        let eps = self.eps;
+        match self.stage {
+            Stage::Secant { t, d, ts } => {
+                let ds = value;
+                if ds <= 0.0 {
+                    return self.bisect(t, ts, 0, s);
+                }
+                let slope = (ds - d) / (ts - t);
+                if slope < 0.0 {
+                    // Newton's prediction of the crossing, probed one ε past.
+                    let tp = (ts + ds / -slope + eps).min(t1);
+                    if tp > ts {
+                        return Progress::Evaluate(Confirmation {
+                            stage: Stage::Probe { ts, ds, tp },
+                            eps,
+                        });
+                    }
+                }
+                // From ts the field guarantees a free step of ds; step at least ε.
+                Progress::Decided(Candidate::Continue(ts + ds.max(eps)))
+            }
+            Stage::Probe { ts, ds, tp } => {
+                if value <= 0.0 {
+                    return self.bisect(ts, tp, 0, s);
+                }
+                Progress::Decided(Candidate::Continue(ts + ds.max(eps)))
+            }
+            Stage::Bisect {
+                outside,
+                inside,
+                done,
+            } => {
+                let mid = 0.5 * (outside + inside);
+                let (outside, inside) = if value <= 0.0 {
+                    (outside, mid)
+                } else {
+                    (mid, inside)
+                };
+                self.bisect(outside, inside, done + 1, s)
             }
         }
     }
-    // From ts the field guarantees a free step of ds; step at least ε.
-    Candidate::Continue(ts + ds.max(eps))
-}
 
-/// Narrows a bracket (`outside`: f > 0, `inside`: f ≤ 0) to ε/2 and returns its outside end.
-fn bisect(
-    field: &mut FieldCursor,
-    ray: &Ray,
-    mut outside: f32,
-    mut inside: f32,
-    s: &TracerSettings,
-    steps: &mut u32,
-) -> f32 {
-    for _ in 0..MAX_BISECTIONS {
-        if inside - outside <= 0.5 * epsilon_at(s, outside) {
-            break;
+    /// Narrows a bracket (`outside`: f > 0, `inside`: f ≤ 0) to ε/2 and answers its outside
+    /// end: the next halving, or the answer once the bracket is narrow enough.
+    fn bisect(self, outside: f32, inside: f32, done: u32, s: &TracerSettings) -> Progress {
+        if done >= MAX_BISECTIONS || inside - outside <= 0.5 * epsilon_at(s, outside) {
+            return Progress::Decided(Candidate::Hit(outside));
         }
-        let mid = 0.5 * (outside + inside);
-        let d = field.eval(ray.at(mid));
-        *steps += 1;
-        if d <= 0.0 {
-            inside = mid;
-        } else {
-            outside = mid;
-        }
+        Progress::Evaluate(Confirmation {
+            stage: Stage::Bisect {
+                outside,
+                inside,
+                done,
+            },
+            eps: self.eps,
+        })
     }
-    outside
 }
 
 #[cfg(test)]

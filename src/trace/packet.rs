@@ -8,20 +8,25 @@
 //! Each ray keeps its own march — its parts ([`super::sphere`]'s leaves and whole-tape
 //! stretches), its t, its step count — and takes exactly the steps [`super::sphere::trace_hart`]
 //! takes alone: the lanes give the scalar interpreter's bits, a candidate hit is confirmed by
-//! the scalar code, and so every ray's answer is the one it gets alone (tested). The packet
+//! the same sequence of points as alone ([`super::crossing::Confirmation`], its points
+//! evaluated in the rounds with the marching lanes' of the same leaf, where one ray's secant,
+//! probe and bisection points used to be evaluated one by one: a fifth of a gyroid frame), the
+//! tape at a point is the point's alone ([`crate::accel::field::Cell::owns`]), and so every
+//! ray's answer is the one it gets alone (tested). The packet
 //! only shares the interpreter's dispatch: a tape's instruction is decoded once for the rays
 //! in its leaf, which is where a single ray's march spends its time (one point per pass keeps
 //! the interpreter waiting on its register file; eight keep it busy).
 
-use super::crossing::{self, Candidate};
+use super::crossing::{Candidate, Confirmation, Progress};
 use super::sphere::{Along, Part, Parts, hart_step, penumbra_estimate};
 use super::step::{TraceResult, epsilon_at};
-use crate::accel::field::ObjectField;
+use crate::accel::field::{Cell, ObjectField};
 use crate::geom::Ray;
 use crate::scene::TracerSettings;
 use crate::sdf::simd::{PacketRegisters, SimdLevel, eval8};
 use crate::sdf::tape::{Registers, Tape};
 use arrayvec::ArrayVec;
+use glam::Vec3;
 
 /// Rays per evaluation pass: the AVX2 lane count.
 pub const PACKET: usize = 8;
@@ -30,20 +35,8 @@ pub const PACKET: usize = 8;
 /// four rows of a 32-pixel tile.
 pub const BUNDLE: usize = 128;
 
-/// A set of a bundle's lanes.
-type Lanes = u128;
-const _: () = assert!(BUNDLE <= Lanes::BITS as usize);
-
-/// The lanes of `set`, lowest first.
-fn members(mut set: Lanes) -> impl Iterator<Item = usize> {
-    std::iter::from_fn(move || {
-        (set != 0).then(|| {
-            let i = set.trailing_zeros() as usize;
-            set &= set - 1;
-            i
-        })
-    })
-}
+// A lane's number fits the byte a round sorts it by.
+const _: () = assert!(BUNDLE <= 256);
 
 /// One ray of a packet: what it marches over, and its answer when done.
 #[derive(Debug, Clone, Copy)]
@@ -85,54 +78,87 @@ impl Default for PacketScratch {
     }
 }
 
-/// The lanes of `active` that share the lowest one's tape (taken out of `active`), and that
-/// tape.
-#[inline]
-fn next_group<'t>(active: &mut Lanes, tape_of: impl Fn(usize) -> &'t Tape) -> (&'t Tape, Lanes) {
-    let tape = tape_of(active.trailing_zeros() as usize);
-    let group = members(*active)
-        .filter(|&i| std::ptr::eq(tape_of(i), tape))
-        .fold(0 as Lanes, |g, i| g | 1 << i);
-    *active &= !group;
-    (tape, group)
+/// One round of a bundle: each active lane's point and the tape valid there, evaluated in
+/// passes of up to [`PACKET`] lanes that share a tape.
+struct Round<'t> {
+    points: [Vec3; BUNDLE],
+    tapes: [Option<&'t Tape>; BUNDLE],
+    /// The active lanes, each with its tape's address in the high bits.
+    keys: ArrayVec<u64, BUNDLE>,
 }
 
-/// The next pass of up to [`PACKET`] lanes of `rest` (taken out of it), lowest first, with
-/// their points (`point` of each lane) on SIMD lanes; spare SIMD lanes repeat the pass's first
-/// point, unused.
-#[inline]
-fn next_pass(
-    rest: &mut Lanes,
-    point: impl Fn(usize) -> glam::Vec3,
-) -> Option<(ArrayVec<usize, PACKET>, [[f32; PACKET]; 3])> {
-    if *rest == 0 {
-        return None;
-    }
-    let pass: ArrayVec<usize, PACKET> = members(*rest).take(PACKET).collect();
-    for &i in &pass {
-        *rest &= !(1 << i);
-    }
-    let mut xyz = [[0.0f32; PACKET]; 3];
-    for k in 0..PACKET {
-        let p = point(pass[k.min(pass.len() - 1)]);
-        for a in 0..3 {
-            xyz[a][k] = p[a];
+impl<'t> Round<'t> {
+    fn new() -> Self {
+        Round {
+            points: [Vec3::ZERO; BUNDLE],
+            tapes: [None; BUNDLE],
+            keys: ArrayVec::new(),
         }
     }
-    Some((pass, xyz))
+
+    /// Starts a round: no lane yet.
+    #[inline]
+    fn begin(&mut self) {
+        self.keys.clear();
+    }
+
+    /// Whether no lane is active this round.
+    #[inline]
+    fn is_empty(&self) -> bool {
+        self.keys.is_empty()
+    }
+
+    /// Lane i evaluates `tape` at `point` this round.
+    #[inline]
+    fn add(&mut self, i: usize, point: Vec3, tape: &'t Tape) {
+        self.points[i] = point;
+        self.tapes[i] = Some(tape);
+        // user-space addresses fit 56 bits
+        self.keys
+            .push((std::ptr::from_ref(tape) as usize as u64) << 8 | i as u64);
+    }
+
+    /// The round's passes: lanes sorted by tape, so that those of one leaf are adjacent.
+    fn passes(
+        &mut self,
+    ) -> impl Iterator<Item = (&'t Tape, ArrayVec<usize, PACKET>, [[f32; PACKET]; 3])> + '_ {
+        self.keys.sort_unstable();
+        let (points, tapes) = (&self.points, &self.tapes);
+        self.keys
+            .chunk_by(|a, b| a >> 8 == b >> 8)
+            .flat_map(|run| run.chunks(PACKET))
+            .map(move |chunk| {
+                let pass: ArrayVec<usize, PACKET> =
+                    chunk.iter().map(|&k| (k & 0xFF) as usize).collect();
+                let mut xyz = [[0.0f32; PACKET]; 3];
+                // spare SIMD lanes repeat the pass's first point, unused
+                for k in 0..PACKET {
+                    let p = points[pass[k.min(pass.len() - 1)]];
+                    for a in 0..3 {
+                        xyz[a][k] = p[a];
+                    }
+                }
+                (tapes[pass[0]].expect("added"), pass, xyz)
+            })
+    }
 }
 
-/// Where one lane's march stands.
+/// Where one lane's march stands: what every round reads (its walk over the leaves and its
+/// leaf cache, read only on leaving a part or confirming, are kept apart: 128 lanes' walks
+/// are 40 KiB, and reading them every round cost a fifth of a gyroid frame's bookkeeping).
 struct State<'f> {
-    parts: Parts<'f>,
     part: Option<Part<'f>>,
     t: f32,
     steps: u32,
+    /// A candidate hit being confirmed: the lane's next point is the confirmation's.
+    confirming: Option<Confirmation>,
     done: Option<Option<f32>>,
 }
 
 /// Hart's march of up to [`BUNDLE`] rays through one object's field; `out[i]` is what
-/// [`super::sphere::trace_hart`] returns for `lanes[i]` alone.
+/// [`super::sphere::trace_hart`] returns for `lanes[i]` alone. A lane confirming a candidate
+/// hit ([`crossing::Confirmation`]) stays in the rounds, its points evaluated with the
+/// others' of the leaf they fall in, rather than on its own.
 pub fn trace_hart_packet(
     field: &ObjectField,
     lanes: &[Lane],
@@ -142,26 +168,37 @@ pub fn trace_hart_packet(
 ) {
     assert!(lanes.len() <= BUNDLE && out.len() == lanes.len());
     let PacketScratch { simd, regs, level } = scratch;
-    let mut states: Vec<State> = {
-        let cursor = field.cursor(regs);
-        lanes
-            .iter()
-            .map(|l| State {
-                parts: Parts::new(&cursor, &l.ray, l.t0, l.t1),
-                part: None,
-                t: l.t0,
-                steps: 0,
-                done: None,
-            })
-            .collect()
-    };
+    let mut cursor = field.cursor(regs);
+    let mut states: Vec<State> = lanes
+        .iter()
+        .map(|l| State {
+            part: None,
+            t: l.t0,
+            steps: 0,
+            confirming: None,
+            done: None,
+        })
+        .collect();
+    let mut walks: Vec<Parts> = lanes
+        .iter()
+        .map(|l| Parts::new(&cursor, &l.ray, l.t0, l.t1))
+        .collect();
+    // The leaf each lane last looked a confirmation's point up in.
+    let mut cells: Vec<Option<Cell>> = vec![None; lanes.len()];
+    let mut round = Round::new();
     loop {
-        // Every unfinished lane at the part that holds its t (the next one once past it).
-        let mut active: Lanes = 0;
+        round.begin();
         for (i, st) in states.iter_mut().enumerate() {
             if st.done.is_some() {
                 continue;
             }
+            if let Some(c) = &st.confirming {
+                // The tape at the confirmation's point: that of the leaf holding it.
+                let p = lanes[i].ray.at(c.at());
+                round.add(i, p, cursor.region_cached(p, &mut cells[i]).tape);
+                continue;
+            }
+            // The part that holds the lane's t (the next one once past it).
             loop {
                 match st.part {
                     Some(p) if st.t <= p.end => break,
@@ -169,7 +206,7 @@ pub fn trace_hart_packet(
                         st.done = Some(None);
                         break;
                     }
-                    _ => match st.parts.next(st.t) {
+                    _ => match walks[i].next(st.t) {
                         Some(p) => {
                             st.t = p.start;
                             st.part = Some(p);
@@ -185,23 +222,18 @@ pub fn trace_hart_packet(
                 if st.steps >= s.max_steps {
                     st.done = Some(None);
                 } else {
-                    active |= 1 << i;
+                    let part = st.part.expect("a lane not done has a part");
+                    round.add(i, lanes[i].ray.at(st.t), part.tape);
                 }
             }
         }
-        if active == 0 {
+        if round.is_empty() {
             break;
         }
-        // The active lanes by tape (lanes in one leaf share it), eight per pass.
-        while active != 0 {
-            let (tape, mut rest) = next_group(&mut active, |i| {
-                states[i].part.expect("an active lane has a part").tape
-            });
-            while let Some((pass, xyz)) = next_pass(&mut rest, |i| lanes[i].ray.at(states[i].t)) {
-                let d = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
-                for (k, &i) in pass.iter().enumerate() {
-                    march_step(field, &mut states[i], &lanes[i], d[k], s, regs);
-                }
+        for (tape, pass, xyz) in round.passes() {
+            let d = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
+            for (k, &i) in pass.iter().enumerate() {
+                march_step(&mut states[i], &lanes[i], d[k], s);
             }
         }
     }
@@ -210,29 +242,28 @@ pub fn trace_hart_packet(
     }
 }
 
-/// One lane's step from the field value `d` at its t: a hit confirmed or refuted, or Hart's
-/// step.
+/// One lane's step from the field value `d` at its point: the next point of a confirmation,
+/// a hit confirmed or refuted, or Hart's step.
 #[inline]
-fn march_step(
-    field: &ObjectField,
-    st: &mut State,
-    lane: &Lane,
-    d: f32,
-    s: &TracerSettings,
-    regs: &mut Registers,
-) {
+fn march_step(st: &mut State, lane: &Lane, d: f32, s: &TracerSettings) {
     st.steps += 1;
-    let part = st.part.expect("active");
-    let (ray, t) = (&lane.ray, st.t);
-    let eps = epsilon_at(s, t);
-    if d < eps {
-        let mut cursor = field.cursor(regs);
-        match crossing::confirm(&mut cursor, ray, t, d, lane.t1, s, &mut st.steps) {
-            Candidate::Hit(t) => st.done = Some(Some(t)),
-            Candidate::Continue(next) => st.t = next,
+    let progress = match st.confirming.take() {
+        Some(c) => c.feed(d, lane.t1, s),
+        None => {
+            let t = st.t;
+            let eps = epsilon_at(s, t);
+            if d >= eps {
+                let part = st.part.expect("active");
+                st.t = t + hart_step(d, &part, t, eps);
+                return;
+            }
+            Confirmation::start(t, d, lane.t1, s)
         }
-    } else {
-        st.t = t + hart_step(d, &part, t, eps);
+    };
+    match progress {
+        Progress::Evaluate(c) => st.confirming = Some(c),
+        Progress::Decided(Candidate::Hit(t)) => st.done = Some(Some(t)),
+        Progress::Decided(Candidate::Continue(next)) => st.t = next,
     }
 }
 
@@ -275,22 +306,19 @@ pub fn penumbra_packet(
             })
             .collect()
     };
-    let mut tapes: Vec<Option<&Tape>> = vec![None; lanes.len()];
+    let mut round = Round::new();
     loop {
-        let mut active: Lanes = 0;
+        round.begin();
         for (i, st) in states.iter_mut().enumerate() {
             if !st.done {
-                tapes[i] = Some(st.along.tape(st.t));
-                active |= 1 << i;
+                round.add(i, lanes[i].ray.at(st.t), st.along.tape(st.t));
             }
         }
-        if active == 0 {
+        if round.is_empty() {
             break;
         }
-        // The active lanes by tape, eight per pass.
-        while active != 0 {
-            let (tape, mut rest) = next_group(&mut active, |i| tapes[i].expect("active"));
-            while let Some((pass, xyz)) = next_pass(&mut rest, |i| lanes[i].ray.at(states[i].t)) {
+        {
+            for (tape, pass, xyz) in round.passes() {
                 let h = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
                 for (j, &i) in pass.iter().enumerate() {
                     let st = &mut states[i];
