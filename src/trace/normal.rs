@@ -73,18 +73,20 @@ pub fn estimate(field: &mut FieldCursor, p: Vec3, h: f32, method: NormalMethod) 
 
 /// Central differences, 6 evaluations: ∇f ≈ (f(p+hx) − f(p−hx), …)/2h, second-order accurate.
 pub fn central(field: &mut FieldCursor, p: Vec3, h: f32) -> Vec3 {
-    let f = values(
-        field,
-        [
-            p + Vec3::X * h,
-            p - Vec3::X * h,
-            p + Vec3::Y * h,
-            p - Vec3::Y * h,
-            p + Vec3::Z * h,
-            p - Vec3::Z * h,
-        ],
-    );
+    let f = values(field, central_stencil(p, h));
     Vec3::new(f[0] - f[1], f[2] - f[3], f[4] - f[5]) / (2.0 * h)
+}
+
+/// The points of [`central`]'s stencil: p ± h along each axis.
+fn central_stencil(p: Vec3, h: f32) -> [Vec3; 6] {
+    [
+        p + Vec3::X * h,
+        p - Vec3::X * h,
+        p + Vec3::Y * h,
+        p - Vec3::Y * h,
+        p + Vec3::Z * h,
+        p - Vec3::Z * h,
+    ]
 }
 
 /// The tetrahedral 4-tap estimate (Quilez, "normals for an SDF"): with the four vertices
@@ -151,15 +153,7 @@ mod tests {
         let mut straddling = 0;
         for _ in 0..3000 {
             let p = rng.vec3_in(-1.0, 1.0) * Vec3::new(1.0, 1.0, 0.2);
-            let h = 0.01;
-            let points = [
-                p + Vec3::X * h,
-                p - Vec3::X * h,
-                p + Vec3::Y * h,
-                p - Vec3::Y * h,
-                p + Vec3::Z * h,
-                p - Vec3::Z * h,
-            ];
+            let points = central_stencil(p, 0.01);
             let got = values(&mut field.cursor(&mut regs), points);
             let mut cursor = field.cursor(&mut alone);
             let tapes = points.map(|q| std::ptr::from_ref(cursor.region(q).tape));

@@ -267,9 +267,9 @@ fn march_step(st: &mut State, lane: &Lane, d: f32, s: &TracerSettings) {
     }
 }
 
-/// Where one lane's penumbra march stands.
-struct Shadowed<'f> {
-    along: Along<'f>,
+/// Where one lane's penumbra march stands (its walk over the leaves kept apart, as
+/// [`State`]'s).
+struct Shadowed {
     res: f32,
     previous: f32,
     t: f32,
@@ -292,51 +292,50 @@ pub fn penumbra_packet(
 ) {
     assert!(lanes.len() <= BUNDLE && out.len() == lanes.len());
     let PacketScratch { simd, regs, level } = scratch;
-    let mut states: Vec<Shadowed> = {
-        let cursor = field.cursor(regs);
-        lanes
-            .iter()
-            .map(|l| Shadowed {
-                along: Along::new(&cursor, &l.ray, l.t0, l.t1),
-                res: 1.0,
-                previous: f32::INFINITY,
-                t: l.t0,
-                samples: 0,
-                done: s.max_steps == 0,
-            })
-            .collect()
-    };
+    let cursor = field.cursor(regs);
+    let mut walks: Vec<Along> = lanes
+        .iter()
+        .map(|l| Along::new(&cursor, &l.ray, l.t0, l.t1))
+        .collect();
+    let mut states: Vec<Shadowed> = lanes
+        .iter()
+        .map(|l| Shadowed {
+            res: 1.0,
+            previous: f32::INFINITY,
+            t: l.t0,
+            samples: 0,
+            done: s.max_steps == 0,
+        })
+        .collect();
     let mut round = Round::new();
     loop {
         round.begin();
         for (i, st) in states.iter_mut().enumerate() {
             if !st.done {
-                round.add(i, lanes[i].ray.at(st.t), st.along.tape(st.t));
+                round.add(i, lanes[i].ray.at(st.t), walks[i].tape(st.t));
             }
         }
         if round.is_empty() {
             break;
         }
-        {
-            for (tape, pass, xyz) in round.passes() {
-                let h = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
-                for (j, &i) in pass.iter().enumerate() {
-                    let st = &mut states[i];
-                    let t = st.t;
-                    st.samples += 1;
-                    if h[j] < epsilon_at(s, t) {
-                        st.res = 0.0;
-                        st.done = true;
-                        continue;
-                    }
-                    st.res = st
-                        .res
-                        .min(penumbra_estimate(h[j], st.previous, t, k, improved));
-                    st.previous = h[j];
-                    st.t = t + h[j];
-                    if st.t > lanes[i].t1 || st.res < 1e-4 || st.samples >= s.max_steps {
-                        st.done = true;
-                    }
+        for (tape, pass, xyz) in round.passes() {
+            let h = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
+            for (j, &i) in pass.iter().enumerate() {
+                let st = &mut states[i];
+                let t = st.t;
+                st.samples += 1;
+                if h[j] < epsilon_at(s, t) {
+                    st.res = 0.0;
+                    st.done = true;
+                    continue;
+                }
+                st.res = st
+                    .res
+                    .min(penumbra_estimate(h[j], st.previous, t, k, improved));
+                st.previous = h[j];
+                st.t = t + h[j];
+                if st.t > lanes[i].t1 || st.res < 1e-4 || st.samples >= s.max_steps {
+                    st.done = true;
                 }
             }
         }
