@@ -270,8 +270,9 @@ fn frames(
     wanted: &AtomicU64,
     report: &dyn Fn(Report),
 ) -> Next {
-    // the accumulation of the refined image: its change, size, samples added, sums
-    let mut sums: Option<(u64, RenderOptions, u32, SampleSums)> = None;
+    // the accumulation of the refined image: its change, size, samples added, and the CPU's
+    // sums (made by the first CPU pass: the GPU accumulates on its own)
+    let mut sums: Option<(u64, RenderOptions, u32, Option<SampleSums>)> = None;
     loop {
         let Ok(job) = inbox.recv() else {
             return Next::Stop;
@@ -302,12 +303,7 @@ fn frames(
                 if !continues {
                     // a new accumulation; when the one asked to continue is not there (a GPU
                     // fault fell back to the CPU), its earlier samples are rendered first
-                    sums = Some((
-                        generation,
-                        options,
-                        0,
-                        SampleSums::new(options.width, options.height),
-                    ));
+                    sums = Some((generation, options, 0, None));
                 }
                 let cancelled = || wanted.load(Ordering::Relaxed) != generation;
                 let (_, _, added, acc) = sums.as_mut().expect("set above");
@@ -318,9 +314,14 @@ fn frames(
                         // a GPU pass is not cut short; a stale one is dropped before it starts
                         Some(_) if cancelled() => Ok(false),
                         Some(g) => g.add_pass(&camera, &options, pass).map(|()| true),
-                        None => Ok(pool.install(|| {
-                            cpu::render_pass(tracer, &camera, &options, pass, acc, &cancelled)
-                        })),
+                        None => {
+                            let acc = acc.get_or_insert_with(|| {
+                                SampleSums::new(options.width, options.height)
+                            });
+                            Ok(pool.install(|| {
+                                cpu::render_pass(tracer, &camera, &options, pass, acc, &cancelled)
+                            }))
+                        }
                     };
                     if outcome.as_ref().is_ok_and(|&done| done) {
                         *added += 1;
@@ -328,7 +329,7 @@ fn frames(
                 }
                 let image = match (outcome, gpu.as_deref_mut()) {
                     (Ok(true), Some(g)) => g.mean(),
-                    (Ok(true), None) => Ok(acc.mean()),
+                    (Ok(true), None) => Ok(acc.as_ref().expect("a CPU pass made the sums").mean()),
                     (Ok(false), _) => {
                         sums = None;
                         report(Report::Abandoned);
