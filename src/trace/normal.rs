@@ -16,7 +16,7 @@ thread_local! {
 /// The field at up to 8 points, each with the tape of the leaf holding it, on SIMD lanes:
 /// one pass per distinct tape (the stencil around a hit mostly lies in one leaf; over a large
 /// union's small leaves it often straddles two or three, and evaluating those points one by
-/// one was a quarter of a 1,000-box frame). The lanes give the scalar interpreter's bits, so
+/// one was about a fifth of a 1,000-box frame). The lanes give the scalar interpreter's bits, so
 /// the values are those of [`FieldCursor::eval`] at each point.
 fn values<const N: usize>(field: &mut FieldCursor, points: [Vec3; N]) -> [f32; N] {
     const { assert!(N <= 8) };

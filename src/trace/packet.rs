@@ -83,8 +83,8 @@ impl Default for PacketScratch {
 struct Round<'t> {
     points: [Vec3; BUNDLE],
     tapes: [Option<&'t Tape>; BUNDLE],
-    /// The active lanes, each with its tape's address in the high bits.
-    keys: ArrayVec<u64, BUNDLE>,
+    /// The active lanes, each with its tape's address.
+    keys: ArrayVec<(usize, u8), BUNDLE>,
 }
 
 impl<'t> Round<'t> {
@@ -113,9 +113,7 @@ impl<'t> Round<'t> {
     fn add(&mut self, i: usize, point: Vec3, tape: &'t Tape) {
         self.points[i] = point;
         self.tapes[i] = Some(tape);
-        // user-space addresses fit 56 bits
-        self.keys
-            .push((std::ptr::from_ref(tape) as usize as u64) << 8 | i as u64);
+        self.keys.push((std::ptr::from_ref(tape) as usize, i as u8));
     }
 
     /// The round's passes: lanes sorted by tape, so that those of one leaf are adjacent.
@@ -125,11 +123,11 @@ impl<'t> Round<'t> {
         self.keys.sort_unstable();
         let (points, tapes) = (&self.points, &self.tapes);
         self.keys
-            .chunk_by(|a, b| a >> 8 == b >> 8)
+            .chunk_by(|a, b| a.0 == b.0)
             .flat_map(|run| run.chunks(PACKET))
             .map(move |chunk| {
                 let pass: ArrayVec<usize, PACKET> =
-                    chunk.iter().map(|&k| (k & 0xFF) as usize).collect();
+                    chunk.iter().map(|&(_, i)| i as usize).collect();
                 let mut xyz = [[0.0f32; PACKET]; 3];
                 // spare SIMD lanes repeat the pass's first point, unused
                 for k in 0..PACKET {
@@ -143,9 +141,9 @@ impl<'t> Round<'t> {
     }
 }
 
-/// Where one lane's march stands: what every round reads (its walk over the leaves and its
-/// leaf cache, read only on leaving a part or confirming, are kept apart: 128 lanes' walks
-/// are 40 KiB, and reading them every round cost a fifth of a gyroid frame's bookkeeping).
+/// Where one lane's march stands: what every round reads. Its walk over the leaves and its
+/// leaf cache, read only on leaving a part or confirming, are kept apart, so that a round
+/// reads a few KiB of states rather than the 40 KiB of 128 lanes' walks.
 struct State<'f> {
     part: Option<Part<'f>>,
     t: f32,
@@ -157,7 +155,7 @@ struct State<'f> {
 
 /// Hart's march of up to [`BUNDLE`] rays through one object's field; `out[i]` is what
 /// [`super::sphere::trace_hart`] returns for `lanes[i]` alone. A lane confirming a candidate
-/// hit ([`crossing::Confirmation`]) stays in the rounds, its points evaluated with the
+/// hit ([`Confirmation`]) stays in the rounds, its points evaluated with the
 /// others' of the leaf they fall in, rather than on its own.
 pub fn trace_hart_packet(
     field: &ObjectField,
