@@ -14,10 +14,10 @@ fn min3(v: vec3<f32>) -> f32 {
     return min(min(v.x, v.y), v.z);
 }
 
-// FieldOctree::locate: the leaf holding p (closed boxes; a point on a midplane goes to the
-// upper child), or NONE outside the octree's box or without one. The CPU's cursor starts from
-// its last path instead, which finds another leaf only for a point on a face two leaves
-// share, where both leaves' tapes return the whole tape's value. The descent is bounded by
+// FieldOctree::locate: the leaf holding p (the tree's box closed; a point on a midplane goes
+// to the upper child), or NONE outside the octree's box or without one. The CPU's cursor
+// resumes from its last leaf or path, whose boxes it checks half open above (Cell::owns), so
+// it finds the leaf this descent from the root finds, for every point. The descent is bounded by
 // the tree's depth, so a malformed tree gives NONE (the whole tape, always right) rather than
 // a long loop.
 fn field_locate(object: u32, p: vec3<f32>) -> u32 {

@@ -1306,7 +1306,7 @@ fn first_child(t0: Vec3, tm: Vec3) -> u8 {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::rng::Rng;
 
@@ -1367,6 +1367,11 @@ mod tests {
     /// A union of `nx`·`ny` boxes tiling a square edge to edge, of depths varying from box
     /// to box: many shapes, each near few of the others.
     fn tiles(nx: usize, ny: usize) -> crate::sdf::LoweredSdf {
+        tiles_scene(nx, ny).objects[0].lowered.clone()
+    }
+
+    /// [`tiles`] as a scene of one object, for the tracer's tests.
+    pub(crate) fn tiles_scene(nx: usize, ny: usize) -> crate::scene::Scene {
         let (wx, wy) = (1.8 / nx as f32, 1.8 / ny as f32);
         let shapes: Vec<String> = (0..nx * ny)
             .map(|k| {
@@ -1386,9 +1391,8 @@ mod tests {
                    objects: [(shape: Union([{}]))])",
             shapes.join(", ")
         );
-        let scene = crate::scene::Scene::from_source(&src, std::path::Path::new("tiles.ron"))
-            .unwrap_or_else(|e| panic!("{e}"));
-        scene.objects[0].lowered.clone()
+        crate::scene::Scene::from_source(&src, std::path::Path::new("tiles.ron"))
+            .unwrap_or_else(|e| panic!("{e}"))
     }
 
     fn same_tree(a: &FieldOctree, b: &FieldOctree) -> bool {
@@ -1470,8 +1474,7 @@ mod tests {
         let mut regs = Registers::new();
         let mut checked = 0;
         for _ in 0..2000 {
-            let p = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
-            let p = tree.lo + p * (tree.hi - tree.lo);
+            let p = tree.lo + rng.vec3_in(0.0, 1.0) * (tree.hi - tree.lo);
             let Some(cell) = tree.locate(p) else { continue };
             for axis in 0..3 {
                 // a point on the cell's upper face, and one just below it

@@ -129,22 +129,7 @@ mod tests {
     #[test]
     fn stencils_across_leaves_give_each_point_its_own_leaf_s_value() {
         // Small boxes side by side: stencils around their faces straddle leaves.
-        let boxes: Vec<String> = (0..64)
-            .map(|i| {
-                let (x, y) = ((i % 8) as f32 * 0.25 - 0.875, (i / 8) as f32 * 0.25 - 0.875);
-                format!(
-                    "Transform(translate: ({x}, {y}, 0), shape: Box(half_extents: (0.125, 0.125, {})))",
-                    0.05 + 0.01 * (i % 7) as f32
-                )
-            })
-            .collect();
-        let src = format!(
-            "Scene(camera: Orthographic(position: (0, 0, 3), look_at: (0, 0, 0), height: 2),
-                   objects: [(shape: Union([{}]))])",
-            boxes.join(", ")
-        );
-        let scene = crate::scene::Scene::from_source(&src, std::path::Path::new("boxes.ron"))
-            .unwrap_or_else(|e| panic!("{e}"));
+        let scene = crate::accel::field::tests::tiles_scene(8, 8);
         let tracer = crate::trace::SceneTracer::new(&scene);
         let field = &tracer.fields[0];
         assert!(field.octree.is_some(), "the union has an octree");
