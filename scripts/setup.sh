@@ -7,6 +7,8 @@
 #       assimp-testmodels    a real test corpus under /usr/share/assimp/models/
 #       unzip                to take the Embree libraries out of the wheel
 #       xvfb, xdotool        a virtual X display and synthetic input for the viewer's tests
+#       chromium, chromium-driver
+#                            a headless browser and its WebDriver, for the report pages' tests
 #  2. Embree 4: the system's if `pkg-config embree4` says 4.x, otherwise the shared libraries
 #     inside the PyPI wheel embreex (Embree 4.4.0 + its TBB), unpacked to .deps/embree4/lib/.
 #     Either way it writes .deps/embree4/env, which exports HYTRACE_EMBREE_LIB_DIR for build.rs.
@@ -26,7 +28,7 @@ EMBREEX_WHEEL="embreex-4.4.0.post1-cp311-cp311-manylinux_2_27_x86_64.manylinux_2
 EMBREEX_SHA256="2cd0f7d5c6342e6247e31f700761689cae7829454d8c6de0c41e62124a023e1f"
 STAMP="embreex==$EMBREEX_VERSION sha256=$EMBREEX_SHA256"
 
-APT_PACKAGES=(libclang-dev mesa-vulkan-drivers assimp-testmodels unzip xvfb xdotool)
+APT_PACKAGES=(libclang-dev mesa-vulkan-drivers assimp-testmodels unzip xvfb xdotool chromium chromium-driver)
 
 log() { echo "setup: $*"; }
 die() {

@@ -525,6 +525,9 @@ fn compare_writes_images_and_metrics() {
         "sheet.png",
         "diff-cpu-embree.png",
         "diff-cpu-gpu.png",
+        "flip-cpu-embree.png",
+        "flip-cpu-gpu.png",
+        "index.html",
         "metrics.txt",
         "metrics.json",
     ] {
@@ -553,6 +556,23 @@ fn compare_writes_images_and_metrics() {
     assert!(psnr >= 30.0, "PSNR {psnr} dB < 30 dB");
     let ssim = m["ssim"].as_f64().unwrap();
     assert!(ssim > 0.95 && ssim <= 1.0, "SSIM {ssim}");
+    // FLIP agrees: pictures this close are far from FLIP's visible-everywhere end (1).
+    let flip = m["flip_mean"].as_f64().unwrap();
+    assert!(flip > 0.0 && flip < 0.05, "FLIP {flip}");
+    let flip_gpu = g["flip_mean"].as_f64().unwrap();
+    assert!(
+        (0.0..0.02).contains(&flip_gpu),
+        "CPU vs GPU FLIP {flip_gpu}"
+    );
+    let flip_png = image::open(out.join("flip-cpu-embree.png")).unwrap();
+    assert_eq!((flip_png.width(), flip_png.height()), (160, 120));
+    let page = std::fs::read_to_string(out.join("index.html")).unwrap();
+    for b in ["cpu", "embree", "gpu", "flip-cpu-gpu"] {
+        assert!(
+            page.contains(&format!("\"name\":\"{b}\"")),
+            "{b} is not on the page"
+        );
+    }
     assert!(stdout.contains("penumbrae and ambient occlusion from our SDF"));
     let text = std::fs::read_to_string(out.join("metrics.txt")).unwrap();
     assert!(text.contains("PSNR"), "{text}");

@@ -1,12 +1,14 @@
-//! `hytrace compare`: one scene rendered by several backends (our CPU tracer; the same shading
-//! over Embree 4's hits; the GPU when it lands), with each image, a labelled side-by-side
-//! sheet, difference heatmaps with a colour scale, and PSNR / SSIM / share of differing pixels
-//! as text and JSON.
+//! `hytrace compare`: one scene rendered by several backends (our CPU tracer, the same shading
+//! over Embree 4's hits, the GPU tracer), with each image, difference and ꟻLIP heatmaps, a
+//! labelled sheet, PSNR / SSIM / ꟻLIP / share of differing pixels as text and JSON, and a
+//! report page to browse them (`index.html`).
 // Without the `embree` feature the command is a message; these helpers stay compiled (and the
 // metrics unit-tested) so that build still checks them.
 #![cfg_attr(not(feature = "embree"), allow(dead_code))]
 
 use anyhow::Result;
+#[cfg(feature = "flip")]
+use hytrace::render::metrics::Metrics;
 use image::RgbImage;
 use serde::Serialize;
 use std::path::PathBuf;
@@ -14,11 +16,15 @@ use std::path::PathBuf;
 /// Arguments of `hytrace compare`.
 #[derive(clap::Parser)]
 #[command(after_help = "\
-Writes into DIR: one PNG per backend (cpu.png, embree.png, gpu.png), sheet.png (the images side by
-side with labels, then the difference heatmaps), diff-cpu-embree.png (per pixel the largest
-|difference| of the sRGB channels, Turbo colour map, scale bar below), metrics.txt and
-metrics.json (PSNR in dB over the 8-bit sRGB channels, SSIM on luma with Wang et al.'s 11x11
-Gaussian window, sigma 1.5, and the share of pixels differing by more than --threshold).
+Writes into DIR: index.html, a self-contained report page (open it in a browser: swipe or flip
+between any two images, zoom and pan both together down to single pixels with their values shown,
+the metrics table, the scene, size, samples and timings); one PNG per backend (cpu.png,
+embree.png, gpu.png); diff-cpu-embree.png (per pixel the largest |difference| of the sRGB
+channels, Turbo colour map, scale bar below); flip-cpu-embree.png (the LDR-FLIP error map, magma
+colour map, 67 pixels per degree); sheet.png (the images side by side with labels, then the
+heatmaps); metrics.txt and metrics.json (PSNR in dB over the 8-bit sRGB channels, SSIM on luma
+with Wang et al.'s 11x11 Gaussian window, sigma 1.5, the mean LDR-FLIP error, and the share of
+pixels differing by more than --threshold).
 
 The embree image is our integrator (materials, lights, reflection, refraction) run on
 Embree's hits: camera, reflected and refracted closest hits and hard shadow rays come from
@@ -65,9 +71,6 @@ pub enum GpuChoice {
     Never,
 }
 
-/// Differences at or above this (on the 0..1 sRGB scale) saturate the heatmap.
-const HEATMAP_SCALE: f32 = 0.25;
-
 /// One rendered image and where it came from.
 pub struct Backend {
     /// Short name (also the file name).
@@ -80,198 +83,8 @@ pub struct Backend {
     pub seconds: f64,
 }
 
-/// Image metrics of `other` against `reference`.
-#[derive(Debug, Clone, Serialize, PartialEq)]
-pub struct Metrics {
-    /// Name of the reference backend.
-    pub reference: String,
-    /// Name of the compared backend.
-    pub other: String,
-    /// Peak signal-to-noise ratio over the 8-bit sRGB channels, dB (None when identical).
-    pub psnr_db: Option<f64>,
-    /// Mean structural similarity on luma.
-    pub ssim: f64,
-    /// Share of pixels with a channel differing by more than the threshold, percent.
-    pub percent_over_threshold: f64,
-    /// The threshold (sRGB, 0..1).
-    pub threshold: f32,
-    /// Largest channel difference (sRGB, 0..1).
-    pub max_difference: f32,
-}
-
-/// PSNR = 10·log10(255² / MSE) over every channel of every pixel; None when the images are
-/// identical (MSE = 0).
-pub fn psnr(a: &RgbImage, b: &RgbImage) -> Option<f64> {
-    let (sum, n) = a
-        .as_raw()
-        .iter()
-        .zip(b.as_raw())
-        .fold((0f64, 0usize), |(s, n), (&x, &y)| {
-            let d = x as f64 - y as f64;
-            (s + d * d, n + 1)
-        });
-    let mse = sum / n.max(1) as f64;
-    (mse > 0.0).then(|| 10.0 * (255.0f64 * 255.0 / mse).log10())
-}
-
-/// Luma Y' = 0.2126 R' + 0.7152 G' + 0.0722 B' (Rec. 709 weights on the sRGB-encoded values),
-/// in [0, 1].
-fn luma(img: &RgbImage) -> Vec<f64> {
-    img.pixels()
-        .map(|p| {
-            let [r, g, b] = p.0.map(|c| c as f64 / 255.0);
-            0.2126 * r + 0.7152 * g + 0.0722 * b
-        })
-        .collect()
-}
-
-/// Mean SSIM on luma (Wang, Bovik, Sheikh & Simoncelli, "Image quality assessment: from error
-/// visibility to structural similarity", IEEE TIP 2004): local means, variances and covariance
-/// under an 11×11 Gaussian window with σ = 1.5, C₁ = (0.01·L)², C₂ = (0.03·L)² with L = 1,
-/// averaged over the window positions that fit inside the image (the whole image as one
-/// window when it is smaller than 11 pixels).
-pub fn ssim(a: &RgbImage, b: &RgbImage) -> f64 {
-    const RADIUS: usize = 5;
-    const SIGMA: f64 = 1.5;
-    let (w, h) = (a.width() as usize, a.height() as usize);
-    let (x, y) = (luma(a), luma(b));
-    let (c1, c2) = (0.01f64.powi(2), 0.03f64.powi(2));
-    let index = |mx: f64, my: f64, vx: f64, vy: f64, cxy: f64| {
-        ((2.0 * mx * my + c1) * (2.0 * cxy + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2))
-    };
-    let size = 2 * RADIUS + 1;
-    if w < size || h < size {
-        let n = (w * h).max(1) as f64;
-        let mx = x.iter().sum::<f64>() / n;
-        let my = y.iter().sum::<f64>() / n;
-        let vx = x.iter().map(|v| (v - mx).powi(2)).sum::<f64>() / n;
-        let vy = y.iter().map(|v| (v - my).powi(2)).sum::<f64>() / n;
-        let cxy = x
-            .iter()
-            .zip(&y)
-            .map(|(p, q)| (p - mx) * (q - my))
-            .sum::<f64>()
-            / n;
-        return index(mx, my, vx, vy, cxy);
-    }
-    let kernel: Vec<f64> = {
-        let k: Vec<f64> = (0..size)
-            .map(|i| {
-                let d = i as f64 - RADIUS as f64;
-                (-d * d / (2.0 * SIGMA * SIGMA)).exp()
-            })
-            .collect();
-        let s: f64 = k.iter().sum();
-        k.into_iter().map(|v| v / s).collect()
-    };
-    // Separable filtering of the five fields, keeping only positions where the window fits.
-    let filter = |f: &dyn Fn(usize) -> f64| -> Vec<f64> {
-        let (ow, oh) = (w - 2 * RADIUS, h - 2 * RADIUS);
-        let mut rows = vec![0.0; ow * h];
-        for j in 0..h {
-            for i in 0..ow {
-                rows[j * ow + i] = (0..size).map(|k| kernel[k] * f(j * w + i + k)).sum();
-            }
-        }
-        let mut out = vec![0.0; ow * oh];
-        for j in 0..oh {
-            for i in 0..ow {
-                out[j * ow + i] = (0..size).map(|k| kernel[k] * rows[(j + k) * ow + i]).sum();
-            }
-        }
-        out
-    };
-    let mx = filter(&|i| x[i]);
-    let my = filter(&|i| y[i]);
-    let sxx = filter(&|i| x[i] * x[i]);
-    let syy = filter(&|i| y[i] * y[i]);
-    let sxy = filter(&|i| x[i] * y[i]);
-    let n = mx.len();
-    (0..n)
-        .map(|i| {
-            let (a, b) = (mx[i], my[i]);
-            index(a, b, sxx[i] - a * a, syy[i] - b * b, sxy[i] - a * b)
-        })
-        .sum::<f64>()
-        / n as f64
-}
-
-/// Per pixel, the largest |difference| of the three sRGB channels, in [0, 1].
-pub fn difference(a: &RgbImage, b: &RgbImage) -> Vec<f32> {
-    a.pixels()
-        .zip(b.pixels())
-        .map(|(p, q)| {
-            (0..3)
-                .map(|c| (p.0[c] as f32 - q.0[c] as f32).abs() / 255.0)
-                .fold(0.0, f32::max)
-        })
-        .collect()
-}
-
-/// The metrics of `other` against `reference`.
-pub fn metrics(reference: &Backend, other: &Backend, threshold: f32) -> Metrics {
-    let diff = difference(&reference.image, &other.image);
-    let over = diff.iter().filter(|&&d| d > threshold).count();
-    Metrics {
-        reference: reference.name.into(),
-        other: other.name.into(),
-        psnr_db: psnr(&reference.image, &other.image),
-        ssim: ssim(&reference.image, &other.image),
-        percent_over_threshold: 100.0 * over as f64 / diff.len().max(1) as f64,
-        threshold,
-        max_difference: diff.iter().copied().fold(0.0, f32::max),
-    }
-}
-
-/// The difference heatmap of two pictures (Turbo colour map over [0, HEATMAP_SCALE]) with a
-/// numbered colour bar below it.
-pub fn heatmap(a: &RgbImage, b: &RgbImage) -> RgbImage {
-    use hytrace::render::draw;
-    use hytrace::render::view::turbo;
-    let diff = difference(a, b);
-    let (w, h) = a.dimensions();
-    let bar_h = 3 * draw::LINE + 10;
-    let width = w.max(220);
-    let mut img = RgbImage::from_pixel(width, h + bar_h, image::Rgb([0, 0, 0]));
-    for y in 0..h {
-        for x in 0..w {
-            let d = diff[(y * w + x) as usize];
-            img.put_pixel(x, y, image::Rgb(draw::to_u8(turbo(d / HEATMAP_SCALE))));
-        }
-    }
-    draw::colour_bar(
-        &mut img,
-        4,
-        h + 3,
-        width - 8,
-        "max |sRGB diff| per pixel",
-        0.0,
-        HEATMAP_SCALE,
-        4,
-        turbo,
-    );
-    img
-}
-
-/// The pictures side by side, each with its label above, on one sheet.
-pub fn sheet(panels: &[(String, &RgbImage)]) -> RgbImage {
-    use hytrace::render::draw;
-    let gap = 6;
-    let label_h = draw::LINE + 6;
-    let w: u32 =
-        panels.iter().map(|(_, i)| i.width()).sum::<u32>() + gap * (panels.len() as u32 + 1);
-    let h = panels.iter().map(|(_, i)| i.height()).max().unwrap_or(0) + label_h + 2 * gap;
-    let mut img = RgbImage::from_pixel(w, h, image::Rgb([32, 32, 32]));
-    let mut x = gap;
-    for (label, panel) in panels {
-        draw::text(&mut img, x, gap, label, [240, 240, 240]);
-        image::imageops::replace(&mut img, *panel, x as i64, (gap + label_h) as i64);
-        x += panel.width() + gap;
-    }
-    img
-}
-
 /// What the JSON file holds.
+#[cfg(feature = "flip")]
 #[derive(Serialize)]
 struct MetricsFile<'a> {
     scene: &'a str,
@@ -291,19 +104,109 @@ struct BackendEntry<'a> {
     seconds: f64,
 }
 
+#[cfg(feature = "flip")]
+/// PSNR in words: "inf (identical)" when the images are the same.
+fn psnr_text(m: &Metrics) -> String {
+    m.psnr_db
+        .map_or("inf (identical)".to_string(), |p| format!("{p:.2} dB"))
+}
+
+#[cfg(feature = "flip")]
 /// The metrics as text: one block per comparison.
 pub fn metrics_text(metrics: &[Metrics]) -> String {
     let mut s = String::new();
     for m in metrics {
-        let psnr = m
-            .psnr_db
-            .map_or("inf (identical)".to_string(), |p| format!("{p:.2} dB"));
         s += &format!(
-            "{} vs {}: PSNR {psnr}, SSIM {:.5}, {:.3}% of pixels differ by more than {} (largest difference {:.3})\n",
-            m.other, m.reference, m.ssim, m.percent_over_threshold, m.threshold, m.max_difference
+            "{} vs {}: PSNR {}, SSIM {:.5}, FLIP {:.5}, {:.3}% of pixels differ by more than {} (largest difference {:.3})\n",
+            m.other,
+            m.reference,
+            psnr_text(m),
+            m.ssim,
+            m.flip_mean,
+            m.percent_over_threshold,
+            m.threshold,
+            m.max_difference
         );
     }
     s
+}
+
+#[cfg(feature = "flip")]
+/// The report page: the backends' images, then per comparison its difference and ꟻLIP maps;
+/// the metrics table, each row showing its pair; the facts of the run.
+#[allow(clippy::too_many_arguments)]
+pub fn report_page(
+    scene: &str,
+    (width, height, samples): (u32, u32, u32),
+    backends: &[Backend],
+    metrics: &[Metrics],
+    maps: &[(String, RgbImage, String, RgbImage)],
+    notes: &[String],
+) -> Result<hytrace::render::report::Report> {
+    use hytrace::render::report::{Picture, Report, Row, Table};
+    let mut images = Vec::new();
+    for b in backends {
+        images.push(Picture::new(b.name, &b.description, &b.image)?);
+    }
+    let mut rows = Vec::new();
+    for (m, (diff_name, diff, flip_name, flip)) in metrics.iter().zip(maps) {
+        let reference = backends.iter().position(|b| b.name == m.reference);
+        let other = backends.iter().position(|b| b.name == m.other);
+        images.push(Picture::new(
+            diff_name,
+            "largest |difference| of the sRGB channels per pixel (Turbo colour map, saturating at 0.25)",
+            diff,
+        )?);
+        images.push(Picture::new(
+            flip_name,
+            "LDR-FLIP error per pixel (magma colour map, 67 pixels per degree)",
+            flip,
+        )?);
+        rows.push(Row {
+            cells: vec![
+                format!("{} vs {}", m.other, m.reference),
+                psnr_text(m),
+                format!("{:.5}", m.ssim),
+                format!("{:.5}", m.flip_mean),
+                format!("{:.3}%", m.percent_over_threshold),
+                format!("{:.3}", m.max_difference),
+            ],
+            pair: reference.zip(other),
+            failed: false,
+        });
+    }
+    let mut facts = vec![
+        ("scene".to_string(), scene.to_string()),
+        ("size".to_string(), format!("{width}×{height} pixels")),
+        ("samples".to_string(), format!("{samples} per pixel")),
+    ];
+    for b in backends {
+        facts.push((
+            b.name.to_string(),
+            format!("{:.2} s: {}", b.seconds, b.description),
+        ));
+    }
+    let threshold = metrics.first().map_or(0.0, |m| m.threshold);
+    Ok(Report {
+        title: format!("hytrace compare: {scene}"),
+        facts,
+        initial: (0, usize::from(backends.len() > 1)),
+        images,
+        tables: vec![Table {
+            heading: "Metrics (click a row to compare its pair)".into(),
+            header: vec![
+                "pair".into(),
+                "PSNR".into(),
+                "SSIM".into(),
+                "FLIP mean".into(),
+                format!("pixels over {threshold}"),
+                "largest difference".into(),
+            ],
+            rows,
+        }],
+        notes: notes.to_vec(),
+        ..Default::default()
+    })
 }
 
 /// Renders with every backend, writes the images, the sheet, the heatmaps and the metrics.
@@ -312,6 +215,7 @@ pub fn run(args: CompareArgs) -> Result<()> {
     use anyhow::{Context, bail};
     use hytrace::reference::embree::EmbreeScene;
     use hytrace::reference::shading::{EmbreeTracer, render_image};
+    use hytrace::render::metrics::{heatmap, measure, sheet};
     use hytrace::render::output::{ToneMapping, save_png};
     use hytrace::render::view::{View, picture};
     use hytrace::render::{RenderOptions, cpu};
@@ -442,24 +346,42 @@ pub fn run(args: CompareArgs) -> Result<()> {
     }
     let reference = &backends[0];
     let mut metrics = Vec::new();
-    let mut heatmaps = Vec::new();
+    let mut maps = Vec::new();
     for other in &backends[1..] {
-        metrics.push(self::metrics(reference, other, args.threshold));
-        let map = heatmap(&reference.image, &other.image);
-        save_png(
-            &map,
-            &args
-                .output
-                .join(format!("diff-{}-{}.png", reference.name, other.name)),
-        )?;
-        heatmaps.push((format!("|{} - {}|", other.name, reference.name), map));
+        let (m, flip) = measure(
+            reference.name,
+            &reference.image,
+            other.name,
+            &other.image,
+            args.threshold,
+        );
+        metrics.push(m);
+        let diff_name = format!("diff-{}-{}", reference.name, other.name);
+        let flip_name = format!("flip-{}-{}", reference.name, other.name);
+        let diff = heatmap(&reference.image, &other.image);
+        let flip = flip.picture();
+        save_png(&diff, &args.output.join(format!("{diff_name}.png")))?;
+        save_png(&flip, &args.output.join(format!("{flip_name}.png")))?;
+        maps.push((diff_name, diff, flip_name, flip));
     }
     let mut panels: Vec<(String, &RgbImage)> = backends
         .iter()
         .map(|b| (b.name.to_string(), &b.image))
         .collect();
-    panels.extend(heatmaps.iter().map(|(l, m)| (l.clone(), m)));
+    for (m, (_, diff, _, flip)) in metrics.iter().zip(&maps) {
+        panels.push((format!("|{} - {}|", m.other, m.reference), diff));
+        panels.push((format!("FLIP {} vs {}", m.other, m.reference), flip));
+    }
     save_png(&sheet(&panels), &args.output.join("sheet.png"))?;
+    report_page(
+        &scene.source_name,
+        (width, height, samples),
+        &backends,
+        &metrics,
+        &maps,
+        &notes,
+    )?
+    .write(&args.output.join("index.html"))?;
 
     let mut text = format!(
         "scene {}\n{width}×{height} px, {samples} spp\n\n",
@@ -498,7 +420,7 @@ pub fn run(args: CompareArgs) -> Result<()> {
     )
     .with_context(|| format!("{}: cannot write metrics.json", args.output.display()))?;
     print!("{text}");
-    println!("→ {}", args.output.display());
+    println!("→ {}", args.output.join("index.html").display());
     Ok(())
 }
 
@@ -506,67 +428,4 @@ pub fn run(args: CompareArgs) -> Result<()> {
 #[cfg(not(feature = "embree"))]
 pub fn run(_args: CompareArgs) -> Result<()> {
     anyhow::bail!("{}", super::NO_EMBREE)
-}
-
-/// A grey picture of constant value, for the tests.
-#[cfg(test)]
-fn flat(w: u32, h: u32, v: u8) -> RgbImage {
-    RgbImage::from_pixel(w, h, image::Rgb([v, v, v]))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use hytrace::rng::Rng;
-
-    fn noisy(w: u32, h: u32, seed: u64, amplitude: f32) -> RgbImage {
-        let mut rng = Rng::new(seed);
-        RgbImage::from_fn(w, h, |x, y| {
-            let base = 128.0 + 60.0 * ((x as f32 * 0.2).sin() + (y as f32 * 0.15).cos());
-            let v = (base + amplitude * (rng.next_f32() - 0.5)).clamp(0.0, 255.0) as u8;
-            image::Rgb([v, v, v])
-        })
-    }
-
-    #[test]
-    fn identical_images() {
-        let a = noisy(64, 48, 1, 0.0);
-        assert_eq!(psnr(&a, &a), None);
-        assert!((ssim(&a, &a) - 1.0).abs() < 1e-12);
-        assert!(difference(&a, &a).iter().all(|&d| d == 0.0));
-    }
-
-    /// A uniform offset of 16 levels: MSE = 256, PSNR = 10·log10(255²/256) = 24.048 dB.
-    #[test]
-    fn psnr_of_a_known_offset() {
-        let p = psnr(&flat(20, 20, 100), &flat(20, 20, 116)).unwrap();
-        assert!((p - 24.0484).abs() < 1e-3, "{p}");
-    }
-
-    /// SSIM falls as noise grows, and stays within [-1, 1].
-    #[test]
-    fn ssim_orders_noise() {
-        let a = noisy(80, 60, 1, 0.0);
-        let mild = ssim(&a, &noisy(80, 60, 2, 20.0));
-        let strong = ssim(&a, &noisy(80, 60, 3, 120.0));
-        assert!(
-            mild < 1.0 && strong < mild && strong > -1.0,
-            "{mild} {strong}"
-        );
-        // Tiny images use one window over the whole picture.
-        assert!((ssim(&flat(5, 5, 9), &flat(5, 5, 9)) - 1.0).abs() < 1e-12);
-    }
-
-    #[test]
-    fn heatmap_and_sheet_sizes() {
-        let a = flat(40, 30, 10);
-        let b = flat(40, 30, 200);
-        let map = heatmap(&a, &b);
-        assert!(map.width() >= 40 && map.height() > 30);
-        // a difference of 190/255 > HEATMAP_SCALE saturates to Turbo's top colour
-        let top = hytrace::render::draw::to_u8(hytrace::render::view::turbo(1.0));
-        assert_eq!(map.get_pixel(5, 5).0, top);
-        let s = sheet(&[("a".into(), &a), ("b".into(), &b)]);
-        assert_eq!(s.width(), 40 + 40 + 3 * 6);
-    }
 }

@@ -1,5 +1,5 @@
-//! `hytrace validate`: our CPU tracer against Embree 4, ray by ray, with the issue's
-//! thresholds; a Markdown table per object kind, a mismatch image and JSON.
+//! `hytrace validate`: our CPU tracer against Embree 4, ray by ray, with the stated
+//! thresholds; a Markdown table per object kind, a mismatch image, JSON and a report page.
 
 use anyhow::Result;
 use std::path::PathBuf;
@@ -48,6 +48,11 @@ pub struct ValidateArgs {
     /// Write the mismatch image (PNG) to this file.
     #[arg(long)]
     pub mismatch: Option<PathBuf>,
+    /// Write a report page to browse (HTML, self-contained) to this file: the tables, the
+    /// mismatch image with its legend, zoomable to single rays, and the disagreeing rays,
+    /// each a link to its pixel.
+    #[arg(long)]
+    pub html: Option<PathBuf>,
     /// Grid cells along the longest side of each meshed SDF object's box (the referee's
     /// default when omitted); the mesh tolerance is about one cell.
     #[arg(long)]
@@ -59,7 +64,7 @@ pub struct ValidateArgs {
 pub fn run(args: ValidateArgs) -> Result<()> {
     use anyhow::{Context, bail};
     use hytrace::reference::embree::ReferenceOptions;
-    use hytrace::reference::validate::{Options, PixelClass, validate_with_embree_options};
+    use hytrace::reference::validate::{Options, validate_with_embree_options};
     use hytrace::render::draw;
     use hytrace::scene::{MAX_IMAGE_SIDE, MAX_PIXELS};
     use std::time::Instant;
@@ -86,6 +91,7 @@ pub fn run(args: ValidateArgs) -> Result<()> {
     for (flag, path, ext) in [
         ("--json", &args.json, "json"),
         ("--mismatch", &args.mismatch, "png"),
+        ("--html", &args.html, "html"),
     ] {
         if let Some(p) = path {
             super::check_output(flag, p, ext)?;
@@ -124,17 +130,7 @@ pub fn run(args: ValidateArgs) -> Result<()> {
         let grid = report.mismatch_image();
         let factor = (480 / width.max(1)).clamp(1, 8);
         let picture = draw::upscale(&grid, factor);
-        let entries: Vec<([u8; 3], String)> = std::iter::once((
-            PixelClass::Agree { shade: 170 },
-            PixelClass::Agree { shade: 0 },
-        ))
-        .map(|(shown, class)| (shown.colour(), class))
-        .chain(PixelClass::LEGEND.iter().map(|&c| (c.colour(), c)))
-        .map(|(colour, class)| {
-            let n = report.pixels.iter().filter(|p| p.same_entry(class)).count();
-            (colour, format!("{} ({n} px)", class.meaning()))
-        })
-        .collect();
+        let entries = report.legend();
         let legend_h = entries.len() as u32 * (draw::LINE + 2) + 8;
         let legend_w = entries
             .iter()
@@ -148,6 +144,10 @@ pub fn run(args: ValidateArgs) -> Result<()> {
         draw::swatches(&mut img, 4, picture.height() + 4, &entries);
         hytrace::render::output::save_png(&img, path)?;
         println!("mismatch image → {}", path.display());
+    }
+    if let Some(path) = &args.html {
+        report.page(elapsed.as_secs_f64())?.write(path)?;
+        println!("report → {}", path.display());
     }
     if !report.passed() {
         bail!(

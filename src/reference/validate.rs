@@ -387,6 +387,8 @@ pub struct Example {
     pub ours: Option<(f32, String, f32)>,
     /// The referee's hit: (t, object, |n·d|).
     pub referee: Option<(f32, String, f32)>,
+    /// The camera-grid pixel (column, row) of a camera ray; none for a random ray.
+    pub pixel: Option<[u32; 2]>,
 }
 
 /// How many disagreeing rays a report keeps as examples.
@@ -458,6 +460,222 @@ impl Report {
         })
     }
 
+    /// The mismatch image's legend: each colour, what it means and how many pixels have it
+    /// (agreeing hits as one entry, shown in a mid grey).
+    pub fn legend(&self) -> Vec<([u8; 3], String)> {
+        std::iter::once((
+            PixelClass::Agree { shade: 170 },
+            PixelClass::Agree { shade: 0 },
+        ))
+        .map(|(shown, class)| (shown.colour(), class))
+        .chain(PixelClass::LEGEND.iter().map(|&c| (c.colour(), c)))
+        .map(|(colour, class)| {
+            let n = self.pixels.iter().filter(|p| p.same_entry(class)).count();
+            (colour, format!("{} ({n} px)", class.meaning()))
+        })
+        .collect()
+    }
+
+    /// The report as a page to browse ([`crate::render::report`]): the mismatch image with
+    /// its legend, the per-kind and shadow figures, the objects, the verdict, the disagreeing
+    /// pixels and example rays, each a link to its pixel. `seconds` is the run's time.
+    pub fn page(&self, seconds: f64) -> anyhow::Result<crate::render::report::Report> {
+        use crate::render::report::{
+            Legend, Picture, PixelLink, PixelList, Report as Page, Row, Table,
+        };
+        /// Most disagreeing pixels listed.
+        const LISTED: usize = 500;
+        let cells = |v: Vec<String>| Row {
+            cells: v,
+            ..Default::default()
+        };
+        let mut kinds: Vec<Row> = self.kinds.iter().map(|r| cells(kind_cells(r))).collect();
+        let blank = |label: &str, n: usize| {
+            let mut v = vec![label.to_string(), n.to_string()];
+            v.resize(11, String::new());
+            cells(v)
+        };
+        kinds.push(blank("(both miss)", self.both_miss));
+        if self.excluded_outside_mesh > 0 {
+            kinds.push(blank(
+                "(left out: our hit beyond a clipped object's mesh)",
+                self.excluded_outside_mesh,
+            ));
+        }
+        let sh = &self.shadow;
+        let shadow = vec![
+            cells(vec!["cast".into(), sh.rays.to_string()]),
+            cells(vec![
+                "agree".into(),
+                format!("{:.3}%", sh.agreement_percent),
+            ]),
+            cells(vec![
+                "disagree at grazing angles".into(),
+                sh.disagree_grazing.to_string(),
+            ]),
+            cells(vec![
+                "disagree elsewhere".into(),
+                sh.disagree_elsewhere.to_string(),
+            ]),
+            cells(vec![
+                "left out: our occluder beyond a clipped object's mesh".into(),
+                sh.excluded_outside_mesh.to_string(),
+            ]),
+            cells(vec![
+                "left out: meshed blocker within the mesh's tolerance".into(),
+                sh.within_mesh_tolerance.to_string(),
+            ]),
+        ];
+        let mut objects = Vec::new();
+        if self.mesh_instances > 0 {
+            objects.push(cells(vec![
+                format!("{} mesh instance(s)", self.mesh_instances),
+                format!(
+                    "{} triangles: Embree triangle geometry (instanced)",
+                    self.mesh_triangles
+                ),
+            ]));
+        }
+        for o in &self.objects {
+            objects.push(cells(vec![
+                format!("SDF #{} `{}`", o.index, o.name),
+                o.check.describe(),
+            ]));
+        }
+        let verdict: Vec<Row> = if self.passed() {
+            vec![cells(vec!["PASSED: every threshold holds".into()])]
+        } else {
+            self.failures
+                .iter()
+                .map(|f| Row {
+                    cells: vec![f.clone()],
+                    failed: true,
+                    ..Default::default()
+                })
+                .collect()
+        };
+        let hit = |h: &Option<(f32, String, f32)>| {
+            h.as_ref().map_or("miss".to_string(), |(t, o, c)| {
+                format!("t {t:.5} on {o}, |n·d| {c:.3}")
+            })
+        };
+        let examples = PixelList {
+            heading: "Disagreeing camera rays, with both answers".into(),
+            image: 0,
+            total: self.examples.iter().filter(|e| e.pixel.is_some()).count(),
+            pixels: self
+                .examples
+                .iter()
+                .filter_map(|e| {
+                    let [x, y] = e.pixel?;
+                    Some(PixelLink {
+                        x,
+                        y,
+                        label: format!(
+                            "{} [{}]: ours {} | referee {}",
+                            e.what,
+                            e.kind.label(),
+                            hit(&e.ours),
+                            hit(&e.referee)
+                        ),
+                    })
+                })
+                .collect(),
+        };
+        let disagreeing: Vec<(usize, PixelClass)> = self
+            .pixels
+            .iter()
+            .copied()
+            .enumerate()
+            .filter(|(_, c)| !matches!(c, PixelClass::Agree { .. } | PixelClass::Miss))
+            .collect();
+        let pixels = PixelList {
+            heading: "Pixels whose rays disagree (click one to see it)".into(),
+            image: 0,
+            total: disagreeing.len(),
+            pixels: disagreeing
+                .iter()
+                .take(LISTED)
+                .map(|&(i, c)| PixelLink {
+                    x: i as u32 % self.width,
+                    y: i as u32 / self.width,
+                    label: c.meaning().into(),
+                })
+                .collect(),
+        };
+        let header = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        Ok(Page {
+            title: format!("hytrace validate: {}", self.scene),
+            facts: vec![
+                ("scene".into(), self.scene.clone()),
+                (
+                    "camera rays".into(),
+                    format!("{}×{} (one per pixel)", self.width, self.height),
+                ),
+                (
+                    "random rays".into(),
+                    format!("{} (seed {})", self.random_rays, self.seed),
+                ),
+                ("scene diameter".into(), format!("{:.4}", self.diameter)),
+                ("time".into(), format!("{seconds:.2} s")),
+                (
+                    "verdict".into(),
+                    if self.passed() {
+                        "PASSED".into()
+                    } else {
+                        format!("FAILED ({} threshold(s))", self.failures.len())
+                    },
+                ),
+            ],
+            images: vec![Picture::new(
+                "mismatch",
+                "what each camera ray showed (legend below)",
+                &self.mismatch_image(),
+            )?],
+            initial: (0, 0),
+            tables: vec![
+                Table {
+                    heading: "Verdict".into(),
+                    header: header(&["threshold"]),
+                    rows: verdict,
+                },
+                Table {
+                    heading: "Rays per object kind".into(),
+                    header: header(&[
+                        "kind",
+                        "rays",
+                        "hit/miss agree",
+                        "max |Δt|",
+                        "p99 |Δt|",
+                        "worst |Δt|/tol",
+                        "|Δt| over tol",
+                        "disagree in band",
+                        "disagree elsewhere",
+                        "shadow rays",
+                        "shadow agree",
+                    ]),
+                    rows: kinds,
+                },
+                Table {
+                    heading: "Shadow rays".into(),
+                    header: header(&["", "rays"]),
+                    rows: shadow,
+                },
+                Table {
+                    heading: "Objects".into(),
+                    header: header(&["object", "checked as"]),
+                    rows: objects,
+                },
+            ],
+            legends: vec![Legend {
+                heading: "Mismatch image".into(),
+                entries: self.legend(),
+            }],
+            pixel_lists: vec![examples, pixels],
+            notes: Vec::new(),
+        })
+    }
+
     /// The report as Markdown: the per-kind table, shadow rays, the objects, the verdict.
     pub fn markdown(&self) -> String {
         let mut s = String::new();
@@ -469,41 +687,7 @@ impl Report {
         s += "| kind | rays | hit/miss agree | max \\|Δt\\| | p99 \\|Δt\\| | worst \\|Δt\\|/tol | \\|Δt\\| over tol | disagree in band | disagree elsewhere | shadow rays | shadow agree |\n";
         s += "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
         for row in &self.kinds {
-            let k = &row.stats;
-            let shadow = if k.shadow_rays == 0 {
-                "—".to_string()
-            } else {
-                format!(
-                    "{:.3}%",
-                    100.0 * k.shadow_agree as f64 / k.shadow_rays as f64
-                )
-            };
-            if row.kind == Kind::UncheckedSdf {
-                let _ = writeln!(
-                    s,
-                    "| {} | {} | not checked | — | — | — | — | — | — | {} | {} |",
-                    row.kind.label(),
-                    k.rays,
-                    k.shadow_rays,
-                    shadow
-                );
-                continue;
-            }
-            let _ = writeln!(
-                s,
-                "| {} | {} | {:.3}% | {:.2e} | {:.2e} | {:.3} | {} | {} | {} | {} | {} |",
-                row.kind.label(),
-                k.rays,
-                k.agreement_percent,
-                k.dt_max,
-                k.dt_p99,
-                k.dt_worst_of_tolerance,
-                k.dt_over_tolerance,
-                k.disagree_in_band,
-                k.disagree_elsewhere,
-                k.shadow_rays,
-                shadow
-            );
+            let _ = writeln!(s, "| {} |", kind_cells(row).join(" | "));
         }
         let _ = writeln!(s, "| (both miss) | {} | | | | | | | | | |", self.both_miss);
         if self.excluded_outside_mesh > 0 {
@@ -567,6 +751,40 @@ impl Report {
         }
         s
     }
+}
+
+/// One kind's figures as the cells of its table row (Markdown and the report page): kind,
+/// rays, agreement, max and p99 |Δt|, worst |Δt|/tolerance, over tolerance, disagreements in
+/// the band and elsewhere, shadow rays and their agreement.
+fn kind_cells(row: &KindRow) -> Vec<String> {
+    let k = &row.stats;
+    let shadow = if k.shadow_rays == 0 {
+        "—".to_string()
+    } else {
+        format!(
+            "{:.3}%",
+            100.0 * k.shadow_agree as f64 / k.shadow_rays as f64
+        )
+    };
+    let checked = row.kind != Kind::UncheckedSdf;
+    let or_dash = |v: String| if checked { v } else { "—".into() };
+    vec![
+        row.kind.label().into(),
+        k.rays.to_string(),
+        if checked {
+            format!("{:.3}%", k.agreement_percent)
+        } else {
+            "not checked".into()
+        },
+        or_dash(format!("{:.2e}", k.dt_max)),
+        or_dash(format!("{:.2e}", k.dt_p99)),
+        or_dash(format!("{:.3}", k.dt_worst_of_tolerance)),
+        or_dash(k.dt_over_tolerance.to_string()),
+        or_dash(k.disagree_in_band.to_string()),
+        or_dash(k.disagree_elsewhere.to_string()),
+        k.shadow_rays.to_string(),
+        shadow,
+    ]
 }
 
 /// One ray to compare: the ray, and the pixel it belongs to (camera rays).
@@ -1069,6 +1287,9 @@ where
                 direction: probe.ray.direction.to_array(),
                 ours: describe(a, &probe.ray),
                 referee: describe(b, &probe.ray),
+                pixel: probe
+                    .pixel
+                    .map(|i| [i as u32 % options.width, i as u32 / options.width]),
             });
         }
     }

@@ -4,8 +4,10 @@
 pub mod cpu;
 pub mod draw;
 pub mod exr;
+pub mod metrics;
 pub mod output;
 pub mod progressive;
+pub mod report;
 pub mod slice;
 pub mod view;
 pub mod write;
