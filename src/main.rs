@@ -3,13 +3,8 @@
 
 mod cli;
 
-use anyhow::Result;
 use clap::{Parser, Subcommand};
-use hytrace::scene::Scene;
 use std::path::Path;
-
-/// The showcase scene, built into the binary so `hytrace render` works with no file.
-const SHOWCASE: &str = include_str!("../assets/scenes/showcase.ron");
 
 #[derive(Parser)]
 #[command(name = "hytrace", version, about = "Hybrid mesh + SDF renderer")]
@@ -34,18 +29,12 @@ enum Command {
     /// Compare our tracer with Embree 4 ray by ray (hit/miss, |Δt|, shadow rays) against the
     /// analytic thresholds (README); exit status 1 when one fails (needs the `embree` feature).
     Validate(cli::validate::ValidateArgs),
-    /// Render a scene with our CPU tracer and with our shading over Embree's hits; write both,
-    /// a side-by-side sheet, a difference heatmap and PSNR/SSIM (needs the `embree` feature).
+    /// Render a scene with our CPU tracer, with our shading over Embree's hits and on the GPU;
+    /// write the images, difference and FLIP maps, PSNR/SSIM/FLIP and a report page to browse
+    /// (needs the `embree` feature).
     Compare(cli::compare::CompareArgs),
     /// Write a generated test scene of N small SDF objects (for scaling tests and benchmarks).
-    Generate {
-        /// Number of objects.
-        #[arg(long, default_value_t = 10_000)]
-        objects: usize,
-        /// Output scene file (stdout when absent).
-        #[arg(short, long)]
-        output: Option<std::path::PathBuf>,
-    },
+    Generate(cli::generate::GenerateArgs),
 }
 
 fn main() {
@@ -59,7 +48,7 @@ fn main() {
         Some(Command::Bench(args)) => cli::bench::run(args),
         Some(Command::Validate(args)) => cli::validate::run(args),
         Some(Command::Compare(args)) => cli::compare::run(args),
-        Some(Command::Generate { objects, output }) => generate(objects, output.as_deref()),
+        Some(Command::Generate(args)) => cli::generate::run(args),
         None => cli::render::run(cli::render::RenderArgs::parse_from(["render"])),
     };
     if let Err(e) = result {
@@ -79,44 +68,4 @@ fn quiet_wayland_probe() {
         // environment concurrently.
         unsafe { std::env::set_var("XDG_RUNTIME_DIR", std::env::temp_dir()) };
     }
-}
-
-/// Loads the scene file, or the built-in showcase when none is given.
-fn load_scene(path: Option<&Path>) -> Result<Scene> {
-    load_any(path, None)
-}
-
-/// Loads a scene file, or a mesh file as a scene of its own (a default camera framing it, or
-/// the file's camera `camera`, and its lights or default ones), or the showcase.
-fn load_any(path: Option<&Path>, camera: Option<&str>) -> Result<Scene> {
-    let is_scene = |p: &Path| {
-        p.extension()
-            .and_then(|e| e.to_str())
-            .is_none_or(|e| e.eq_ignore_ascii_case("ron"))
-    };
-    Ok(match path {
-        Some(p) if is_scene(p) => {
-            if camera.is_some() {
-                anyhow::bail!(
-                    "--camera applies to mesh files (.gltf, .glb, .obj, .ply), not scenes"
-                );
-            }
-            Scene::load(p)?
-        }
-        Some(p) => Scene::from_model(p, camera)?,
-        None => Scene::from_source(SHOWCASE, Path::new("<built-in showcase.ron>"))?,
-    })
-}
-
-fn generate(objects: usize, output: Option<&Path>) -> Result<()> {
-    if objects == 0 || objects > 1_000_000 {
-        anyhow::bail!("--objects {objects} is out of range 1..=1000000");
-    }
-    let text = hytrace::scene::generate::many_objects(objects);
-    match output {
-        Some(p) => std::fs::write(p, text)
-            .map_err(|e| anyhow::anyhow!("{}: cannot write: {e}", p.display()))?,
-        None => print!("{text}"),
-    }
-    Ok(())
 }

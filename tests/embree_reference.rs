@@ -13,9 +13,9 @@ use hytrace::reference::embree::{
     DEFAULT_MESH_RESOLUTION, EmbreeScene, ReferenceOptions, SdfCheck,
 };
 use hytrace::reference::mesher::{MeshOptions, mesh_sdf};
-use hytrace::reference::query::{ObjectId, QueryHit, RayQuery};
 use hytrace::rng::Rng;
 use hytrace::scene::{Light, Scene};
+use hytrace::trace::query::{ObjectId, QueryHit, RayQuery};
 use hytrace::trace::{SceneTracer, epsilon_at};
 use std::cell::Cell;
 use std::path::{Path, PathBuf};

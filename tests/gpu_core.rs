@@ -12,9 +12,9 @@
 use glam::Vec3;
 use hytrace::geom::{Aabb, Ray};
 use hytrace::gpu::{GpuContext, GpuQuery, GpuSdfEvaluator};
-use hytrace::reference::query::{ObjectId, QueryHit, RayQuery};
 use hytrace::rng::Rng;
 use hytrace::scene::{Light, Scene};
+use hytrace::trace::query::{ObjectId, QueryHit, RayQuery};
 use hytrace::trace::{SceneTracer, epsilon_at};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;

@@ -10,7 +10,6 @@
 use glam::Vec3;
 use hytrace::geom::Ray;
 use hytrace::reference::embree::EmbreeScene;
-use hytrace::reference::query::{ObjectId, QueryHit, RayQuery};
 use hytrace::reference::shading::{EmbreeTracer, render_image};
 use hytrace::reference::validate::{
     Kind, ObjectCheck, Options, Report, validate, validate_with_embree,
@@ -18,6 +17,7 @@ use hytrace::reference::validate::{
 use hytrace::render::{RenderOptions, cpu};
 use hytrace::scene::Scene;
 use hytrace::sdf::tape::Registers;
+use hytrace::trace::query::{ObjectId, QueryHit, RayQuery};
 use hytrace::trace::{SceneTracer, Surface, epsilon_at};
 use std::path::{Path, PathBuf};
 use std::process::Command;

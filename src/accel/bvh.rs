@@ -45,25 +45,9 @@ use crate::geom::{Aabb, Ray};
 use arrayvec::ArrayVec;
 use wide::{Frustum, NodeRay, PACKET, PacketLeaf, WideNode};
 
-/// How much time the builder spends on the tree, mapped to obvhs's presets.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, serde::Deserialize, clap::ValueEnum)]
-pub enum BuildQuality {
-    /// `BvhBuildParams::fast_build()`: PLOC search radius 6, little reinsertion.
-    Fast,
-    /// `BvhBuildParams::medium_build()`: PLOC radius 14, more reinsertion ("about Embree's
-    /// build time with faster traversal", says obvhs).
-    #[default]
-    Medium,
-    /// `BvhBuildParams::slow_build()`: PLOC radius 24, 128-bit Morton codes, more reinsertion,
-    /// and spatial pre-splits of large triangles (so a triangle may sit in several leaves;
-    /// the split boxes are padded to stay conservative, see `split_boxes`).
-    High,
-    /// `BvhBuildParams::very_slow_build()`: as `High`, with reinsertion over every node
-    /// (batch ratio 1) instead of a fifth of them. Several times `Medium`'s build time for
-    /// the fastest traversal; what `hytrace bench` compares with Embree's HIGH quality.
-    Highest,
-}
+pub use crate::scene::file::BuildQuality;
 
+// The scene file names the preset; how it maps onto obvhs's builder is this module's business.
 impl BuildQuality {
     /// The obvhs parameters of this preset.
     pub fn params(self) -> BvhBuildParams {

@@ -194,7 +194,7 @@ fn build_referee(_: &Scene) -> anyhow::Result<Option<(Referee, f64)>> {
 /// computes the geometric normal, as ours does below.
 #[cfg(feature = "embree")]
 fn referee_query(e: &Referee, query: Query) -> impl Fn(&[QueryRay], &mut [f32]) + Sync + '_ {
-    use crate::reference::query::RayQuery;
+    use crate::trace::query::RayQuery;
     move |rays: &[QueryRay], out: &mut [f32]| {
         for (q, out) in rays.iter().zip(out) {
             *out = match query {

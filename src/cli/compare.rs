@@ -223,7 +223,7 @@ pub fn run(args: CompareArgs) -> Result<()> {
     use hytrace::trace::SceneTracer;
     use std::time::Instant;
 
-    let scene = crate::load_any(args.scene.as_deref(), args.camera.as_deref())?;
+    let scene = super::load_any(args.scene.as_deref(), args.camera.as_deref())?;
     let width = args.width.unwrap_or(scene.image.width);
     let height = args.height.unwrap_or(scene.image.height);
     let samples = args.spp.unwrap_or(scene.image.samples);

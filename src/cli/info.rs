@@ -18,7 +18,7 @@ pub struct InfoArgs {
 /// Prints the summary.
 pub fn run(args: InfoArgs) -> Result<()> {
     let start = Instant::now();
-    let mut scene = crate::load_any(args.scene.as_deref(), None)?;
+    let mut scene = super::load_any(args.scene.as_deref(), None)?;
     if let Some(q) = args.bvh {
         scene.tracer.bvh = q;
     }

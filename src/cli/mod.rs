@@ -1,6 +1,7 @@
 //! The subcommands of the `hytrace` binary, one module each.
 pub mod bench;
 pub mod compare;
+pub mod generate;
 pub mod info;
 pub mod render;
 pub mod slice;
@@ -8,7 +9,11 @@ pub mod validate;
 pub mod view;
 
 use anyhow::{Result, bail};
+use hytrace::scene::Scene;
 use std::path::Path;
+
+/// The showcase scene, built into the binary so `hytrace render` works with no file.
+const SHOWCASE: &str = include_str!("../../assets/scenes/showcase.ron");
 
 /// What `validate` and `compare` say in a build without the `embree` feature.
 #[cfg(not(feature = "embree"))]
@@ -37,4 +42,31 @@ pub fn check_output(flag: &str, path: &Path, ext: &str) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Loads the scene file, or the built-in showcase when none is given.
+pub fn load_scene(path: Option<&Path>) -> Result<Scene> {
+    load_any(path, None)
+}
+
+/// Loads a scene file, or a mesh file as a scene of its own (a default camera framing it, or
+/// the file's camera `camera`, and its lights or default ones), or the showcase.
+pub fn load_any(path: Option<&Path>, camera: Option<&str>) -> Result<Scene> {
+    let is_scene = |p: &Path| {
+        p.extension()
+            .and_then(|e| e.to_str())
+            .is_none_or(|e| e.eq_ignore_ascii_case("ron"))
+    };
+    Ok(match path {
+        Some(p) if is_scene(p) => {
+            if camera.is_some() {
+                anyhow::bail!(
+                    "--camera applies to mesh files (.gltf, .glb, .obj, .ply), not scenes"
+                );
+            }
+            Scene::load(p)?
+        }
+        Some(p) => Scene::from_model(p, camera)?,
+        None => Scene::from_source(SHOWCASE, Path::new("<built-in showcase.ron>"))?,
+    })
 }

@@ -201,7 +201,7 @@ fn contents(scene: &hytrace::scene::Scene) -> String {
 
 /// Renders and writes the image.
 pub fn run(args: RenderArgs) -> Result<()> {
-    let mut scene = crate::load_any(args.scene.as_deref(), args.camera.as_deref())?;
+    let mut scene = super::load_any(args.scene.as_deref(), args.camera.as_deref())?;
     if let Some(q) = args.bvh {
         scene.tracer.bvh = q;
     }

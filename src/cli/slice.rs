@@ -1,6 +1,6 @@
 //! `hytrace slice`: the signed distance on an axis-aligned plane, drawn with iso-contours.
 
-use crate::load_scene;
+use super::load_scene;
 use anyhow::{Context, Result, bail};
 use glam::Vec2;
 use hytrace::render::output;

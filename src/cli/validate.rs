@@ -71,7 +71,7 @@ pub fn run(args: ValidateArgs) -> Result<()> {
     /// Most random rays accepted.
     const MAX_RANDOM: usize = 10_000_000;
 
-    let scene = crate::load_any(args.scene.as_deref(), args.camera.as_deref())?;
+    let scene = super::load_any(args.scene.as_deref(), args.camera.as_deref())?;
     let width = args.width.unwrap_or(scene.image.width);
     let height = args.height.unwrap_or(scene.image.height);
     if width == 0 || height == 0 {

@@ -107,7 +107,7 @@ fn run_viewer(args: ViewArgs) -> Result<()> {
         Chosen::Gpu(ctx) => Some(*ctx),
     };
     let (path, camera) = (args.scene.clone(), args.camera.clone());
-    let load = Arc::new(move || crate::load_any(path.as_deref(), camera.as_deref()));
+    let load = Arc::new(move || super::load_any(path.as_deref(), camera.as_deref()));
     let is_scene_file = args.scene.as_ref().filter(|p| {
         p.extension()
             .and_then(|e| e.to_str())

@@ -2,9 +2,10 @@
 //! mirror its tracing queries (see `shaders/README.md`).
 //!
 //! [`context`] opens a headless device, [`scene`] uploads a scene (tapes, the objects' field
-//! octrees, BVHs, meshes, materials, textures), [`shaders`] assembles the WGSL (a generated
-//! prelude of shared constants and structs, then `shaders/*.wgsl`), [`query`] answers ray
-//! batches with it.
+//! octrees, BVHs, meshes, materials, textures) as the buffer [`records`] whose WGSL twins
+//! [`layout`] generates, [`shaders`] assembles the WGSL (a generated prelude of shared
+//! constants and structs, then `shaders/*.wgsl`), [`query`] answers ray batches with it,
+//! [`shade`] packs what the shading kernels read and [`render`] builds images pass by pass.
 
 pub mod context;
 pub mod layout;

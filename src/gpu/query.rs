@@ -12,10 +12,10 @@ use super::shaders::{
 };
 use crate::accel::field::ObjectField;
 use crate::geom::Ray;
-use crate::reference::query::{ObjectId, QueryHit, RayQuery};
 use crate::scene::Scene;
 use crate::sdf::conformance::Evaluator;
 use crate::sdf::tape::Tape;
+use crate::trace::query::{ObjectId, QueryHit, RayQuery};
 use glam::Vec3;
 
 /// Items per dispatch unless told otherwise: small enough that one dispatch of the slowest

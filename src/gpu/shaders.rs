@@ -6,10 +6,10 @@ use super::records::*;
 use crate::accel::field;
 use crate::scene::Shadow;
 use crate::scene::file::NormalMethod;
+use crate::scene::material::MaterialParams;
 use crate::scene::mesh::Wrap;
 use crate::sdf::simplify::Verdict;
 use crate::sdf::tape;
-use crate::shade::material::MaterialParams;
 use glam::Vec3;
 
 /// The tape interpreter (`Tape::eval_in`, `Tape::eval_material`).

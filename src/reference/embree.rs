@@ -39,11 +39,11 @@
 
 use super::analytic::{self, AnalyticHit};
 use super::mesher::{self, MeshOptions, SdfMesh};
-use super::query::{ObjectId, QueryHit, RayQuery};
 use crate::geom::{Aabb, Ray};
 use crate::scene::Scene;
 use crate::sdf::SdfNode;
 use crate::sdf::lower::transform_of;
+use crate::trace::query::{ObjectId, QueryHit, RayQuery};
 use embree4_sys::{
     RTC_INVALID_GEOMETRY_ID, RTCBounds, RTCBoundsFunctionArguments, RTCBufferType, RTCBuildQuality,
     RTCDevice, RTCError, RTCFormat, RTCGeometry, RTCGeometryType, RTCHit,

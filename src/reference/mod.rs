@@ -5,7 +5,6 @@ pub mod analytic;
 #[cfg(feature = "embree")]
 pub mod embree;
 pub mod mesher;
-pub mod query;
 #[cfg(feature = "embree")]
 pub mod shading;
 pub mod validate;

@@ -21,13 +21,13 @@
 //! the facets stand up to τ off the true surface and would otherwise shadow the mesh itself.
 
 use super::embree::{EmbreeScene, SdfCheck};
-use super::query::{ObjectId, QueryHit, RayQuery};
 use crate::accel::field::FieldCursor;
 use crate::geom::Ray;
+use crate::scene::material::MaterialParams;
 use crate::scene::{Scene, Shadow};
 use crate::sdf::tape::{MaterialVec, Registers};
 use crate::shade::ShadingTracer;
-use crate::shade::material::MaterialParams;
+use crate::trace::query::{ObjectId, QueryHit, RayQuery};
 use crate::trace::{Hit, SceneTracer, Surface, normal};
 use glam::Vec3;
 use std::sync::atomic::{AtomicUsize, Ordering};

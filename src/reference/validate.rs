@@ -53,7 +53,6 @@
 //! of the referee's mesh; the referee's mesh blocking at a point outside the true solid) is
 //! undecidable at that tolerance: it is left out of the agreement and counted.
 
-use super::query::{ObjectId, QueryHit, RayQuery};
 use crate::accel::field::FieldCursor;
 use crate::geom::{Aabb, Ray};
 use crate::rng::Rng;
@@ -61,6 +60,7 @@ use crate::scene::{Light, Scene};
 use crate::sdf::tape::Registers;
 use crate::shade::offset_from_surface;
 use crate::trace::epsilon_at;
+use crate::trace::query::{ObjectId, QueryHit, RayQuery};
 use glam::Vec3;
 use rayon::prelude::*;
 use serde::Serialize;

@@ -3,7 +3,7 @@
 //! Every field is documented in `docs/scene-format.md`; unknown fields are errors. Values are
 //! validated while parsing (see [`super::values`]), so errors carry line and column.
 
-use super::values::{Color, Direction, Finite, FiniteVec3, NonNegative, Positive, Unit};
+use crate::geom::values::{Color, Direction, Finite, FiniteVec3, NonNegative, Positive, Unit};
 use crate::sdf::SdfNode;
 use serde::Deserialize;
 use std::collections::HashSet;
@@ -314,6 +314,26 @@ pub enum NormalMethod {
     Tetrahedral,
 }
 
+/// How much time the mesh BVH builder spends on its trees: obvhs's presets (mapped onto its
+/// build parameters by `accel::bvh`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, clap::ValueEnum)]
+pub enum BuildQuality {
+    /// `BvhBuildParams::fast_build()`: PLOC search radius 6, little reinsertion.
+    Fast,
+    /// `BvhBuildParams::medium_build()`: PLOC radius 14, more reinsertion ("about Embree's
+    /// build time with faster traversal", says obvhs).
+    #[default]
+    Medium,
+    /// `BvhBuildParams::slow_build()`: PLOC radius 24, 128-bit Morton codes, more reinsertion,
+    /// and spatial pre-splits of large triangles (so a triangle may sit in several leaves;
+    /// the split boxes are padded to stay conservative, see `split_boxes`).
+    High,
+    /// `BvhBuildParams::very_slow_build()`: as `High`, with reinsertion over every node
+    /// (batch ratio 1) instead of a fifth of them. Several times `Medium`'s build time for
+    /// the fastest traversal; what `hytrace bench` compares with Embree's HIGH quality.
+    Highest,
+}
+
 /// How the sphere tracer steps along a ray (see `crate::trace::sphere`).
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize, Default)]
 pub enum Stepper {
@@ -366,7 +386,7 @@ pub struct TracerDesc {
     /// Shadows from point and directional lights (each light's `shadow` says which kind).
     pub shadows: bool,
     /// Build quality of the mesh BVHs (obvhs PLOC presets).
-    pub bvh: crate::accel::bvh::BuildQuality,
+    pub bvh: BuildQuality,
     /// Step rule of the sphere tracer (opt-in faster steppers; Hart by default).
     pub stepper: Stepper,
 }
@@ -380,7 +400,7 @@ impl Default for TracerDesc {
             max_steps: 256,
             normals: NormalMethod::Central,
             shadows: true,
-            bvh: crate::accel::bvh::BuildQuality::Medium,
+            bvh: BuildQuality::Medium,
             stepper: Stepper::Hart,
         }
     }

@@ -8,15 +8,15 @@ pub mod camera;
 pub mod file;
 pub mod generate;
 pub mod locate;
+pub mod material;
 pub mod mesh;
 pub mod meshes;
 pub mod model;
-pub mod values;
 
 use crate::geom::Aabb;
+use crate::scene::material::MaterialParams;
 use crate::sdf::lower::Step;
 use crate::sdf::{self, LoweredSdf, SdfNode};
-use crate::shade::material::MaterialParams;
 use camera::{Camera, Projection};
 pub use file::Stepper;
 use file::{CameraDesc, LightDesc, NormalMethod, SceneFile, ShadowDesc, ToneMap};
@@ -101,7 +101,7 @@ pub struct TracerSettings {
     /// Shadows on or off.
     pub shadows: bool,
     /// Build quality of the mesh BVHs.
-    pub bvh: crate::accel::bvh::BuildQuality,
+    pub bvh: crate::scene::file::BuildQuality,
     /// Step rule of the sphere tracer.
     pub stepper: Stepper,
 }

@@ -6,7 +6,7 @@ use super::mesh::{CameraProjection, LightKind, NamedCamera};
 use super::{
     ImageSettings, Light, Scene, SceneError, SceneMeshes, ShadingSettings, Shadow, TracerSettings,
 };
-use crate::shade::material::MaterialParams;
+use crate::scene::material::MaterialParams;
 use glam::{Affine3A, Vec3};
 use std::path::Path;
 
@@ -120,7 +120,7 @@ impl Scene {
                 max_steps: 256,
                 normals: NormalMethod::Central,
                 shadows: true,
-                bvh: crate::accel::bvh::BuildQuality::Medium,
+                bvh: crate::scene::file::BuildQuality::Medium,
                 stepper: crate::scene::Stepper::Hart,
             },
             shading: ShadingSettings {

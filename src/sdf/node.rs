@@ -10,7 +10,7 @@
 //! Formulas come from Inigo Quilez's catalogue ("distance functions", iquilezles.org, 2008–2024)
 //! unless said otherwise.
 
-use crate::scene::values::{Direction, Finite, FiniteVec3, NonNegative, Positive, PositiveVec3};
+use crate::geom::values::{Direction, Finite, FiniteVec3, NonNegative, Positive, PositiveVec3};
 use serde::Deserialize;
 
 /// One node of an SDF tree. Variant names and fields are the scene-file syntax.

@@ -26,10 +26,10 @@ pub const MAX_REGISTERS: usize = 256;
 /// Material registers a tape may use.
 pub const MAX_MATERIAL_REGISTERS: usize = 16;
 
-/// Number of floats in one blended material (see [`crate::shade::MaterialParams`]).
+/// Number of floats in one blended material (see [`crate::scene::material::MaterialParams`]).
 pub const MATERIAL_FLOATS: usize = 12;
 
-/// A blended material as the tape carries it: see [`crate::shade::MaterialParams`] for lanes.
+/// A blended material as the tape carries it: see [`crate::scene::material::MaterialParams`] for lanes.
 pub type MaterialVec = [f32; MATERIAL_FLOATS];
 
 macro_rules! opcodes {

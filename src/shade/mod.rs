@@ -12,15 +12,14 @@
 //! 1975) and v the direction to the eye. [`integrator`] adds reflection and refraction.
 
 pub mod integrator;
-pub mod material;
 pub mod optics;
 
 use crate::geom::Ray;
+use crate::scene::material::MaterialParams;
 use crate::scene::{AmbientOcclusion, Light, Scene, Shadow, TracerSettings};
 use crate::sdf::tape::MaterialVec;
 use crate::trace::{Hit, SceneTracer, ShadowQuery, Surface, epsilon_at};
 use glam::Vec3;
-use material::MaterialParams;
 
 /// The queries shading asks of a backend: closest hits (camera, reflected and refracted rays),
 /// where a ray leaves the solid it travels in, the visibility of a light, the scene's distance

@@ -4,6 +4,7 @@
 pub mod crossing;
 pub mod normal;
 pub mod packet;
+pub mod query;
 pub mod segment;
 pub mod sphere;
 pub mod step;
@@ -14,9 +15,9 @@ use crate::accel::bvh::BuildQuality;
 use crate::accel::field::{FieldCursor, ObjectField};
 use crate::accel::{MeshAccel, SdfAccel};
 use crate::geom::{Aabb, Ray};
+use crate::scene::material::MaterialParams;
 use crate::scene::{Scene, SdfObject, Shadow, Stepper, TracerSettings};
 use crate::sdf::tape::{MaterialVec, Registers};
-use crate::shade::material::MaterialParams;
 use glam::Vec3;
 use rayon::prelude::*;
 use std::ops::ControlFlow;

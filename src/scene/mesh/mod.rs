@@ -44,7 +44,7 @@ mod polygon;
 mod texture;
 
 use crate::geom::Aabb;
-use crate::shade::material::MaterialParams;
+use crate::scene::material::MaterialParams;
 use glam::{Affine3A, Vec2, Vec3};
 use std::path::{Path, PathBuf};
 

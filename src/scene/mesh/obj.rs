@@ -9,7 +9,7 @@
 use super::polygon::triangulate;
 use super::texture::{self, Wrap};
 use super::{MeshAsset, MeshError, MeshInstance, MeshMaterial, TriangleMesh, unit};
-use crate::shade::material::MaterialParams;
+use crate::scene::material::MaterialParams;
 use glam::{Affine3A, Vec2, Vec3};
 use std::cell::RefCell;
 use std::collections::HashMap;

@@ -1,6 +1,6 @@
 //! Materials as the shader sees them, and their packing into the tape's blended-material lanes.
 
-use crate::scene::file::MaterialDesc;
+use super::file::MaterialDesc;
 use crate::sdf::tape::{MATERIAL_FLOATS, MaterialVec};
 use glam::Vec3;
 

@@ -1,4 +1,7 @@
-//! Small geometric types shared by every stage: axis-aligned boxes, rays and affine maps.
+//! Small geometric types shared by every stage: axis-aligned boxes, rays and affine maps, and
+//! the validated numbers scene descriptions are made of ([`values`]).
+
+pub mod values;
 
 use glam::{Affine3A, Vec3};
 

@@ -1,4 +1,5 @@
-//! One ray-query interface, answered by every backend: our CPU tracer, Embree, later the GPU.
+//! One ray-query interface, answered by every backend: our CPU tracer, the GPU tracer
+//! (`gpu::query`) and Embree (`reference::embree`).
 //!
 //! The two queries are the ones a renderer needs: the closest hit in (tmin, tmax) and whether
 //! anything lies in (tmin, tmax) (a shadow ray). `t` is in units of the ray's direction, which
@@ -9,8 +10,8 @@
 //! `t = tmin` from the sphere tracer (the field is already below its threshold there), but the
 //! exit crossing from Embree's closed-form user geometry. Comparisons cast rays from outside.
 
+use super::{SceneTracer, Surface};
 use crate::geom::Ray;
-use crate::trace::{SceneTracer, Surface};
 use glam::Vec3;
 
 /// What a ray query hit, independent of the backend.

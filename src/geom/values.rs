@@ -1,4 +1,5 @@
-//! Validated numbers for scene files: a bad value fails while parsing, so the error carries its place.
+//! Validated numbers for scene descriptions: a bad value fails while parsing, so the error
+//! carries its place.
 //!
 //! Each type below deserializes from a plain RON number or tuple and refuses NaN, infinities and
 //! out-of-range values. Because the check runs inside serde, `ron` reports the line and column of
