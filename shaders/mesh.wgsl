@@ -1,6 +1,7 @@
-// Mesh traversal: BVH2 walks with a fixed-size stack over the flattened nodes, the
-// Woop–Benthin–Wald watertight triangle test of src/accel/triangle.rs, and instances
-// (world → object ray mapping as src/accel/bvh.rs's InstanceBvh does it).
+// Mesh traversal: the CPU's wide BVHs (src/accel/bvh/wide.rs) walked with fixed-size stacks,
+// the Woop–Benthin–Wald watertight triangle test of src/accel/triangle.rs on the leaves'
+// blocks of eight (src/accel/bvh/leaf.rs), and instances (world → object ray mapping as
+// src/accel/bvh.rs's InstanceBvh does it).
 
 struct Interval {
     hit: bool,
@@ -144,11 +145,139 @@ fn intersect_triangle(r: WatertightRay, a: vec3<f32>, b: vec3<f32>, c: vec3<f32>
     return TriHit(true, t, v * rcp, w * rcp);
 }
 
-// Traversal stacks, one per nesting level, at module scope: function-local arrays are
-// allocated once per inlined call site, and lavapipe (Mesa 22.3) silently corrupted private
-// memory once a kernel had many of them (the probe kernel, which calls every query).
-var<private> blas_stack: array<u32, STACK_SIZE>;
-var<private> tlas_stack: array<u32, STACK_SIZE>;
+// ---- the wide BVH walk shared by every tree (src/accel/bvh/wide.rs: `traverse_impl`).
+
+// NodeRay: the ray's origin, 1/d, and the axes (bit per axis) where 1/d is not finite, on
+// which the node test is a containment test. 1/d is finite exactly when |d| is at least the
+// smallest normal float (GPUs flush smaller ones to zero anyway).
+struct NodeRay {
+    o: vec3<f32>,
+    inv: vec3<f32>,
+    parallel: u32,
+}
+
+fn node_ray(o: vec3<f32>, d: vec3<f32>) -> NodeRay {
+    var r = NodeRay(o, vec3<f32>(0.0), 0u);
+    for (var axis = 0u; axis < 3u; axis = axis + 1u) {
+        if abs(d[axis]) >= 1.17549435e-38 {
+            r.inv[axis] = 1.0 / d[axis];
+        } else {
+            r.parallel = r.parallel | (1u << axis);
+        }
+    }
+    return r;
+}
+
+// `query_tmin`: a negative tmin is taken as 0 (so entry distances are ≥ 0, which the
+// widening relies on); NaN stays NaN and is turned away by the walk.
+fn query_tmin(tmin: f32) -> f32 {
+    if tmin < 0.0 {
+        return 0.0;
+    }
+    return tmin;
+}
+
+struct ChildHits {
+    // widened entry distance of each child, four to a vector
+    t: array<vec4<f32>, 2>,
+    // bit i: child i's box meets the ray within [tmin, tmax]
+    mask: u32,
+}
+
+// `child_hits`: the slab test of a node's eight children, each box grown by `margin`, with
+// the entry distance scaled towards 0 and the exit away from it by WIDEN (Ize, "Robust BVH
+// Ray Traversal", JCGT 2013) before they are compared.
+fn child_hits(n: u32, r: NodeRay, tmin: f32, tmax: f32, margin: f32) -> ChildHits {
+    var out: ChildHits;
+    out.mask = 0u;
+    for (var h = 0u; h < 2u; h = h + 1u) {
+        var tn = vec4<f32>(tmin);
+        var tf = vec4<f32>(tmax);
+        var inside = vec4<bool>(true);
+        for (var axis = 0u; axis < 3u; axis = axis + 1u) {
+            let o = vec4<f32>(r.o[axis]);
+            let lo = nodes[n].bounds[4u * axis + h] - vec4<f32>(margin);
+            let hi = nodes[n].bounds[4u * axis + 2u + h] + vec4<f32>(margin);
+            if ((r.parallel >> axis) & 1u) != 0u {
+                inside = inside & (lo <= o) & (hi >= o);
+            } else {
+                let inv = vec4<f32>(r.inv[axis]);
+                var pn = lo;
+                var pf = hi;
+                if r.inv[axis] < 0.0 {
+                    pn = hi;
+                    pf = lo;
+                }
+                tn = max(tn, (pn - o) * inv);
+                tf = min(tf, (pf - o) * inv);
+            }
+        }
+        tn = tn * (1.0 - WIDEN);
+        tf = tf * (1.0 + WIDEN);
+        let hit = (tn <= tf) & inside;
+        out.t[h] = tn;
+        for (var lane = 0u; lane < 4u; lane = lane + 1u) {
+            if hit[lane] {
+                out.mask = out.mask | (1u << (4u * h + lane));
+            }
+        }
+    }
+    return out;
+}
+
+fn child_code(n: u32, slot: u32) -> u32 {
+    return nodes[n].children[slot / 4u][slot % 4u];
+}
+
+// The slots of node n that hold leaves.
+fn leaf_slots(n: u32) -> u32 {
+    var m = 0u;
+    for (var slot = 0u; slot < 8u; slot = slot + 1u) {
+        m = m | ((child_code(n, slot) >> 31u) << slot);
+    }
+    return m;
+}
+
+fn leaf_count(code: u32) -> u32 {
+    return ((code >> 29u) & 3u) + 1u;
+}
+
+// A walk's pending children: (widened entry distance, child code), one stack per nesting level at
+// module scope: function-local arrays are allocated once per inlined call site, and lavapipe
+// (Mesa 22.3) silently corrupted private memory once a kernel had many of them (the probe
+// kernel, which calls every query).
+struct Entry {
+    t: f32,
+    code: u32,
+}
+var<private> blas_stack: array<Entry, STACK_SIZE>;
+var<private> tlas_stack: array<Entry, STACK_SIZE>;
+
+// Pushes the hit children of `mask` whose entry lies within tmax onto `stack` above `sp`
+// and returns the new top. With `ordered` they are stacked by entry distance, the nearest on
+// top (popped next); ties, and all of them without `ordered`, pop in slot order: the CPU's
+// insertion sort and push order (`traverse_impl`).
+fn push_children(stack: ptr<private, array<Entry, STACK_SIZE>>, sp: u32, n: u32, hits: ChildHits, mask_in: u32, tmax: f32, ordered: bool) -> u32 {
+    var top = sp;
+    var mask = mask_in;
+    while mask != 0u {
+        // highest slot first
+        let i = firstLeadingBit(mask);
+        mask = mask & ~(1u << i);
+        let e = Entry(hits.t[i / 4u][i % 4u], child_code(n, i));
+        if e.t > tmax {
+            continue;
+        }
+        var j = top;
+        while ordered && j > sp && (*stack)[j - 1u].t < e.t {
+            (*stack)[j] = (*stack)[j - 1u];
+            j = j - 1u;
+        }
+        (*stack)[j] = e;
+        top = top + 1u;
+    }
+    return top;
+}
 
 struct MeshHit {
     hit: bool,
@@ -158,52 +287,62 @@ struct MeshHit {
     v: f32,
 }
 
-// Pushes the two children of an inner node, the one whose centre lies farther along the ray
-// first, so the nearer is popped first.
-fn push_children(stack: ptr<private, array<u32, STACK_SIZE>>, sp: ptr<function, u32>, first: u32, o: vec3<f32>, d: vec3<f32>) {
-    let c0 = nodes[first];
-    let c1 = nodes[first + 1u];
-    let k0 = dot(c0.lo + c0.hi - 2.0 * o, d);
-    let k1 = dot(c1.lo + c1.hi - 2.0 * o, d);
-    if k0 <= k1 {
-        (*stack)[*sp] = first + 1u;
-        (*stack)[*sp + 1u] = first;
-    } else {
-        (*stack)[*sp] = first;
-        (*stack)[*sp + 1u] = first + 1u;
-    }
-    *sp = *sp + 2u;
+fn block_vertex(b: u32, k: u32, lane: u32) -> vec3<f32> {
+    let h = lane / 4u;
+    let l = lane % 4u;
+    return vec3<f32>(
+        tri_blocks[b].v[2u * (3u * k) + h][l],
+        tri_blocks[b].v[2u * (3u * k + 1u) + h][l],
+        tri_blocks[b].v[2u * (3u * k + 2u) + h][l],
+    );
 }
 
-// MeshBvh::closest_hit in object space: the nearest triangle with tmin ≤ t ≤ tmax, ties to
-// the smaller triangle index; with `any_hit` (MeshBvh::any_hit) the first triangle found.
-fn blas_walk(root: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax_in: f32, any_hit: bool) -> MeshHit {
-    let wr = watertight_ray(o, d);
+// MeshBvh::closest_hit in object space (`traverse_grouped`): at each node the hit leaf
+// children's triangles are tested together (their blocks), then the inner children are
+// ordered and pushed; the nearest triangle with tmin ≤ t ≤ tmax wins, ties to the smaller
+// triangle index. With `any_hit` (MeshBvh::any_hit) the first triangle found, children in
+// slot order.
+fn blas_walk(root: u32, o: vec3<f32>, d: vec3<f32>, tmin_in: f32, tmax_in: f32, any_hit: bool) -> MeshHit {
     var best = MeshHit(false, tmax_in, 0u, 0.0, 0.0);
+    let tmin = query_tmin(tmin_in);
     var tmax = tmax_in;
-    blas_stack[0] = root;
+    if root == NONE || !(tmin <= tmax) {
+        return best;
+    }
+    let wr = watertight_ray(o, d);
+    let nr = node_ray(o, d);
+    blas_stack[0] = Entry(tmin, root);
     var sp = 1u;
     while sp > 0u {
         sp = sp - 1u;
-        let node = nodes[blas_stack[sp]];
-        if !ray_interval(node.lo, node.hi, o, d, tmin, tmax).hit {
+        let entry = blas_stack[sp];
+        if entry.t > tmax {
             continue;
         }
-        if node.count == 0u {
-            push_children(&blas_stack, &sp, node.first, o, d);
-            continue;
-        }
-        for (var j = node.first; j < node.first + node.count; j = j + 1u) {
-            let tri = triangles[j];
-            let h = intersect_triangle(wr, tri.a, tri.b, tri.c, tmin, tmax);
-            if h.hit && (!best.hit || h.t < best.t || (h.t == best.t && tri.id < best.triangle)) {
-                best = MeshHit(true, h.t, tri.id, h.u, h.v);
-                if any_hit {
-                    return best;
+        let n = entry.code;
+        let hits = child_hits(n, nr, tmin, tmax, 0.0);
+        let leaves = hits.mask & leaf_slots(n);
+        if leaves != 0u {
+            let code = child_code(n, firstTrailingBit(leaves));
+            let first = code & FIRST_MASK;
+            for (var b = first; b < first + leaf_count(code); b = b + 1u) {
+                for (var lane = 0u; lane < 8u; lane = lane + 1u) {
+                    if (tri_blocks[b].slot[lane / 4u][lane % 4u] & leaves) == 0u {
+                        continue;
+                    }
+                    let h = intersect_triangle(wr, block_vertex(b, 0u, lane), block_vertex(b, 1u, lane), block_vertex(b, 2u, lane), tmin, tmax);
+                    let id = tri_blocks[b].id[lane / 4u][lane % 4u];
+                    if h.hit && (!best.hit || h.t < best.t || (h.t == best.t && id < best.triangle)) {
+                        best = MeshHit(true, h.t, id, h.u, h.v);
+                        if any_hit {
+                            return best;
+                        }
+                        tmax = h.t;
+                    }
                 }
-                tmax = h.t;
             }
         }
+        sp = push_children(&blas_stack, sp, n, hits, hits.mask & ~leaves, tmax, !any_hit);
     }
     return best;
 }
@@ -245,39 +384,45 @@ struct InstanceHit {
 
 // InstanceBvh::closest_hit: the world ray mapped into each instance's object space (not
 // renormalised, so t stays the world parameter), ties to the smaller instance, then triangle;
-// with `any_hit` (InstanceBvh::any_hit) the first hit found.
-fn tlas_walk(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax_in: f32, any_hit: bool) -> InstanceHit {
+// with `any_hit` (InstanceBvh::any_hit) the first hit found. The node test grows the boxes by
+// the CPU's per-ray margin (the rounding of mapping the ray, `origin_margin` × max |o|).
+fn tlas_walk(o: vec3<f32>, d: vec3<f32>, tmin_in: f32, tmax_in: f32, any_hit: bool) -> InstanceHit {
     var best = InstanceHit(false, tmax_in, 0u, 0u, 0.0, 0.0);
-    if globals.tlas_root == NONE {
+    let tmin = query_tmin(tmin_in);
+    var tmax = tmax_in;
+    if globals.tlas_root == NONE || !(tmin <= tmax) {
         return best;
     }
-    var tmax = tmax_in;
-    tlas_stack[0] = globals.tlas_root;
+    let nr = node_ray(o, d);
+    let margin = globals.tlas_origin_margin * max(max(abs(o.x), abs(o.y)), abs(o.z));
+    tlas_stack[0] = Entry(tmin, globals.tlas_root);
     var sp = 1u;
     while sp > 0u {
         sp = sp - 1u;
-        let node = nodes[tlas_stack[sp]];
-        if !ray_interval(node.lo, node.hi, o, d, tmin, tmax).hit {
+        let entry = tlas_stack[sp];
+        if entry.t > tmax {
             continue;
         }
-        if node.count == 0u {
-            push_children(&tlas_stack, &sp, node.first, o, d);
-            continue;
-        }
-        for (var j = node.first; j < node.first + node.count; j = j + 1u) {
-            let index = refs[j];
-            let inst = instances[index];
-            let mesh = meshes[inst.mesh];
-            let h = blas_walk(mesh.root, rows_point(inst.world_to_object, o), rows_vector(inst.world_to_object, d), tmin, tmax, any_hit);
-            if h.hit && (!best.hit || h.t < best.t
-                || (h.t == best.t && (index < best.instance || (index == best.instance && h.triangle < best.triangle)))) {
-                best = InstanceHit(true, h.t, index, h.triangle, h.u, h.v);
-                if any_hit {
-                    return best;
+        if (entry.code & LEAF_BIT) != 0u {
+            let first = entry.code & FIRST_MASK;
+            for (var j = first; j < first + leaf_count(entry.code); j = j + 1u) {
+                let index = refs[j];
+                let inst = instances[index];
+                let mesh = meshes[inst.mesh];
+                let h = blas_walk(mesh.root, rows_point(inst.world_to_object, o), rows_vector(inst.world_to_object, d), tmin, tmax, any_hit);
+                if h.hit && (!best.hit || h.t < best.t
+                    || (h.t == best.t && (index < best.instance || (index == best.instance && h.triangle < best.triangle)))) {
+                    best = InstanceHit(true, h.t, index, h.triangle, h.u, h.v);
+                    if any_hit {
+                        return best;
+                    }
+                    tmax = h.t;
                 }
-                tmax = h.t;
             }
+            continue;
         }
+        let hits = child_hits(entry.code, nr, tmin, tmax, margin);
+        sp = push_children(&tlas_stack, sp, entry.code, hits, hits.mask, tmax, !any_hit);
     }
     return best;
 }

@@ -25,7 +25,7 @@ struct SceneHit {
 // closures, so the four visitors of SceneTracer are one switch (`WALK_*`) and the walk state
 // is passed by value; its stack is a module-scope array (see `blas_stack`).
 
-var<private> object_stack: array<u32, STACK_SIZE>;
+var<private> object_stack: array<Entry, STACK_SIZE>;
 
 const WALK_CLOSEST: u32 = 0u;
 const WALK_OCCLUDED: u32 = 1u;
@@ -109,39 +109,37 @@ fn sdf_walk(query: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32, margin
             s = walk_visit(query, index, iv.t0, iv.t1, o, d, k, improved, s);
         }
     }
-    var sp = 0u;
-    if !s.stop && globals.object_root != NONE {
-        object_stack[0] = globals.object_root;
-        sp = 1u;
+    // the tree: AabbBvh::visit_within's walk (`traverse` with the boxes grown by margin),
+    // nearest child first; its leaves' boxes are tested with the caller's tmin
+    let node_tmin = query_tmin(tmin);
+    if s.stop || globals.object_root == NONE || !(node_tmin <= s.limit) {
+        return s;
     }
+    let nr = node_ray(o, d);
+    object_stack[0] = Entry(node_tmin, globals.object_root);
+    var sp = 1u;
     while sp > 0u && !s.stop {
         sp = sp - 1u;
-        let node = nodes[object_stack[sp]];
-        var lo = node.lo;
-        var hi = node.hi;
-        if margin > 0.0 {
-            lo = lo - vec3<f32>(margin);
-            hi = hi + vec3<f32>(margin);
-        }
-        if !ray_interval(lo, hi, o, d, tmin, s.limit).hit {
+        let entry = object_stack[sp];
+        if entry.t > s.limit {
             continue;
         }
-        if node.count == 0u {
-            object_stack[sp] = node.first + 1u;
-            object_stack[sp + 1u] = node.first;
-            sp = sp + 2u;
+        if (entry.code & LEAF_BIT) != 0u {
+            let first = entry.code & FIRST_MASK;
+            for (var j = first; j < first + leaf_count(entry.code); j = j + 1u) {
+                if s.stop {
+                    break;
+                }
+                let index = refs[j];
+                let iv = object_interval(index, o, d, tmin, s.limit, margin);
+                if iv.hit {
+                    s = walk_visit(query, index, iv.t0, iv.t1, o, d, k, improved, s);
+                }
+            }
             continue;
         }
-        for (var j = node.first; j < node.first + node.count; j = j + 1u) {
-            if s.stop {
-                break;
-            }
-            let index = refs[j];
-            let iv = object_interval(index, o, d, tmin, s.limit, margin);
-            if iv.hit {
-                s = walk_visit(query, index, iv.t0, iv.t1, o, d, k, improved, s);
-            }
-        }
+        let hits = child_hits(entry.code, nr, node_tmin, s.limit, margin);
+        sp = push_children(&object_stack, sp, entry.code, hits, hits.mask, s.limit, true);
     }
     return s;
 }

@@ -125,8 +125,7 @@ impl Agreement {
 /// meshes.
 fn compare(name: &str, scene: &Scene, seed: u64) -> Agreement {
     let cpu = SceneTracer::new(scene);
-    let gpu =
-        GpuQuery::with_fields(ctx(), scene, cpu.fields()).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let gpu = GpuQuery::with_tracer(ctx(), &cpu).unwrap_or_else(|e| panic!("{name}: {e}"));
     let s = &scene.tracer;
     let diameter = bounds(scene).diagonal();
     let rays = rays(scene, seed);
@@ -412,8 +411,7 @@ fn probe(name: &str, scene: &Scene, seed: u64) -> ProbeReport {
     use hytrace::gpu::records::QueryRay;
     use hytrace::scene::Shadow;
     let cpu = SceneTracer::new(scene);
-    let gpu =
-        GpuQuery::with_fields(ctx(), scene, cpu.fields()).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let gpu = GpuQuery::with_tracer(ctx(), &cpu).unwrap_or_else(|e| panic!("{name}: {e}"));
     let s = &scene.tracer;
     let materials: Vec<_> = scene.materials.iter().map(|m| m.to_vec()).collect();
     let tmax = s.max_distance;
@@ -761,8 +759,7 @@ fn field_octrees_locate_evaluate_and_walk_as_on_the_cpu() {
         let name = path.file_stem().unwrap().to_string_lossy().to_string();
         let scene = Scene::load(path).unwrap_or_else(|e| panic!("{e}"));
         let cpu = SceneTracer::new(&scene);
-        let gpu = GpuQuery::with_fields(ctx(), &scene, cpu.fields())
-            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let gpu = GpuQuery::with_tracer(ctx(), &cpu).unwrap_or_else(|e| panic!("{name}: {e}"));
         for (i, field) in cpu.fields().iter().enumerate() {
             let Some(tree) = &field.octree else { continue };
             objects += 1;
@@ -802,7 +799,7 @@ fn field_octrees_locate_evaluate_and_walk_as_on_the_cpu() {
 
     let (scene, i) = sample.expect("a shipped object with a deep octree");
     let cpu = SceneTracer::new(&scene);
-    let gpu = GpuQuery::with_fields(ctx(), &scene, cpu.fields()).unwrap();
+    let gpu = GpuQuery::with_tracer(ctx(), &cpu).unwrap();
     let rays = field_rays(cpu.fields()[i].octree.as_ref().unwrap(), 5);
     let source = hytrace::gpu::shaders::with_kernel(hytrace::gpu::shaders::FIELD_PROBE_WGSL);
     for (what, from, to) in [

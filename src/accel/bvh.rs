@@ -43,7 +43,12 @@ use obvhs::aabb::Aabb as OAabb;
 use super::triangle::{self, WatertightRay};
 use crate::geom::{Aabb, Ray};
 use arrayvec::ArrayVec;
-use wide::{Frustum, NodeRay, PACKET, PacketLeaf, WideNode};
+use wide::{Frustum, NodeRay, PACKET, PacketLeaf};
+
+// The trees' own layout, for the GPU's walker (`crate::gpu::scene` uploads these very nodes
+// and leaf blocks, so both backends traverse one structure).
+pub(crate) use leaf::Leaves;
+pub(crate) use wide::{FIRST_MASK, LEAF_BIT, WIDEN, WideNode, leaf_first};
 
 pub use crate::scene::file::BuildQuality;
 
@@ -399,6 +404,17 @@ impl MeshBvh {
             }
         });
         found
+    }
+
+    /// The nodes as the walk reads them (root at 0; none for an empty mesh); leaf children
+    /// point at blocks of [`MeshBvh::leaf_blocks`].
+    pub(crate) fn wide_nodes(&self) -> &[WideNode] {
+        &self.nodes
+    }
+
+    /// The triangles in the leaves' blocks, with the mesh's index of each.
+    pub(crate) fn leaf_blocks(&self) -> &Leaves {
+        &self.leaves
     }
 
     /// Number of nodes (8-wide) in the tree; 0 for an empty mesh.
@@ -1050,6 +1066,23 @@ impl InstanceBvh {
         found
     }
 
+    /// The nodes as the walk reads them (root at 0; none without instances); a leaf child's
+    /// range indexes [`InstanceBvh::leaf_instances`].
+    pub(crate) fn wide_nodes(&self) -> &[WideNode] {
+        &self.nodes
+    }
+
+    /// The scene index of each instance in the tree, in leaf order.
+    pub(crate) fn leaf_instances(&self) -> impl Iterator<Item = u32> + '_ {
+        self.placed.iter().map(|p| p.index)
+    }
+
+    /// A ray's node-test margin is this times its origin's largest |component| (see
+    /// [`InstanceBvh::build`]).
+    pub(crate) fn origin_margin(&self) -> f32 {
+        self.origin_margin
+    }
+
     /// Number of nodes of the top-level tree.
     pub fn node_count(&self) -> usize {
         self.nodes.len()
@@ -1206,6 +1239,17 @@ impl AabbBvh {
     /// Indices of the boxes kept out of the tree because they are not finite.
     pub fn unbounded(&self) -> &[u32] {
         &self.unbounded
+    }
+
+    /// The nodes as the walk reads them (root at 0; none without finite boxes); a leaf
+    /// child's range indexes [`AabbBvh::leaf_boxes`].
+    pub(crate) fn wide_nodes(&self) -> &[WideNode] {
+        &self.nodes
+    }
+
+    /// The caller's index of each box in the tree, in leaf order.
+    pub(crate) fn leaf_boxes(&self) -> impl Iterator<Item = u32> + '_ {
+        self.boxes.iter().map(|b| b.0)
     }
 
     /// Number of nodes of the tree.

@@ -72,11 +72,17 @@ pub fn run(args: InfoArgs) -> Result<()> {
     let total = build.elapsed();
     let mesh = tracer.mesh_accel();
     println!(
-        "mesh BVH     {:?} quality: {} BLAS with {} nodes, TLAS {} nodes, built in {:.3} s",
+        "mesh BVH     {:?} quality: {} BLAS with {} nodes (deepest {} levels), TLAS {} nodes ({} levels), built in {:.3} s",
         scene.tracer.bvh,
         mesh.blas.len(),
         mesh.blas.iter().map(|b| b.node_count()).sum::<usize>(),
+        mesh.blas
+            .iter()
+            .map(|b| b.stats().max_depth)
+            .max()
+            .unwrap_or(0),
         mesh.tlas.node_count(),
+        mesh.tlas.stats().max_depth,
         mesh.build_time.as_secs_f64()
     );
     println!(

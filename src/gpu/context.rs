@@ -5,7 +5,7 @@ use super::GpuError;
 use wgpu::util::DeviceExt;
 
 /// The smallest storage buffer created: larger than any record of [`super::records`].
-pub const MIN_STORAGE_BYTES: usize = 256;
+pub const MIN_STORAGE_BYTES: usize = 512;
 
 /// A wgpu device and queue with no window or surface.
 pub struct GpuContext {

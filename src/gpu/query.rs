@@ -10,11 +10,11 @@ use super::shaders::{
     EVAL_WGSL, FIELD_PROBE_WGSL, HIT_MESH, HIT_SDF, PROBE_WGSL, QUERY_CLOSEST, QUERY_OCCLUDED,
     QUERY_WGSL, WORKGROUP_SIZE, with_kernel,
 };
-use crate::accel::field::ObjectField;
 use crate::geom::Ray;
 use crate::scene::Scene;
 use crate::sdf::conformance::Evaluator;
 use crate::sdf::tape::Tape;
+use crate::trace::SceneTracer;
 use crate::trace::query::{ObjectId, QueryHit, RayQuery};
 use glam::Vec3;
 
@@ -195,14 +195,10 @@ impl<'a> GpuQuery<'a> {
         Self::from_data(ctx, &SceneData::from_scene(scene)?)
     }
 
-    /// [`GpuQuery::new`] with the objects' fields built already (`SceneTracer::fields`), so
-    /// that the GPU walks exactly the CPU's octrees.
-    pub fn with_fields(
-        ctx: &'a GpuContext,
-        scene: &Scene,
-        fields: &[ObjectField],
-    ) -> Result<Self, GpuError> {
-        Self::from_data(ctx, &SceneData::from_fields(scene, fields)?)
+    /// [`GpuQuery::new`] with a CPU tracer's acceleration structures (its field octrees and
+    /// BVHs), so that the GPU walks exactly the CPU's.
+    pub fn with_tracer(ctx: &'a GpuContext, tracer: &SceneTracer) -> Result<Self, GpuError> {
+        Self::from_data(ctx, &SceneData::from_tracer(tracer)?)
     }
 
     fn from_data(ctx: &'a GpuContext, data: &SceneData) -> Result<Self, GpuError> {

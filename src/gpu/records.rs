@@ -6,9 +6,11 @@ use crate::gpu_struct;
 /// "No such node / tape register / override": a sentinel index.
 pub const NONE: u32 = u32::MAX;
 
-/// Depth of the fixed-size traversal stacks in `mesh.wgsl` and `scene.wgsl`; BVHs deeper
-/// than this are refused at upload time (see [`crate::gpu::scene`]).
-pub const STACK_SIZE: u32 = 64;
+/// Entries of each fixed-size traversal stack in `mesh.wgsl` and `scene.wgsl`. A visited wide
+/// node replaces its own entry by up to eight children, so a tree of D levels needs at most
+/// 7·D + 1 entries: up to 18 levels fit, and deeper trees are refused at upload time (see
+/// [`crate::gpu::scene`]).
+pub const STACK_SIZE: u32 = 128;
 
 gpu_struct! {
     /// Where one tape lives in the shared instruction buffer.
@@ -99,35 +101,33 @@ gpu_struct! {
 }
 
 gpu_struct! {
-    /// A node of a flattened BVH2: an inner node when `count` is 0 (children at `first` and
-    /// `first + 1`), else a leaf over `count` primitives from `first`.
-    pub struct BvhNode(32) {
-        /// Box minimum.
-        pub lo: [f32; 3],
-        /// First child or first primitive.
-        pub first: u32,
-        /// Box maximum.
-        pub hi: [f32; 3],
-        /// Primitive count (0 for inner nodes).
-        pub count: u32,
+    /// A node of a wide BVH exactly as the CPU walks it (`crate::accel::bvh::WideNode`), its
+    /// eight children's boxes as structure of arrays: plane `p = 2·axis + side` (side 0 the
+    /// minima, 1 the maxima) of children `4·h .. 4·h + 4` is `bounds[2·p + h]`. Empty slots
+    /// hold the inverted box (+`f32::MAX`, −`f32::MAX`), which no ray enters. `meta` per child
+    /// (the CPU's `meta`, a name WGSL reserves): a node index, or `LEAF_BIT | (count − 1) << 29 |
+    /// first`; both rebased
+    /// into the shared buffers.
+    pub struct WideNodeRecord(224) {
+        /// Children's planes, four lanes to a vector.
+        pub bounds: [[f32; 4]; 12],
+        /// Children's node index or leaf range, four to a vector.
+        pub children: [[u32; 4]; 2],
     }
 }
 
 gpu_struct! {
-    /// A triangle in leaf order: its object-space vertices and its index in the mesh.
-    pub struct TriangleRecord(48) {
-        /// First vertex.
-        pub a: [f32; 3],
-        /// Index of the triangle in its mesh's triangle list.
-        pub id: u32,
-        /// Second vertex.
-        pub b: [f32; 3],
-        /// Unused.
-        pub pad0: u32,
-        /// Third vertex.
-        pub c: [f32; 3],
-        /// Unused.
-        pub pad1: u32,
+    /// Eight triangles of a mesh BVH's leaves as the CPU stores them
+    /// (`crate::accel::bvh::TriBlock`): coordinate `axis` of vertex `k` of lanes `4·h .. 4·h +
+    /// 4` is `v[2·(3·k + axis) + h]`; `slot` is `1 << child slot` of the lane's leaf (0 for an
+    /// unused lane), `id` the triangle's index in its mesh.
+    pub struct TriBlockRecord(352) {
+        /// Vertex coordinates, four lanes to a vector.
+        pub v: [[f32; 4]; 18],
+        /// Each lane's leaf slot bit.
+        pub slot: [[u32; 4]; 2],
+        /// Each lane's triangle index.
+        pub id: [[u32; 4]; 2],
     }
 }
 
@@ -248,8 +248,9 @@ gpu_struct! {
         pub tlas_root: u32,
         /// Number of scene materials.
         pub material_count: u32,
-        /// Unused.
-        pub pad0: u32,
+        /// A ray's node-test margin in the instances' BVH is this times its origin's largest
+        /// |component| (`InstanceBvh::origin_margin`).
+        pub tlas_origin_margin: f32,
         /// Unused.
         pub pad1: u32,
         /// Unused.
@@ -354,3 +355,7 @@ gpu_struct! {
         pub kind: u32,
     }
 }
+
+// An empty buffer is bound as one zeroed record: the smallest buffer must hold the largest.
+const _: () = assert!(size_of::<TriBlockRecord>() <= super::context::MIN_STORAGE_BYTES);
+const _: () = assert!(size_of::<WideNodeRecord>() <= super::context::MIN_STORAGE_BYTES);

@@ -1,5 +1,5 @@
 //! A scene in GPU buffers: every tape, the object bounds and their BVH, each object's field
-//! octree of specialised tapes, meshes with a BVH2 per mesh and one over the instances,
+//! octree of specialised tapes, meshes with their BVHs and the one over the instances,
 //! materials and textures.
 //!
 //! [`SceneData`] is the host-side image of the buffers (plain vectors of the records in
@@ -7,11 +7,15 @@
 //! [`GpuScene`] uploads it and binds it as group 0 in the order of
 //! [`crate::gpu::shaders::scene_bindings`].
 //!
-//! The BVHs are BVH2s built by obvhs (PLOC, Meister & Bittner 2018, with reinsertion) and
-//! flattened here: inner nodes have their two children side by side, leaves point into the
-//! triangle records (stored in leaf order) or the reference list (object and instance
-//! indices). Node boxes are padded by a few ulps of their coordinates so that the slab test's
-//! rounding never culls a triangle the watertight test would hit.
+//! The BVHs are the CPU tracer's own ([`crate::accel::bvh`]: the SDF objects' `AabbBvh`, each
+//! mesh's `MeshBvh` with its leaf triangles in blocks of eight, the instances' `InstanceBvh`),
+//! taken from a [`SceneTracer`] node for node and rebased into shared buffers: inner children
+//! offset by where the tree's nodes start, leaf ranges by where its blocks or references start.
+//! Both backends thus walk one structure; a BVH change lands once. The WGSL node test is the
+//! CPU's (entry and exit distances widened by `WIDEN`); as GPU arithmetic is less tightly
+//! specified (a division may be off by 2.5 ulp, subnormals may flush), each child box is also
+//! padded by a few ulps of its coordinates on upload, which can only add visits, never lose a
+//! hit.
 //!
 //! The field octrees ([`crate::accel::field`]) are uploaded as the CPU holds them, rebased
 //! into shared buffers: every object's nodes in one array (child and leaf indices offset by
@@ -22,14 +26,14 @@ use super::GpuError;
 use super::context::GpuContext;
 use super::records::*;
 use super::shaders::{BindingKind, normals_code, scene_bindings, verdict_code, wrap_code};
-use crate::accel::field::{FieldOctree, LEAF, ObjectField};
-use crate::accel::triangle;
+use crate::accel::SdfAccel;
+use crate::accel::bvh::{AabbBvh, FIRST_MASK, LEAF_BIT, WideNode, leaf_first};
+use crate::accel::field::{FieldOctree, LEAF};
 use crate::geom::Aabb;
 use crate::scene::{Scene, TracerSettings};
 use crate::sdf::tape::Tape;
-use glam::{Vec3, Vec3A};
-use obvhs::BvhBuildParams;
-use obvhs::aabb::Aabb as OAabb;
+use crate::trace::SceneTracer;
+use glam::Vec3;
 
 /// The host-side contents of the scene buffers.
 #[derive(Debug, Clone, Default)]
@@ -47,11 +51,11 @@ pub struct SceneData {
     /// The distinct distance and shading tapes of every field octree's leaves.
     pub field_tapes: Vec<TapeRef>,
     /// Nodes of every BVH (objects, instances, meshes).
-    pub nodes: Vec<BvhNode>,
+    pub nodes: Vec<WideNodeRecord>,
     /// Object and instance indices referenced by leaves, then the unbounded objects.
     pub refs: Vec<u32>,
-    /// Triangles of every mesh in leaf order.
-    pub triangles: Vec<TriangleRecord>,
+    /// The leaf triangles of every mesh, eight to a block.
+    pub tri_blocks: Vec<TriBlockRecord>,
     /// Meshes.
     pub meshes: Vec<MeshRecord>,
     /// Vertex attributes of every mesh.
@@ -70,15 +74,15 @@ pub struct SceneData {
     pub max_depth: u32,
 }
 
-fn oaabb(lo: Vec3, hi: Vec3) -> OAabb {
-    OAabb::new(Vec3A::from(lo), Vec3A::from(hi))
-}
-
-/// A few ulps of the box's largest coordinate: the slab test's rounding stays inside.
-fn padded(lo: Vec3, hi: Vec3) -> (Vec3, Vec3) {
+/// A child box padded by a few ulps of its largest coordinate (see the module documentation),
+/// or `None` for an empty slot.
+fn padded(lo: Vec3, hi: Vec3) -> Option<(Vec3, Vec3)> {
+    if lo.cmpgt(hi).any() {
+        return None;
+    }
     let m = lo.abs().max(hi.abs()).max_element();
     let pad = Vec3::splat(64.0 * f32::EPSILON * m + f32::MIN_POSITIVE);
-    (lo - pad, hi + pad)
+    Some((lo - pad, hi + pad))
 }
 
 /// Infinite coordinates as ±`f32::MAX` (GPU compilers need not preserve infinities).
@@ -104,34 +108,26 @@ fn tape_ref(tape: &Tape, instrs: &mut Vec<InstrRecord>) -> TapeRef {
 }
 
 impl SceneData {
-    /// Builds the buffers of a scene, with the fields the CPU tracer would build
-    /// ([`crate::trace::build_fields`]).
+    /// Builds the buffers of a scene, with the acceleration structures the CPU tracer builds
+    /// ([`SceneTracer::new`]).
     pub fn from_scene(scene: &Scene) -> Result<Self, GpuError> {
-        // refused before the octrees are built for nothing
+        // refused before the structures are built for nothing
         supported(scene)?;
-        Self::from_fields(scene, &crate::trace::build_fields(scene, true))
+        Self::from_tracer(&SceneTracer::new(scene))
     }
 
-    /// Builds the buffers of a scene whose objects' fields are built already (one per object,
-    /// in scene order: `SceneTracer::fields`), so that both backends walk the same octrees.
-    pub fn from_fields(scene: &Scene, fields: &[ObjectField]) -> Result<Self, GpuError> {
-        if fields.len() != scene.objects.len() {
-            return Err(GpuError::Unsupported(format!(
-                "{} fields for {} SDF objects",
-                fields.len(),
-                scene.objects.len()
-            )));
-        }
+    /// Builds the buffers of a scene from a CPU tracer's acceleration structures (its field
+    /// octrees and BVHs), so that both backends walk the very same ones.
+    pub fn from_tracer(tracer: &SceneTracer) -> Result<Self, GpuError> {
+        let scene = tracer.scene();
         supported(scene)?;
+        let fields = tracer.fields();
         let mut data = SceneData::default();
         data.set_tracer(&scene.tracer);
-        let quality = scene.tracer.bvh.params();
 
-        // SDF objects: tapes, bounds, a BVH over the finite boxes, the others apart.
-        let mut boxes = Vec::new();
-        let mut boxed = Vec::new();
-        let mut unbounded = Vec::new();
-        for (i, (object, field)) in scene.objects.iter().zip(fields).enumerate() {
+        // SDF objects: tapes, bounds and fields; the BVH over the finite boxes, the others
+        // apart, as the CPU's `AabbBvh` holds them.
+        for (object, field) in scene.objects.iter().zip(fields) {
             let distance = tape_ref(&field.whole, &mut data.instrs);
             let shading = tape_ref(&field.whole_shading, &mut data.instrs);
             let (field_root, field_box) = match &field.octree {
@@ -151,33 +147,31 @@ impl SceneData {
                 shading,
                 ..Default::default()
             });
-            // as AabbBvh::build: empty boxes are never visited, infinite or NaN ones always
-            if b.min.cmpgt(b.max).any() {
-                continue;
-            } else if !b.is_finite() {
-                unbounded.push(i as u32);
-            } else {
-                boxes.push(oaabb(b.min, b.max));
-                boxed.push(i as u32);
-            }
         }
-        let mut object_params = quality;
-        object_params.max_prims_per_leaf = 2;
-        data.globals.object_root = data.add_bvh(&boxes, object_params, |data, order| {
-            let first = data.refs.len() as u32;
-            data.refs.extend(order.iter().map(|&k| boxed[k as usize]));
-            first
-        });
+        // A tracer made with the linear scan (a check of the BVH) has no tree to share: the
+        // GPU gets the one the BVH option would have built.
+        let built;
+        let objects = match tracer.sdf_accel() {
+            SdfAccel::Bvh(b) => b,
+            SdfAccel::Linear(bounds) => {
+                built = AabbBvh::build(bounds);
+                &built
+            }
+        };
+        let refs_start = data.refs.len() as u32;
+        data.refs.extend(objects.leaf_boxes());
+        data.globals.object_root = data.add_tree(objects.wide_nodes(), refs_start)?;
+        data.max_depth = data.max_depth.max(objects.stats().max_depth);
         data.globals.object_count = scene.objects.len() as u32;
         data.globals.unbounded_start = data.refs.len() as u32;
-        data.globals.unbounded_count = unbounded.len() as u32;
-        data.refs.extend_from_slice(&unbounded);
+        data.globals.unbounded_count = objects.unbounded().len() as u32;
+        data.refs.extend_from_slice(objects.unbounded());
 
-        // Meshes: attributes in file order, a BVH over the valid triangles (as MeshBvh::build:
-        // out-of-range, non-finite and zero-area triangles cannot be hit and are left out).
+        // Meshes: attributes in file order (the BVH keeps only the triangles that can be
+        // hit), each mesh's tree with its leaf blocks.
         let sm = &scene.meshes;
-        let mut mesh_boxes = Vec::with_capacity(sm.meshes.len());
-        for mesh in &sm.meshes {
+        let accel = tracer.mesh_accel();
+        for (mesh, bvh) in sm.meshes.iter().zip(&accel.blas) {
             let record_start = MeshRecord {
                 root: NONE,
                 vertex_start: data.vertices.len() as u32,
@@ -193,8 +187,6 @@ impl SceneData {
                     v: uv.y,
                 });
             }
-            let mut kept = Vec::new();
-            let mut tri_boxes = Vec::new();
             for (t, idx) in mesh.triangles.iter().enumerate() {
                 data.triangle_indices.push(TriangleIndices {
                     a: idx[0],
@@ -202,49 +194,34 @@ impl SceneData {
                     c: idx[2],
                     material: mesh.triangle_material.get(t).copied().unwrap_or(0),
                 });
-                let v = idx.map(|k| mesh.positions.get(k as usize).copied());
-                let [Some(a), Some(b), Some(c)] = v else {
-                    continue;
-                };
-                if !triangle::is_finite(a, b, c) || triangle::is_degenerate(a, b, c) {
-                    continue;
-                }
-                kept.push((t as u32, [a, b, c]));
-                tri_boxes.push(oaabb(a.min(b).min(c), a.max(b).max(c)));
             }
-            let root = data.add_bvh(&tri_boxes, quality, |data, order| {
-                let first = data.triangles.len() as u32;
-                data.triangles.extend(order.iter().map(|&k| {
-                    let (id, [a, b, c]) = kept[k as usize];
-                    TriangleRecord {
-                        a: a.to_array(),
-                        id,
-                        b: b.to_array(),
-                        pad0: 0,
-                        c: c.to_array(),
-                        pad1: 0,
-                    }
-                }));
-                first
-            });
-            mesh_boxes.push((root != NONE).then(|| {
-                let n = data.nodes[root as usize];
-                (Vec3::from(n.lo), Vec3::from(n.hi))
-            }));
+            let leaves = bvh.leaf_blocks();
+            let blocks_start = data.tri_blocks.len() as u32;
+            for (block, ids) in leaves.blocks.iter().zip(&leaves.ids) {
+                let mut r = TriBlockRecord::default();
+                for (row, lanes) in block.v.iter().enumerate() {
+                    r.v[2 * row] = lanes[..4].try_into().unwrap();
+                    r.v[2 * row + 1] = lanes[4..].try_into().unwrap();
+                }
+                r.slot = [
+                    block.slot[..4].try_into().unwrap(),
+                    block.slot[4..].try_into().unwrap(),
+                ];
+                r.id = [ids[..4].try_into().unwrap(), ids[4..].try_into().unwrap()];
+                data.tri_blocks.push(r);
+            }
+            let root = data.add_tree(bvh.wide_nodes(), blocks_start)?;
+            data.max_depth = data.max_depth.max(bvh.stats().max_depth);
             data.meshes.push(MeshRecord {
                 root,
                 ..record_start
             });
         }
 
-        // Instances: all recorded (surfaces are looked up by scene index), the valid ones in
-        // the TLAS (as InstanceBvh::build: a known, non-empty mesh and an invertible, finite
-        // transform).
-        let mut inst_boxes = Vec::new();
-        let mut placed = Vec::new();
-        for (i, inst) in sm.instances.iter().enumerate() {
-            let m = inst.transform;
-            let inv = m.inverse();
+        // Instances: all recorded (surfaces are looked up by scene index); the tree over the
+        // valid ones is the CPU's, with its per-ray node margin.
+        for inst in &sm.instances {
+            let inv = inst.transform.inverse();
             let rows = |a: &glam::Affine3A| -> [[f32; 4]; 3] {
                 let (x, y, z, t) = (
                     a.matrix3.x_axis,
@@ -271,40 +248,13 @@ impl SceneData {
                 material_override: inst.material_override.unwrap_or(NONE),
                 pad: 0,
             });
-            let Some(Some((lo, hi))) = mesh_boxes.get(inst.mesh) else {
-                continue;
-            };
-            let finite = |a: &glam::Affine3A| {
-                a.matrix3.x_axis.is_finite()
-                    && a.matrix3.y_axis.is_finite()
-                    && a.matrix3.z_axis.is_finite()
-                    && a.translation.is_finite()
-            };
-            if !(m.matrix3.determinant() != 0.0 && finite(&m) && finite(&inv)) {
-                continue;
-            }
-            let world = Aabb::new(*lo, *hi).transformed(&m);
-            // The object-space ray is the world ray's exact preimage only up to rounding
-            // amplified by the transform's condition number (see InstanceBvh::build): pad by
-            // that, generously, relative to the box and the scene's scale.
-            let frob = |a: &glam::Affine3A| {
-                (a.matrix3.x_axis.length_squared()
-                    + a.matrix3.y_axis.length_squared()
-                    + a.matrix3.z_axis.length_squared())
-                .sqrt()
-            };
-            let cond = frob(&m) * frob(&inv);
-            let scale = world.min.abs().max(world.max.abs()).max_element();
-            let pad = Vec3::splat(1024.0 * f32::EPSILON * cond * scale);
-            inst_boxes.push(oaabb(world.min - pad, world.max + pad));
-            placed.push(i as u32);
         }
         data.globals.instance_count = sm.instances.len() as u32;
-        data.globals.tlas_root = data.add_bvh(&inst_boxes, quality, |data, order| {
-            let first = data.refs.len() as u32;
-            data.refs.extend(order.iter().map(|&k| placed[k as usize]));
-            first
-        });
+        let refs_start = data.refs.len() as u32;
+        data.refs.extend(accel.tlas.leaf_instances());
+        data.globals.tlas_root = data.add_tree(accel.tlas.wide_nodes(), refs_start)?;
+        data.globals.tlas_origin_margin = accel.tlas.origin_margin();
+        data.max_depth = data.max_depth.max(accel.tlas.stats().max_depth);
 
         // Materials: the scene's table (mesh files' materials included) and their textures.
         for (i, m) in scene.materials.iter().enumerate() {
@@ -425,47 +375,60 @@ impl SceneData {
         self.globals.tlas_root = NONE;
     }
 
-    /// Builds a BVH2 over `boxes`, appends its nodes and returns the root ([`NONE`] for no
-    /// boxes). `place(data, order)` stores the primitives in leaf order (`order[k]` is the
-    /// index into `boxes` of the k-th primitive) and returns where the first one went.
-    fn add_bvh(
-        &mut self,
-        boxes: &[OAabb],
-        params: BvhBuildParams,
-        place: impl FnOnce(&mut SceneData, &[u32]) -> u32,
-    ) -> u32 {
-        if boxes.is_empty() {
-            return NONE;
+    /// Appends a wide tree's nodes, rebased: inner children by where its nodes start, leaf
+    /// ranges by `leaf_base` (where its primitives or blocks start in their buffer). Returns
+    /// the root's index ([`NONE`] for an empty tree).
+    fn add_tree(&mut self, nodes: &[WideNode], leaf_base: u32) -> Result<u32, GpuError> {
+        if nodes.is_empty() {
+            return Ok(NONE);
         }
-        let mut build_time = std::time::Duration::ZERO;
-        let bvh = obvhs::bvh2::builder::build_bvh2(boxes, params, &mut build_time);
-        let first_prim = place(self, &bvh.primitive_indices);
         let base = self.nodes.len() as u32;
-        for n in &bvh.nodes {
-            let (lo, hi) = padded(Vec3::from(n.aabb.min), Vec3::from(n.aabb.max));
-            let leaf = n.prim_count > 0;
-            self.nodes.push(BvhNode {
-                lo: lo.to_array(),
-                first: if leaf {
-                    first_prim + n.first_index
-                } else {
-                    base + n.first_index
-                },
-                hi: hi.to_array(),
-                count: n.prim_count,
-            });
+        let too_many = || {
+            GpuError::Unsupported(format!(
+                "the scene's BVHs have more than {FIRST_MASK} nodes or leaf entries"
+            ))
+        };
+        if (base as usize + nodes.len()) as u64 > u64::from(FIRST_MASK) {
+            return Err(too_many());
         }
-        let depth = depth_of(&self.nodes, base);
-        self.max_depth = self.max_depth.max(depth);
-        base
+        for n in nodes {
+            let mut r = WideNodeRecord::default();
+            for slot in 0..8 {
+                let lo = Vec3::new(n.bounds[0][slot], n.bounds[2][slot], n.bounds[4][slot]);
+                let hi = Vec3::new(n.bounds[1][slot], n.bounds[3][slot], n.bounds[5][slot]);
+                // Infinities as ±f32::MAX (GPU compilers need not preserve them): an empty
+                // slot stays inverted.
+                let (lo, hi) = padded(lo, hi).unwrap_or((Vec3::MAX, Vec3::MIN));
+                for axis in 0..3 {
+                    let (p_lo, p_hi) = (2 * axis, 2 * axis + 1);
+                    r.bounds[2 * p_lo + slot / 4][slot % 4] = lo[axis];
+                    r.bounds[2 * p_hi + slot / 4][slot % 4] = hi[axis];
+                }
+                let m = n.meta[slot];
+                r.children[slot / 4][slot % 4] = if lo.cmpgt(hi).any() {
+                    0
+                } else if m & LEAF_BIT != 0 {
+                    let first = leaf_first(m) + leaf_base;
+                    if first > FIRST_MASK {
+                        return Err(too_many());
+                    }
+                    (m & !FIRST_MASK) | first
+                } else {
+                    m + base
+                };
+            }
+            self.nodes.push(r);
+        }
+        Ok(base)
     }
 
     fn check_depth(&self) -> Result<(), GpuError> {
-        // the walks push two children per inner node: depth + 1 entries at most
-        if self.max_depth + 1 > STACK_SIZE {
+        // a visited node replaces its entry by up to eight children: 7·depth + 1 entries
+        if 7 * self.max_depth + 1 > STACK_SIZE {
             return Err(GpuError::Unsupported(format!(
-                "a BVH is {} levels deep, the GPU traversal stack holds {STACK_SIZE}",
-                self.max_depth
+                "a BVH is {} levels deep, the GPU traversal stacks hold {} levels",
+                self.max_depth,
+                (STACK_SIZE - 1) / 7
             )));
         }
         Ok(())
@@ -482,7 +445,7 @@ impl SceneData {
             bytemuck::cast_slice(&self.field_tapes),
             bytemuck::cast_slice(&self.nodes),
             bytemuck::cast_slice(&self.refs),
-            bytemuck::cast_slice(&self.triangles),
+            bytemuck::cast_slice(&self.tri_blocks),
             bytemuck::cast_slice(&self.meshes),
             bytemuck::cast_slice(&self.vertices),
             bytemuck::cast_slice(&self.triangle_indices),
@@ -508,21 +471,6 @@ fn supported(scene: &Scene) -> Result<(), GpuError> {
         )));
     }
     Ok(())
-}
-
-/// Levels of the BVH2 rooted at `root` (1 for a single leaf).
-fn depth_of(nodes: &[BvhNode], root: u32) -> u32 {
-    let mut deepest = 0;
-    let mut stack = vec![(root, 1u32)];
-    while let Some((i, d)) = stack.pop() {
-        deepest = deepest.max(d);
-        let n = nodes[i as usize];
-        if n.count == 0 {
-            stack.push((n.first, d + 1));
-            stack.push((n.first + 1, d + 1));
-        }
-    }
-    deepest
 }
 
 /// The bind group layout of the scene buffers (group 0), the same for every scene.
@@ -634,14 +582,15 @@ mod tests {
     #[test]
     fn uploaded_octrees_are_the_cpu_octrees_rebased() {
         let scene = scene();
-        let fields = crate::trace::build_fields(&scene, true);
+        let tracer = SceneTracer::new(&scene);
+        let fields = tracer.fields();
         let small = fields[0]
             .octree
             .as_ref()
             .expect("every object has an octree");
         assert_eq!(small.leaves().len(), 1);
         assert!(fields[1].octree.as_ref().unwrap().leaves().len() > 1);
-        let data = SceneData::from_fields(&scene, &fields).unwrap();
+        let data = SceneData::from_tracer(&tracer).unwrap();
         assert_ne!(data.objects[0].field_root, NONE);
         let obj = data.objects[1];
         let tree = fields[1].octree.as_ref().unwrap();
@@ -678,10 +627,68 @@ mod tests {
         }
     }
 
+    /// The uploaded BVHs are the CPU tracer's trees rebased: every used child's box contains
+    /// the CPU's (padded, never shrunk), empty slots stay empty, and inner children and leaf
+    /// ranges point where the CPU's do, offset by where the tree starts.
     #[test]
-    fn fields_must_match_the_objects() {
-        let scene = scene();
-        let fields = crate::trace::build_fields(&scene, true);
-        assert!(SceneData::from_fields(&scene, &fields[..1]).is_err());
+    fn uploaded_bvhs_are_the_cpu_trees_rebased() {
+        let mut src = String::from(
+            "Scene(camera: Perspective(position: (0, 0, 30), look_at: (0, 0, 0), fov: 40), objects: [",
+        );
+        for i in 0..300 {
+            let (x, y, z) = ((i % 10) as f32, ((i / 10) % 10) as f32, (i / 100) as f32);
+            src += &format!("(shape: Sphere(radius: 0.3), translate: ({x}, {y}, {z})),");
+        }
+        src += "(shape: Plane(normal: (0, 1, 0), offset: 1))])";
+        let scene = Scene::from_source(&src, Path::new("gpu-bvh.ron")).unwrap();
+        let tracer = SceneTracer::new(&scene);
+        let data = SceneData::from_tracer(&tracer).unwrap();
+        let SdfAccel::Bvh(cpu) = tracer.sdf_accel() else {
+            panic!("the tracer's BVH")
+        };
+        let cpu_nodes = cpu.wide_nodes();
+        assert!(cpu_nodes.len() > 10);
+        let base = data.globals.object_root as usize;
+        assert_eq!(data.nodes.len(), base + cpu_nodes.len());
+        let leaf_refs: Vec<u32> = cpu.leaf_boxes().collect();
+        for (k, (gpu, cpu)) in data.nodes[base..].iter().zip(cpu_nodes).enumerate() {
+            for slot in 0..8 {
+                let plane = |p: usize| gpu.bounds[2 * p + slot / 4][slot % 4];
+                let meta = gpu.children[slot / 4][slot % 4];
+                let empty = cpu.bounds[0][slot] > cpu.bounds[1][slot];
+                for p in 0..6 {
+                    let (g, c) = (plane(p), cpu.bounds[p][slot]);
+                    if empty {
+                        assert!(
+                            plane(0) > plane(1),
+                            "node {k} slot {slot}: empty slot entered"
+                        );
+                    } else if p % 2 == 0 {
+                        assert!(g <= c, "node {k} slot {slot} plane {p}: {g} > {c}");
+                    } else {
+                        assert!(g >= c, "node {k} slot {slot} plane {p}: {g} < {c}");
+                    }
+                }
+                if empty {
+                    continue;
+                }
+                let m = cpu.meta[slot];
+                if m & LEAF_BIT == 0 {
+                    assert_eq!(meta, m + base as u32);
+                } else {
+                    let (first, count) = (leaf_first(m), ((m >> 29) & 3) + 1);
+                    assert_eq!(meta & !FIRST_MASK, m & !FIRST_MASK, "leaf tag and count");
+                    let at = leaf_first(meta) as usize;
+                    assert_eq!(
+                        &data.refs[at..at + count as usize],
+                        &leaf_refs[first as usize..(first + count) as usize]
+                    );
+                }
+            }
+        }
+        // the plane is the one unbounded object
+        let unbounded = data.globals.unbounded_start as usize;
+        assert_eq!(data.globals.unbounded_count, 1);
+        assert_eq!(data.refs[unbounded], 300);
     }
 }

@@ -18,7 +18,7 @@ pub const TAPE_WGSL: &str = include_str!("../../shaders/tape.wgsl");
 pub const FIELD_WGSL: &str = include_str!("../../shaders/field.wgsl");
 /// Sphere tracing, normals, penumbrae, exits (`src/trace/sphere.rs`, `src/trace/normal.rs`).
 pub const SDF_WGSL: &str = include_str!("../../shaders/sdf.wgsl");
-/// BVH2 traversal and the watertight triangle test (`src/accel`).
+/// The wide BVH walk over the CPU's own trees and the watertight triangle test (`src/accel`).
 pub const MESH_WGSL: &str = include_str!("../../shaders/mesh.wgsl");
 /// The hybrid scene queries (`SceneTracer`).
 pub const SCENE_WGSL: &str = include_str!("../../shaders/scene.wgsl");
@@ -106,9 +106,9 @@ pub fn scene_bindings() -> Vec<(&'static str, BindingKind, String)> {
         ("field_nodes", Storage, array(u32::wgsl_name())),
         ("field_leaves", Storage, array(FieldLeafRecord::wgsl_name())),
         ("field_tapes", Storage, array(TapeRef::wgsl_name())),
-        ("nodes", Storage, array(BvhNode::wgsl_name())),
+        ("nodes", Storage, array(WideNodeRecord::wgsl_name())),
         ("refs", Storage, array(u32::wgsl_name())),
-        ("triangles", Storage, array(TriangleRecord::wgsl_name())),
+        ("tri_blocks", Storage, array(TriBlockRecord::wgsl_name())),
         ("meshes", Storage, array(MeshRecord::wgsl_name())),
         ("vertices", Storage, array(VertexRecord::wgsl_name())),
         (
@@ -184,6 +184,10 @@ pub fn wgsl_prelude() -> String {
     let u = |name: &str, v: u32| format!("const {name}: u32 = {v}u;\n");
     s += &u("NONE", NONE);
     s += &u("STACK_SIZE", STACK_SIZE);
+    // the wide BVH's child encoding and node-test widening (crate::accel::bvh)
+    s += &u("LEAF_BIT", crate::accel::bvh::LEAF_BIT);
+    s += &u("FIRST_MASK", crate::accel::bvh::FIRST_MASK);
+    s += &format!("const WIDEN: f32 = {:?};\n", crate::accel::bvh::WIDEN);
     s += &u("WORKGROUP_SIZE", WORKGROUP_SIZE);
     s += &u("HIT_MISS", HIT_MISS);
     s += &u("HIT_SDF", HIT_SDF);
@@ -223,8 +227,8 @@ pub fn wgsl_prelude() -> String {
         TapeRef::wgsl(),
         SdfObjectRecord::wgsl(),
         FieldLeafRecord::wgsl(),
-        BvhNode::wgsl(),
-        TriangleRecord::wgsl(),
+        WideNodeRecord::wgsl(),
+        TriBlockRecord::wgsl(),
         MeshRecord::wgsl(),
         VertexRecord::wgsl(),
         TriangleIndices::wgsl(),

@@ -26,9 +26,9 @@ use crate::accel::triangle::{TriHit, WatertightRay};
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(64))]
 pub(crate) struct TriBlock {
-    v: [[f32; 8]; 9],
+    pub v: [[f32; 8]; 9],
     /// `1 << slot` of the leaf child the lane's triangle belongs to; 0 for an unused lane.
-    slot: [u32; 8],
+    pub slot: [u32; 8],
 }
 
 /// The hits of one block: lane i hit when bit i of `mask` is set, and then `t[i]`, `u[i]`,

@@ -55,7 +55,7 @@ pub(crate) use packet::{Frustum, PACKET, PacketLeaf, all_rays, traverse_packet};
 /// first`, where `first` indexes the primitive order and `count` is 1..=3 (CWBVH leaves hold at
 /// most three primitives). An internal child's meta is its node index.
 pub(crate) const LEAF_BIT: u32 = 1 << 31;
-const FIRST_MASK: u32 = (1 << 29) - 1;
+pub(crate) const FIRST_MASK: u32 = (1 << 29) - 1;
 /// Largest number of primitive references a tree can hold with this encoding.
 pub(crate) const MAX_PRIMS: usize = FIRST_MASK as usize;
 
