@@ -134,14 +134,16 @@ pub fn turbo(t: f32) -> Vec3 {
 /// Draws a colour bar along the bottom of the image with the values at its ends and middle.
 fn legend(img: &mut RgbImage, lo: f32, hi: f32, colour: impl Fn(f32) -> Vec3) {
     let (w, h) = img.dimensions();
-    if w < 40 || h < 30 {
+    // three labels of up to five 8-pixel characters side by side, above a margin
+    if w < 128 || h < 40 {
         return; // too small for a legend
     }
     let bar_h = 8;
     let margin = 4;
     let x0 = margin;
     let x1 = w - margin;
-    let y0 = h - margin - bar_h - 8;
+    // below the bar: one line of text
+    let y0 = h - margin - bar_h - super::draw::LINE;
     // dark backdrop for legibility
     for y in y0 - 2..h - 1 {
         for x in x0 - 2..x1 + 2 {
@@ -160,13 +162,13 @@ fn legend(img: &mut RgbImage, lo: f32, hi: f32, colour: impl Fn(f32) -> Vec3) {
     let labels = [(lo, x0), (0.5 * (lo + hi), (x0 + x1) / 2), (hi, x1)];
     for (i, (value, x)) in labels.iter().enumerate() {
         let text = format_value(*value);
-        let width = text.len() as u32 * 4;
+        let width = super::draw::text_width(&text);
         let start = match i {
             0 => *x,
             1 => x.saturating_sub(width / 2),
             _ => x.saturating_sub(width),
         };
-        draw_text(img, start, ty, &text);
+        super::draw::text(img, start, ty, &text, [255, 255, 255]);
     }
 }
 
@@ -177,40 +179,5 @@ fn format_value(v: f32) -> String {
         format!("{v:.1}")
     } else {
         format!("{v:.2}")
-    }
-}
-
-/// A 3×5 pixel font for digits, '.', '-' (one u16 per glyph, rows top to bottom, 3 bits each).
-fn glyph(c: char) -> Option<u16> {
-    Some(match c {
-        '0' => 0b111_101_101_101_111,
-        '1' => 0b010_110_010_010_111,
-        '2' => 0b111_001_111_100_111,
-        '3' => 0b111_001_111_001_111,
-        '4' => 0b101_101_111_001_001,
-        '5' => 0b111_100_111_001_111,
-        '6' => 0b111_100_111_101_111,
-        '7' => 0b111_001_010_010_010,
-        '8' => 0b111_101_111_101_111,
-        '9' => 0b111_101_111_001_111,
-        '.' => 0b000_000_000_000_010,
-        '-' => 0b000_000_111_000_000,
-        _ => return None,
-    })
-}
-
-fn draw_text(img: &mut RgbImage, x: u32, y: u32, text: &str) {
-    for (k, c) in text.chars().enumerate() {
-        let Some(bits) = glyph(c) else { continue };
-        for row in 0..5 {
-            for col in 0..3 {
-                if bits >> (14 - (row * 3 + col)) & 1 == 1 {
-                    let (px, py) = (x + k as u32 * 4 + col, y + row);
-                    if px < img.width() && py < img.height() {
-                        img.put_pixel(px, py, Rgb([255, 255, 255]));
-                    }
-                }
-            }
-        }
     }
 }
