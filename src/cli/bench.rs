@@ -53,7 +53,7 @@ pub struct BenchArgs {
     /// Build quality of our mesh BVHs (Embree's are built with its HIGH quality; `highest`
     /// is our counterpart).
     #[arg(long, value_enum, default_value = "highest")]
-    pub bvh: hytrace::accel::bvh::BuildQuality,
+    pub bvh: super::flags::BvhArg,
     /// Sections to run, comma-separated: mesh, sdf, scaling, peer (default all; peer needs
     /// the `fidget` feature), or evaluators: only the peer section's "Tape evaluators" table.
     #[arg(long, value_delimiter = ',')]
@@ -174,7 +174,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         incoherent: args
             .incoherent
             .unwrap_or(if args.quick { 2048 } else { 1 << 20 }),
-        bvh: args.bvh,
+        bvh: args.bvh.into(),
         sections,
         peer_size,
         peer_frame_limit: args.peer_frame_limit,

@@ -1,6 +1,7 @@
 //! The subcommands of the `hytrace` binary, one module each.
 pub mod bench;
 pub mod compare;
+pub mod flags;
 pub mod generate;
 pub mod info;
 pub mod render;
