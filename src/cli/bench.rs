@@ -127,11 +127,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             }
         }
     }
-    let assets = args.assets.clone().unwrap_or_else(|| {
-        std::env::var_os("HYTRACE_ASSETS")
-            .map(PathBuf::from)
-            .unwrap_or_else(|| PathBuf::from("../shared/assets"))
-    });
+    let assets = args.assets.clone().unwrap_or_else(super::assets_dir);
     let mesh_scenes = if args.mesh_scenes.is_empty() && args.quick {
         vec!["bunny".to_string()]
     } else {
@@ -211,7 +207,10 @@ fn load_scenes(dir: &std::path::Path, quick: bool) -> Result<Vec<(String, hytrac
             let name = p
                 .file_stem()
                 .map_or_else(|| p.display().to_string(), |s| s.to_string_lossy().into());
-            Ok((name, hytrace::scene::Scene::load(p)?))
+            Ok((
+                name,
+                hytrace::scene::Scene::load_with(p, &super::load_options())?,
+            ))
         })
         .collect()
 }

@@ -285,8 +285,8 @@ pub struct ObjectDesc {
     #[serde(default)]
     pub shape: Option<SdfNode>,
     /// A mesh file (.gltf, .glb, .obj, .ply), relative to the scene file; a leading
-    /// `$HYTRACE_ASSETS/` is replaced by that environment variable (default
-    /// `../shared/assets`).
+    /// `$NAME/` has `$NAME` replaced by the environment variable NAME (an error when it is
+    /// unset; see [`resolve_mesh_path`](super::resolve_mesh_path)).
     #[serde(default)]
     pub mesh: Option<String>,
     /// Translation.
