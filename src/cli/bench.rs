@@ -128,6 +128,14 @@ pub fn run(args: BenchArgs) -> Result<()> {
         }
     }
     let assets = args.assets.clone().unwrap_or_else(super::assets_dir);
+    // Said here, where the ways to point at the folder are known, and before any timing.
+    if sections.mesh && !assets.is_dir() {
+        anyhow::bail!(
+            "{}: no shared assets folder for the mesh section (set HYTRACE_ASSETS or --assets \
+             to it, or leave the section out with --only)",
+            assets.display()
+        );
+    }
     let mesh_scenes = if args.mesh_scenes.is_empty() && args.quick {
         vec!["bunny".to_string()]
     } else {
