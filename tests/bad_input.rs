@@ -795,6 +795,19 @@ fn cone_with_both_radii_zero() {
 // library level: files
 // ---------------------------------------------------------------------------------------------
 
+/// A variable no environment sets: named for these tests alone (they only read it).
+const UNSET_VARIABLE: &str = "HYTRACE_TEST_VARIABLE_NEVER_SET";
+
+#[test]
+fn mesh_path_with_an_unset_variable() {
+    expect_error(
+        &scene(&format!(
+            "    objects: [\n        (name: \"model\", mesh: «\"${UNSET_VARIABLE}/model.obj\"»),\n    ],\n"
+        )),
+        &["model", UNSET_VARIABLE, "not set"],
+    );
+}
+
 #[test]
 fn missing_file() {
     let dir = TempDir::new("missing");
@@ -1050,6 +1063,25 @@ fn cli_bad_scene_reports_file_line_column() {
     let out = dir.path("out.png");
     let err = render_fails(&[scene.as_os_str(), os("-o"), out.as_os_str(), os("-q")]);
     assert!(err.contains(&format!("{}:3:", scene.display())), "{err}");
+    assert!(!out.exists());
+}
+
+#[test]
+fn cli_mesh_path_with_an_unset_variable_names_it_and_the_place() {
+    let dir = TempDir::new("cli-unset-variable");
+    let scene = dir.write(
+        "vars.ron",
+        format!(
+            "Scene(\n    camera: Perspective(position: (0, 0, 5), look_at: (0, 0, 0)),\n    objects: [(mesh: \"${UNSET_VARIABLE}/m.obj\")],\n)\n"
+        ),
+    );
+    let out = dir.path("out.png");
+    let err = render_fails(&[scene.as_os_str(), os("-o"), out.as_os_str(), os("-q")]);
+    assert!(err.contains(&format!("{}:3:", scene.display())), "{err}");
+    assert!(
+        err.contains(&format!("environment variable {UNSET_VARIABLE} is not set")),
+        "{err}"
+    );
     assert!(!out.exists());
 }
 

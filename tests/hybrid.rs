@@ -205,8 +205,8 @@ fn assets() -> Option<PathBuf> {
 #[test]
 fn hybrid_showcase_renders_with_meshes_and_sdfs() {
     // The scene names its meshes through $HYTRACE_ASSETS, which scripts/test.sh exports and
-    // which otherwise defaults to ../shared/assets from the working directory (the crate root
-    // under `cargo test`), the same folder `assets()` checks.
+    // .cargo/config.toml otherwise sets to ../shared/assets beside the checkout, the same
+    // folder `assets()` checks.
     if assets().is_none() {
         return;
     }
@@ -241,6 +241,44 @@ fn hybrid_showcase_renders_with_meshes_and_sdfs() {
         mesh_hits > 100 && sdf_hits > 100,
         "mesh {mesh_hits}, sdf {sdf_hits}"
     );
+}
+
+#[test]
+fn the_binary_renders_the_hybrid_showcase_from_the_repository_root_without_the_variable() {
+    // The README's command: with HYTRACE_ASSETS unset, the binary's default for it
+    // (../shared/assets from the working directory) finds the models beside the checkout.
+    if assets().is_none() {
+        return;
+    }
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    if !root.join("../shared/assets").is_dir() {
+        eprintln!(
+            "!!! no ../shared/assets beside the checkout: the binary's default NOT TESTED !!!"
+        );
+        return;
+    }
+    let png = temp_dir("cli-default-assets").join("hybrid.png");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_hytrace"))
+        .current_dir(root)
+        .env_remove("HYTRACE_ASSETS")
+        .args([
+            "render",
+            "assets/scenes/hybrid.ron",
+            "--width",
+            "32",
+            "--height",
+            "24",
+        ])
+        .args(["--spp", "1", "--backend", "cpu", "-q", "-o"])
+        .arg(&png)
+        .output()
+        .expect("run hytrace");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(png.is_file(), "no image at {}", png.display());
 }
 
 #[test]

@@ -276,8 +276,9 @@ fn load(assets: &Path, rel: &str) -> anyhow::Result<Scene> {
     let path = assets.join(rel);
     if !path.exists() {
         anyhow::bail!(
-            "{}: benchmark model not found (set HYTRACE_ASSETS or --assets to the shared assets folder)",
-            path.display()
+            "{}: benchmark model not found in the shared assets folder {}",
+            path.display(),
+            assets.display()
         );
     }
     Scene::from_model(&path, None).with_context(|| format!("loading {}", path.display()))

@@ -53,7 +53,7 @@ pub struct BenchArgs {
     /// Build quality of our mesh BVHs (Embree's are built with its HIGH quality; `highest`
     /// is our counterpart).
     #[arg(long, value_enum, default_value = "highest")]
-    pub bvh: hytrace::accel::bvh::BuildQuality,
+    pub bvh: super::flags::BvhArg,
     /// Sections to run, comma-separated: mesh, sdf, scaling, peer (default all; peer needs
     /// the `fidget` feature), or evaluators: only the peer section's "Tape evaluators" table.
     #[arg(long, value_delimiter = ',')]
@@ -127,11 +127,15 @@ pub fn run(args: BenchArgs) -> Result<()> {
             }
         }
     }
-    let assets = args.assets.clone().unwrap_or_else(|| {
-        std::env::var_os("HYTRACE_ASSETS")
-            .map(PathBuf::from)
-            .unwrap_or_else(|| PathBuf::from("../shared/assets"))
-    });
+    let assets = args.assets.clone().unwrap_or_else(super::assets_dir);
+    // Said here, where the ways to point at the folder are known, and before any timing.
+    if sections.mesh && !assets.is_dir() {
+        anyhow::bail!(
+            "{}: no shared assets folder for the mesh section (set HYTRACE_ASSETS or --assets \
+             to it, or leave the section out with --only)",
+            assets.display()
+        );
+    }
     let mesh_scenes = if args.mesh_scenes.is_empty() && args.quick {
         vec!["bunny".to_string()]
     } else {
@@ -174,7 +178,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         incoherent: args
             .incoherent
             .unwrap_or(if args.quick { 2048 } else { 1 << 20 }),
-        bvh: args.bvh,
+        bvh: args.bvh.into(),
         sections,
         peer_size,
         peer_frame_limit: args.peer_frame_limit,
@@ -211,7 +215,10 @@ fn load_scenes(dir: &std::path::Path, quick: bool) -> Result<Vec<(String, hytrac
             let name = p
                 .file_stem()
                 .map_or_else(|| p.display().to_string(), |s| s.to_string_lossy().into());
-            Ok((name, hytrace::scene::Scene::load(p)?))
+            Ok((
+                name,
+                hytrace::scene::Scene::load_with(p, &super::load_options())?,
+            ))
         })
         .collect()
 }

@@ -10,7 +10,7 @@ use std::time::Instant;
 pub struct InfoArgs {
     /// Mesh BVH build quality (overrides the scene's `tracer.bvh`).
     #[arg(long, value_enum)]
-    pub bvh: Option<hytrace::accel::bvh::BuildQuality>,
+    pub bvh: Option<super::flags::BvhArg>,
     /// Scene file (.ron) or mesh file (.gltf, .glb, .obj, .ply); omit for the showcase.
     pub scene: Option<PathBuf>,
 }
@@ -20,7 +20,7 @@ pub fn run(args: InfoArgs) -> Result<()> {
     let start = Instant::now();
     let mut scene = super::load_any(args.scene.as_deref(), None)?;
     if let Some(q) = args.bvh {
-        scene.tracer.bvh = q;
+        scene.tracer.bvh = q.into();
     }
     let load = start.elapsed();
     let m = &scene.meshes;

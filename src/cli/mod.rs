@@ -1,6 +1,7 @@
 //! The subcommands of the `hytrace` binary, one module each.
 pub mod bench;
 pub mod compare;
+pub mod flags;
 pub mod generate;
 pub mod info;
 pub mod render;
@@ -9,11 +10,29 @@ pub mod validate;
 pub mod view;
 
 use anyhow::{Result, bail};
-use hytrace::scene::Scene;
-use std::path::Path;
+use hytrace::scene::{LoadOptions, Scene};
+use std::path::{Path, PathBuf};
 
 /// The showcase scene, built into the binary so `hytrace render` works with no file.
 const SHOWCASE: &str = include_str!("../../assets/scenes/showcase.ron");
+
+/// The variable through which the shipped scenes (`$HYTRACE_ASSETS/...` in a mesh path) and
+/// `bench` find the shared third-party models.
+const ASSETS_VARIABLE: &str = "HYTRACE_ASSETS";
+
+/// Its value when the environment does not set it: the shared folder beside the checkout,
+/// relative to the working directory, so the shipped scenes render from the repository root.
+const DEFAULT_ASSETS: &str = "../shared/assets";
+
+/// How the command line loads scene files: with the defaults of the variables it documents.
+pub fn load_options() -> LoadOptions {
+    LoadOptions::default().with_default(ASSETS_VARIABLE, DEFAULT_ASSETS)
+}
+
+/// The shared assets folder: `$HYTRACE_ASSETS`, else its default.
+pub fn assets_dir() -> PathBuf {
+    std::env::var_os(ASSETS_VARIABLE).map_or_else(|| DEFAULT_ASSETS.into(), PathBuf::from)
+}
 
 /// What `validate` and `compare` say in a build without the `embree` feature.
 #[cfg(not(feature = "embree"))]
@@ -64,7 +83,7 @@ pub fn load_any(path: Option<&Path>, camera: Option<&str>) -> Result<Scene> {
                     "--camera applies to mesh files (.gltf, .glb, .obj, .ply), not scenes"
                 );
             }
-            Scene::load(p)?
+            Scene::load_with(p, &load_options())?
         }
         Some(p) => Scene::from_model(p, camera)?,
         None => Scene::from_source(SHOWCASE, Path::new("<built-in showcase.ron>"))?,

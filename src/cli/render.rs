@@ -1,12 +1,11 @@
 //! `hytrace render`: a scene to an image.
 
+use super::flags::{AovArg, BvhArg, NormalsArg, ToneMapArg, ViewArg, convert_all};
 use anyhow::{Result, bail};
-use hytrace::render::exr::Aov;
 use hytrace::render::output::ToneMapping;
 use hytrace::render::view::View;
 use hytrace::render::write::write_image;
 use hytrace::render::{RenderOptions, cpu};
-use hytrace::scene::file::ToneMap;
 use hytrace::scene::{MAX_IMAGE_SIDE, MAX_PIXELS, MAX_SAMPLES};
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -26,15 +25,15 @@ pub struct RenderArgs {
     output: PathBuf,
     /// What to draw: the shaded image or a debug view of the first hits.
     #[arg(long, value_enum, default_value = "shaded")]
-    view: View,
+    view: ViewArg,
     #[command(flatten)]
     image: ImageArgs,
     /// Mesh BVH build quality (overrides the scene's `tracer.bvh`).
     #[arg(long, value_enum)]
-    bvh: Option<hytrace::accel::bvh::BuildQuality>,
+    bvh: Option<BvhArg>,
     /// Normal estimator (overrides the scene).
     #[arg(long, value_enum)]
-    normals: Option<hytrace::scene::file::NormalMethod>,
+    normals: Option<NormalsArg>,
     /// Say more: the backend and GPU adapter used.
     #[arg(short, long)]
     verbose: bool,
@@ -65,11 +64,11 @@ pub(crate) struct ImageArgs {
     pub exposure: Option<f32>,
     /// Tone-mapping operator (overrides the scene).
     #[arg(long, value_enum)]
-    pub tonemap: Option<ToneMap>,
+    pub tonemap: Option<ToneMapArg>,
     /// Extra EXR channels: depth, normal, albedo, steps (comma-separated); for `render` in
     /// an .exr output, for `view` in an EXR beside each screenshot.
     #[arg(long, value_enum, value_delimiter = ',')]
-    pub aov: Vec<Aov>,
+    pub aov: Vec<AovArg>,
     /// Where to render. `auto` (the default) uses a hardware GPU when wgpu finds one and
     /// otherwise the CPU; it treats a software Vulkan driver such as Mesa's lavapipe
     /// (llvmpipe) as no GPU, since it runs on the CPU and is slower than the CPU tracer.
@@ -203,10 +202,10 @@ fn contents(scene: &hytrace::scene::Scene) -> String {
 pub fn run(args: RenderArgs) -> Result<()> {
     let mut scene = super::load_any(args.scene.as_deref(), args.camera.as_deref())?;
     if let Some(q) = args.bvh {
-        scene.tracer.bvh = q;
+        scene.tracer.bvh = q.into();
     }
     if let Some(n) = args.normals {
-        scene.tracer.normals = n;
+        scene.tracer.normals = n.into();
     }
     let width = args.image.width.unwrap_or(scene.image.width);
     let height = args.image.height.unwrap_or(scene.image.height);
@@ -234,7 +233,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     }
     let tone = ToneMapping {
         exposure,
-        operator: args.image.tonemap.unwrap_or(scene.image.tonemap),
+        operator: args.image.tonemap.map_or(scene.image.tonemap, Into::into),
     };
     let ext = args
         .output
@@ -263,7 +262,8 @@ pub fn run(args: RenderArgs) -> Result<()> {
     if !args.image.aov.is_empty() && !exr {
         bail!("--aov needs an .exr output (PNG holds only the picture; see --view)");
     }
-    if exr && args.view != View::Shaded {
+    let view = View::from(args.view);
+    if exr && view != View::Shaded {
         bail!("--view applies to PNG output; EXR stores radiance and the --aov channels");
     }
     let opts = RenderOptions {
@@ -284,10 +284,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
     write_image(
         &fb,
         &args.output,
-        args.view,
+        view,
         tone,
         scene.tracer.max_steps,
-        &args.image.aov,
+        &convert_all(&args.image.aov),
     )?;
     if !args.quiet {
         eprintln!(

@@ -21,7 +21,7 @@ use std::path::Path;
 /// Auxiliary channels an EXR file can carry besides the radiance.
 ///
 /// All channels are 32-bit floats. Requesting an AOV more than once writes its channels once.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Aov {
     /// Distance to the first hit along the camera ray, in scene units (`depth.Z`); +∞ where
     /// every sample of the pixel missed (sky). EXR floats hold infinity, so a miss reads

@@ -7,7 +7,7 @@ use glam::Vec3;
 use image::{Rgb, RgbImage};
 
 /// Which picture to make of a render.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum View {
     /// The shaded image (tone-mapped radiance).
     #[default]

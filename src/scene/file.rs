@@ -122,7 +122,7 @@ pub struct ImageDesc {
 }
 
 /// Tone-mapping operators (applied to exposed linear radiance before the sRGB curve).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
 pub enum ToneMap {
     /// Clip each channel to [0, 1].
     #[default]
@@ -285,8 +285,8 @@ pub struct ObjectDesc {
     #[serde(default)]
     pub shape: Option<SdfNode>,
     /// A mesh file (.gltf, .glb, .obj, .ply), relative to the scene file; a leading
-    /// `$HYTRACE_ASSETS/` is replaced by that environment variable (default
-    /// `../shared/assets`).
+    /// `$NAME/` has `$NAME` replaced by the environment variable NAME (an error when it is
+    /// unset; see [`resolve_mesh_path`](super::resolve_mesh_path)).
     #[serde(default)]
     pub mesh: Option<String>,
     /// Translation.
@@ -305,7 +305,7 @@ pub struct ObjectDesc {
 }
 
 /// How normals are estimated from the field.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
 pub enum NormalMethod {
     /// Central differences: 6 evaluations.
     #[default]
@@ -316,7 +316,7 @@ pub enum NormalMethod {
 
 /// How much time the mesh BVH builder spends on its trees: obvhs's presets (mapped onto its
 /// build parameters by `accel::bvh`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize)]
 pub enum BuildQuality {
     /// `BvhBuildParams::fast_build()`: PLOC search radius 6, little reinsertion.
     Fast,

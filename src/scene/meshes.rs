@@ -4,6 +4,7 @@ use super::mesh::{self, MeshError, MeshMaterial, Texture, TriangleMesh};
 use crate::geom::Aabb;
 use glam::{Affine3A, Mat3A, Vec2, Vec3};
 use std::collections::HashMap;
+use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 
 /// One placement of a mesh in the scene.
@@ -209,20 +210,129 @@ pub struct MeshSurface {
     pub tint: Vec3,
 }
 
-/// Where a scene's `mesh:` path points: a leading `$HYTRACE_ASSETS/` is replaced by that
-/// environment variable (default `../shared/assets`, relative to the working directory, as the
-/// tests use it); other relative paths are relative to the scene file's folder.
-pub fn resolve_mesh_path(scene_file: &Path, mesh: &str) -> PathBuf {
-    if let Some(rest) = mesh.strip_prefix("$HYTRACE_ASSETS/") {
-        let root = std::env::var_os("HYTRACE_ASSETS")
-            .map(PathBuf::from)
-            .unwrap_or_else(|| PathBuf::from("../shared/assets"));
-        return root.join(rest);
+/// A scene's `mesh:` path starts with `$NAME/` for a variable NAME that has no value.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("mesh path \"{path}\": environment variable {variable} is not set")]
+pub struct UnsetVariable {
+    /// The variable's name, without the `$`.
+    pub variable: String,
+    /// The mesh path as the scene file writes it.
+    pub path: String,
+}
+
+/// Where a scene's `mesh:` path points.
+///
+/// A path that starts with `$NAME/`, where NAME is a letter or `_` followed by letters, digits
+/// and `_` (a shell variable name), has `$NAME` replaced by `lookup(NAME)`, the value of that
+/// environment variable in a scene load (so scenes can name files kept outside the
+/// repository); the result is used as it stands, a relative value being relative to the
+/// working directory. A NAME without a value is an [`UnsetVariable`] error. `$` anywhere else,
+/// or not followed by a name and `/`, is an ordinary character. Other relative paths are
+/// relative to the scene file's folder.
+pub fn resolve_mesh_path(
+    scene_file: &Path,
+    mesh: &str,
+    lookup: impl Fn(&str) -> Option<OsString>,
+) -> Result<PathBuf, UnsetVariable> {
+    if let Some((variable, rest)) = leading_variable(mesh) {
+        let mut path = lookup(variable).ok_or_else(|| UnsetVariable {
+            variable: variable.to_string(),
+            path: mesh.to_string(),
+        })?;
+        // textual replacement of `$NAME` (not `Path::join`, which would drop the value
+        // before a `rest` of `//...`)
+        path.push(rest);
+        return Ok(PathBuf::from(path));
     }
     let p = Path::new(mesh);
-    if p.is_absolute() {
+    Ok(if p.is_absolute() {
         p.to_path_buf()
     } else {
         scene_file.parent().unwrap_or(Path::new(".")).join(p)
+    })
+}
+
+/// NAME and the rest from the `/` on, for a path that starts with `$NAME/`.
+fn leading_variable(mesh: &str) -> Option<(&str, &str)> {
+    let (name, _) = mesh.strip_prefix('$')?.split_once('/')?;
+    let mut chars = name.chars();
+    let first = chars.next()?;
+    let valid = (first.is_ascii_alphabetic() || first == '_')
+        && chars.all(|c| c.is_ascii_alphanumeric() || c == '_');
+    valid.then_some((name, &mesh[1 + name.len()..]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A lookup that knows only `ASSETS` (so the tests never read or change the process
+    /// environment, which other tests share).
+    fn lookup(name: &str) -> Option<OsString> {
+        (name == "ASSETS").then(|| OsString::from("/data/models"))
+    }
+
+    fn resolve(mesh: &str) -> Result<PathBuf, UnsetVariable> {
+        resolve_mesh_path(Path::new("scenes/a.ron"), mesh, lookup)
+    }
+
+    #[test]
+    fn a_leading_variable_is_replaced_by_its_value() {
+        assert_eq!(
+            resolve("$ASSETS/obj/bunny.obj"),
+            Ok("/data/models/obj/bunny.obj".into())
+        );
+        // the value replaces `$NAME` as text, even before a doubled `/`
+        assert_eq!(resolve("$ASSETS//x.obj"), Ok("/data/models//x.obj".into()));
+        // a relative value stays relative to the working directory, not to the scene file
+        let relative = |_: &str| Some(OsString::from("../shared"));
+        assert_eq!(
+            resolve_mesh_path(Path::new("scenes/a.ron"), "$_A1/m.glb", relative),
+            Ok("../shared/m.glb".into())
+        );
+    }
+
+    #[test]
+    fn an_unset_variable_is_an_error_naming_it() {
+        let e = resolve("$MODELS/bunny.obj").unwrap_err();
+        assert_eq!(
+            e,
+            UnsetVariable {
+                variable: "MODELS".into(),
+                path: "$MODELS/bunny.obj".into()
+            }
+        );
+        assert_eq!(
+            e.to_string(),
+            "mesh path \"$MODELS/bunny.obj\": environment variable MODELS is not set"
+        );
+    }
+
+    #[test]
+    fn paths_without_a_leading_variable_are_plain_paths() {
+        // no `$`: relative to the scene file's folder, or absolute
+        assert_eq!(resolve("bunny.obj"), Ok("scenes/bunny.obj".into()));
+        assert_eq!(resolve("/abs/bunny.obj"), Ok("/abs/bunny.obj".into()));
+        // `$` later in the path
+        assert_eq!(
+            resolve("m/$ASSETS/x.obj"),
+            Ok("scenes/m/$ASSETS/x.obj".into())
+        );
+        // `$` not followed by a name and `/`: an ordinary character, never looked up
+        let never = |name: &str| -> Option<OsString> { panic!("looked up {name}") };
+        for mesh in [
+            "$1A/x.obj",
+            "$/x.obj",
+            "${ASSETS}/x.obj",
+            "$A-B/x.obj",
+            "$ASSETS",
+            "$",
+        ] {
+            assert_eq!(
+                resolve_mesh_path(Path::new("scenes/a.ron"), mesh, never),
+                Ok(Path::new("scenes").join(mesh)),
+                "{mesh}"
+            );
+        }
     }
 }

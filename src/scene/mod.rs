@@ -21,7 +21,8 @@ use camera::{Camera, Projection};
 pub use file::Stepper;
 use file::{CameraDesc, LightDesc, NormalMethod, SceneFile, ShadowDesc, ToneMap};
 use glam::Vec3;
-pub use meshes::{SceneMeshes, resolve_mesh_path};
+pub use meshes::{SceneMeshes, UnsetVariable, resolve_mesh_path};
+use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 
 /// The largest accepted image side, in pixels.
@@ -224,18 +225,61 @@ pub struct Scene {
     pub meshes: SceneMeshes,
 }
 
+/// What a scene load takes from outside the scene file.
+#[derive(Debug, Clone, Default)]
+pub struct LoadOptions {
+    /// Values of environment variables for mesh paths that start with `$NAME/` (see
+    /// [`resolve_mesh_path`]), used when the environment does not set NAME: a program's
+    /// defaults for the variables it documents. Later entries of the same name are ignored.
+    pub variable_defaults: Vec<(String, OsString)>,
+}
+
+impl LoadOptions {
+    /// Options with a default value for the variable `name`.
+    pub fn with_default(mut self, name: &str, value: impl Into<OsString>) -> Self {
+        self.variable_defaults
+            .push((name.to_string(), value.into()));
+        self
+    }
+
+    /// The value of the variable `name`: the environment's, else the default given here.
+    pub fn variable(&self, name: &str) -> Option<OsString> {
+        std::env::var_os(name).or_else(|| {
+            self.variable_defaults
+                .iter()
+                .find(|(n, _)| n == name)
+                .map(|(_, v)| v.clone())
+        })
+    }
+}
+
 impl Scene {
     /// Reads and loads a scene file.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
+        Scene::load_with(path, &LoadOptions::default())
+    }
+
+    /// Reads and loads a scene file with `options`.
+    pub fn load_with(path: &Path, options: &LoadOptions) -> Result<Scene, SceneError> {
         let source = std::fs::read_to_string(path).map_err(|error| SceneError::Io {
             file: path.to_path_buf(),
             error,
         })?;
-        Scene::from_source(&source, path)
+        Scene::from_source_with(&source, path, options)
     }
 
-    /// Loads a scene from text; `path` is used in errors.
+    /// Loads a scene from text; `path` is used in errors and mesh paths are relative to its
+    /// folder.
     pub fn from_source(source: &str, path: &Path) -> Result<Scene, SceneError> {
+        Scene::from_source_with(source, path, &LoadOptions::default())
+    }
+
+    /// Loads a scene from text with `options`; `path` as for [`Scene::from_source`].
+    pub fn from_source_with(
+        source: &str,
+        path: &Path,
+        options: &LoadOptions,
+    ) -> Result<Scene, SceneError> {
         let at = |offset: usize, message: String| {
             let p = locate::place_of(source, offset);
             SceneError::At {
@@ -458,13 +502,10 @@ impl Scene {
                         shape: Box::new(SdfNode::Union(Vec::new())),
                     });
                     let override_material = o.material.as_ref().map(|_| material);
+                    let mesh_path = resolve_mesh_path(path, file, |v| options.variable(v))
+                        .map_err(|e| at(place, format!("{name}: {e}")))?;
                     meshes
-                        .add_file(
-                            &resolve_mesh_path(path, file),
-                            transform,
-                            override_material,
-                            &name,
-                        )
+                        .add_file(&mesh_path, transform, override_material, &name)
                         .map_err(|e| at(place, format!("{name}: {e}")))?;
                     continue;
                 }
@@ -604,8 +645,9 @@ pub fn scene_files(dir: &Path) -> std::io::Result<Vec<PathBuf>> {
 }
 
 /// Every scene file shipped in `assets/scenes`, loaded, with its file stem (for tests that run
-/// over all of them; `hybrid.ron` needs the shared models through `HYTRACE_ASSETS`, which
-/// `scripts/test.sh` sets). Panics on a file that does not load.
+/// over all of them; `hybrid.ron` names the shared models through an environment variable,
+/// which `scripts/test.sh` exports and `.cargo/config.toml` defaults for every cargo run).
+/// Panics on a file that does not load (an unset variable's error names it).
 #[cfg(test)]
 pub(crate) fn shipped_scenes() -> Vec<(String, Scene)> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/scenes");
@@ -614,8 +656,7 @@ pub(crate) fn shipped_scenes() -> Vec<(String, Scene)> {
     files
         .iter()
         .map(|p| {
-            let scene = Scene::load(p)
-                .unwrap_or_else(|e| panic!("{e} (set HYTRACE_ASSETS to the shared assets folder)"));
+            let scene = Scene::load(p).unwrap_or_else(|e| panic!("{e}"));
             (p.file_stem().unwrap().to_string_lossy().into_owned(), scene)
         })
         .collect()
