@@ -630,6 +630,7 @@ fn composite_objects_are_meshed() {
             cell,
             tolerance,
             triangles,
+            clipped_to: None,
         } = embree.checks[i]
         else {
             panic!("object {i}: {:?}", embree.checks[i]);
@@ -717,8 +718,10 @@ fn shipped_scenes_build_with_meshes() {
                 cell,
                 tolerance,
                 triangles,
+                clipped_to,
             } = c
             {
+                assert_eq!(clipped_to.is_some(), embree.mesh_region(i).unwrap().clipped);
                 println!(
                     "    {:<28} res {resolution:>3} cell {cell:.4} tolerance {tolerance:.4} \
                      triangles {triangles:>8}{}",

@@ -10,15 +10,18 @@
 use glam::Vec3;
 use hytrace::geom::Ray;
 use hytrace::reference::embree::EmbreeScene;
-use hytrace::reference::shading::{EmbreeTracer, render_image};
+use hytrace::reference::shading::EmbreeTracer;
 use hytrace::reference::validate::{
-    Kind, ObjectCheck, Options, Report, validate, validate_with_embree,
+    Kind, Options, Report, SdfCheck, validate, validate_with_embree,
 };
 use hytrace::render::{RenderOptions, cpu};
-use hytrace::scene::Scene;
+use hytrace::scene::material::MaterialParams;
+use hytrace::scene::{Scene, Shadow};
+use hytrace::sdf::tape::MaterialVec;
 use hytrace::sdf::tape::Registers;
+use hytrace::shade::ShadingTracer;
 use hytrace::trace::query::{ObjectId, QueryHit, RayQuery};
-use hytrace::trace::{SceneTracer, Surface, epsilon_at};
+use hytrace::trace::{Hit, SceneTracer, Surface, epsilon_at};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -208,7 +211,7 @@ fn real_models_placed_in_a_scene_pass() {
     let r = assert_passes("bunny and duck among analytic SDFs", &scene);
     assert!(r.kind(Kind::Mesh).rays > 300);
     assert!(r.kind(Kind::AnalyticSdf).rays > 1000);
-    assert!(r.objects.iter().all(|o| o.check == ObjectCheck::Analytic));
+    assert!(r.objects.iter().all(|o| o.check == SdfCheck::Analytic));
 }
 
 /// A scene of analytic primitives only (no shared assets needed), large in the frame.
@@ -408,8 +411,8 @@ impl RayQuery for Broken<'_> {
     }
 }
 
-fn checks(embree: &EmbreeScene) -> Vec<ObjectCheck> {
-    hytrace::reference::validate::object_checks(embree)
+fn checks(embree: &EmbreeScene) -> Vec<SdfCheck> {
+    embree.checks.clone()
 }
 
 /// The referee has teeth: a tracer off by 20·ε(t) and an overshooting sphere tracer fail on
@@ -466,26 +469,53 @@ fn broken_tracers_fail() {
     );
 }
 
-/// Rendering through `render_image` with our own tracer is `hytrace render` bit for bit, so
-/// the embree image differs only by the tracer.
+/// Our tracer answering every query alone: the batched queries fall back to
+/// `ShadingTracer`'s one-at-a-time defaults.
+struct OneAtATime<'a>(&'a SceneTracer<'a>);
+
+impl ShadingTracer for OneAtATime<'_> {
+    fn scene(&self) -> &Scene {
+        self.0.scene()
+    }
+    fn closest_hit(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<Hit> {
+        self.0.closest_hit(ray, tmin, tmax)
+    }
+    fn exit(&self, surface: Surface, ray: &Ray, tmax: f32) -> Option<(f32, Vec3)> {
+        self.0.exit(surface, ray, tmax)
+    }
+    fn visibility(&self, ray: &Ray, tmin: f32, tmax: f32, shadow: Shadow) -> f32 {
+        self.0.visibility(ray, tmin, tmax, shadow)
+    }
+    fn distance(&self, p: Vec3, reach: f32) -> f32 {
+        self.0.distance(p, reach)
+    }
+    fn material_at(&self, hit: &Hit, p: Vec3, materials: &[MaterialVec]) -> MaterialParams {
+        self.0.material_at(hit, p, materials)
+    }
+}
+
+/// `compare` renders Embree's hits through `render_through`, the CPU renderer's own loop over
+/// any `ShadingTracer`; a tracer that answers one query at a time (as the Embree tracer does)
+/// gets the image our bundled tracer renders, bit for bit, so the embree image differs only
+/// by the hits.
 #[test]
-fn render_image_matches_the_cpu_renderer() {
-    let scene = analytic_scene();
-    let tracer = SceneTracer::new(&scene);
-    let (w, h, spp) = (64, 48, 2);
-    let ours = render_image(&tracer, w, h, spp);
-    let cpu = cpu::render(
-        &scene,
-        &RenderOptions {
-            width: w,
-            height: h,
-            samples: spp,
+fn one_query_at_a_time_renders_the_cpu_renderer_s_image() {
+    let showcase =
+        Scene::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/scenes/showcase.ron"))
+            .unwrap_or_else(|e| panic!("{e}"));
+    for scene in [analytic_scene(), showcase] {
+        let tracer = SceneTracer::new(&scene);
+        let opts = RenderOptions {
+            width: 64,
+            height: 48,
+            samples: 2,
             threads: None,
             progress: false,
-        },
-    )
-    .unwrap();
-    assert_eq!(ours, cpu);
+        };
+        let alone = cpu::render_through(&OneAtATime(&tracer), &opts).unwrap();
+        let bundled = cpu::render(&scene, &opts).unwrap();
+        assert!(alone == bundled, "{}", scene.source_name);
+    }
 }
 
 /// `compare` writes every file; PSNR(cpu, embree) ≥ 30 dB and PSNR(cpu, gpu) ≥ 40 dB on the
@@ -581,7 +611,7 @@ fn compare_writes_images_and_metrics() {
     let embree = EmbreeScene::build(&scene).unwrap();
     let ours = SceneTracer::new(&scene);
     let tracer = EmbreeTracer::new(&embree, &ours);
-    render_image(&tracer, 160, 120, 1);
+    cpu::render_through(&tracer, &RenderOptions::single_sample(160, 120)).unwrap();
     let (fallbacks, mesh_hits) = tracer.fallbacks();
     assert!(mesh_hits > 500, "{mesh_hits} mesh hits");
     assert_eq!(fallbacks, 0);

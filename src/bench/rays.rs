@@ -83,7 +83,7 @@ pub fn primary(scene: &Scene, width: u32, height: u32) -> Vec<QueryRay> {
 pub fn primary_from(camera: &Camera, width: u32, height: u32) -> Vec<QueryRay> {
     let aspect = width as f32 / height as f32;
     let mut rays = Vec::with_capacity((width * height) as usize);
-    for tile in crate::render::tiles(width, height) {
+    for tile in crate::render::tiles(width, height, crate::render::TILE) {
         for y in tile.y0..tile.y0 + tile.h {
             for x in tile.x0..tile.x0 + tile.w {
                 let u = (x as f32 + 0.5) / width as f32;

@@ -214,7 +214,7 @@ pub fn report_page(
 pub fn run(args: CompareArgs) -> Result<()> {
     use anyhow::{Context, bail};
     use hytrace::reference::embree::EmbreeScene;
-    use hytrace::reference::shading::{EmbreeTracer, render_image};
+    use hytrace::reference::shading::EmbreeTracer;
     use hytrace::render::metrics::{heatmap, measure, sheet};
     use hytrace::render::output::{ToneMapping, save_png};
     use hytrace::render::view::{View, picture};
@@ -253,20 +253,18 @@ pub fn run(args: CompareArgs) -> Result<()> {
     let shaded =
         |fb: &hytrace::render::Framebuffer| picture(fb, View::Shaded, tone, scene.tracer.max_steps);
 
+    let opts = RenderOptions {
+        width,
+        height,
+        samples,
+        threads: None,
+        progress: false,
+    };
     let mut backends = Vec::new();
     let mut notes = Vec::new();
     // 1. Our CPU renderer, exactly as `hytrace render` runs it.
     let start = Instant::now();
-    let fb = cpu::render(
-        &scene,
-        &RenderOptions {
-            width,
-            height,
-            samples,
-            threads: None,
-            progress: false,
-        },
-    )?;
+    let fb = cpu::render(&scene, &opts)?;
     backends.push(Backend {
         name: "cpu",
         description: "our CPU tracer: sphere-traced SDFs and our mesh BVH".into(),
@@ -279,7 +277,7 @@ pub fn run(args: CompareArgs) -> Result<()> {
         .map_err(|e| anyhow::anyhow!("{}: Embree: {e}", scene.source_name))?;
     let ours = SceneTracer::new(&scene);
     let tracer = EmbreeTracer::new(&embree, &ours);
-    let fb = render_image(&tracer, width, height, samples);
+    let fb = cpu::render_through(&tracer, &opts)?;
     let (fallbacks, mesh_hits) = tracer.fallbacks();
     backends.push(Backend {
         name: "embree",
@@ -308,17 +306,7 @@ pub fn run(args: CompareArgs) -> Result<()> {
         match hytrace::gpu::context::GpuContext::new() {
             Ok(ctx) => {
                 let start = Instant::now();
-                let fb = hytrace::gpu::render::render(
-                    &scene,
-                    &RenderOptions {
-                        width,
-                        height,
-                        samples,
-                        threads: None,
-                        progress: false,
-                    },
-                    &ctx,
-                )?;
+                let fb = hytrace::gpu::render::render(&scene, &opts, &ctx)?;
                 backends.push(Backend {
                     name: "gpu",
                     description: format!(

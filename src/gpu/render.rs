@@ -46,22 +46,6 @@ pub fn render(scene: &Scene, opts: &RenderOptions, ctx: &GpuContext) -> Result<F
     GpuRenderer::new(ctx).render(ctx, scene, opts)
 }
 
-/// The image cut into square tiles of side `side`, row by row.
-fn tiles_of(width: u32, height: u32, side: u32) -> Vec<Tile> {
-    let mut v = Vec::new();
-    for y0 in (0..height).step_by(side as usize) {
-        for x0 in (0..width).step_by(side as usize) {
-            v.push(Tile {
-                x0,
-                y0,
-                w: side.min(width - x0),
-                h: side.min(height - y0),
-            });
-        }
-    }
-    v
-}
-
 /// The compiled render kernel and its bind-group layouts; it does not depend on the scene.
 pub struct GpuRenderer {
     pipeline: wgpu::ComputePipeline,
@@ -299,7 +283,7 @@ impl GpuRenderer {
             bail!("GPU tile size must be at least 1 pixel");
         }
         let prepared = self.prepare(ctx, scene)?;
-        let all = tiles_of(opts.width, opts.height, tile_side);
+        let all = crate::render::tiles(opts.width, opts.height, tile_side);
         let bar = progress_bar(opts.progress, all.len() as u64)?;
         let mut sums = SampleSums::new(opts.width, opts.height);
         for tile in all {
@@ -491,24 +475,5 @@ mod tests {
                 .iter()
                 .any(|e| e.name == "render_tile_main" && e.stage == naga::ShaderStage::Compute)
         );
-    }
-
-    #[test]
-    fn tiles_cover_the_image_once() {
-        for (w, h, side) in [(128, 96, 64), (130, 7, 8), (1, 1, 64), (65, 64, 64)] {
-            let mut covered = vec![0u32; (w * h) as usize];
-            for t in tiles_of(w, h, side) {
-                assert!(t.w >= 1 && t.h >= 1 && t.w <= side && t.h <= side);
-                for y in t.y0..t.y0 + t.h {
-                    for x in t.x0..t.x0 + t.w {
-                        covered[(y * w + x) as usize] += 1;
-                    }
-                }
-            }
-            assert!(
-                covered.iter().all(|&c| c == 1),
-                "{w}×{h} in tiles of {side}"
-            );
-        }
     }
 }

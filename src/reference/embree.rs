@@ -591,26 +591,7 @@ pub const DEFAULT_MESH_RESOLUTION: u32 = 128;
 /// Default [`ReferenceOptions::mesh_max_triangles`].
 pub const DEFAULT_MESH_MAX_TRIANGLES: usize = 1_000_000;
 
-/// How the referee represents one SDF object.
-#[derive(Debug, Clone, PartialEq)]
-pub enum SdfCheck {
-    /// Closed-form ray intersection as Embree user geometry.
-    Analytic,
-    /// A triangle mesh extracted from the field by our mesher.
-    Meshed {
-        /// Grid cells along the longest side of the meshed box.
-        resolution: u32,
-        /// Edge length of one grid cell (world units).
-        cell: f32,
-        /// Largest distance (world units) of a mesh point from the true surface, as stated by
-        /// the mesher; a hit distance is compared within `tolerance / |n·d|`.
-        tolerance: f32,
-        /// Triangles of the extracted mesh.
-        triangles: usize,
-    },
-    /// Not in the Embree scene, and why.
-    Skipped(String),
-}
+pub use super::validate::SdfCheck;
 
 impl EmbreeScene {
     /// The box the mesh of SDF object `object` covers, if it was meshed.
@@ -624,7 +605,7 @@ impl EmbreeScene {
             .iter()
             .enumerate()
             .filter_map(|(i, c)| match c {
-                SdfCheck::Skipped(why) => Some((i, why.as_str())),
+                SdfCheck::Skipped { why } => Some((i, why.as_str())),
                 _ => None,
             })
             .collect()
@@ -746,10 +727,12 @@ impl EmbreeScene {
                     let mesh = match meshed {
                         Ok(mesh) => mesh,
                         Err(why) => {
-                            checks.push(SdfCheck::Skipped(format!(
-                                "object {i} ({}) cannot be meshed: {why}",
-                                object.name
-                            )));
+                            checks.push(SdfCheck::Skipped {
+                                why: format!(
+                                    "object {i} ({}) cannot be meshed: {why}",
+                                    object.name
+                                ),
+                            });
                             continue;
                         }
                     };
@@ -776,6 +759,9 @@ impl EmbreeScene {
                         cell: mesh.cell,
                         tolerance: mesh.tolerance,
                         triangles: mesh.triangles.len(),
+                        clipped_to: mesh
+                            .clipped
+                            .then(|| [mesh.region.min.to_array(), mesh.region.max.to_array()]),
                     });
                     continue;
                 }

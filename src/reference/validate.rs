@@ -1,7 +1,7 @@
 //! Ray-by-ray validation of one backend against a referee: the same rays (every pixel's camera
 //! ray, random rays through the scene, shadow rays toward every light) asked of both through
 //! [`RayQuery`], compared on hit/miss, hit distance and occlusion per object kind, against the
-//! thresholds of issue #5.
+//! thresholds below.
 //!
 //! The comparison ([`validate`]) is generic over the two backends, so the GPU can be checked
 //! the same way; [`validate_with_embree`] (feature `embree`) checks our CPU tracer against
@@ -68,29 +68,30 @@ use std::fmt::Write as _;
 
 /// Below this |n·d| a ray grazes a surface: a hit/miss disagreement there is at a silhouette.
 pub const GRAZING: f32 = 0.05;
-/// Least hit/miss agreement on mesh rays (issue #5).
+/// Least hit/miss agreement on mesh rays.
 pub const MESH_AGREEMENT: f64 = 0.9999;
-/// Largest mesh |Δt| as a fraction of the scene's diameter (issue #5).
+/// Largest mesh |Δt| as a fraction of the scene's diameter.
 pub const MESH_DT_OF_DIAMETER: f32 = 1e-4;
-/// Least hit/miss agreement on analytic-SDF rays (issue #5).
+/// Least hit/miss agreement on analytic-SDF rays.
 pub const SDF_AGREEMENT: f64 = 0.999;
-/// Least agreement of shadow rays (issue #5).
+/// Least agreement of shadow rays.
 pub const SHADOW_AGREEMENT: f64 = 0.999;
 
-/// How the referee represents one SDF object (the backend-independent form of
-/// `embree::SdfCheck`).
+/// How the referee represents one SDF object (the Embree scene's [`super::embree::EmbreeScene`]
+/// `checks`, and the report's).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(tag = "check", rename_all = "snake_case")]
-pub enum ObjectCheck {
-    /// A closed-form ray intersection.
+pub enum SdfCheck {
+    /// A closed-form ray intersection (Embree user geometry).
     Analytic,
-    /// A mesh extracted from the field.
+    /// A triangle mesh extracted from the field by our mesher.
     Meshed {
         /// Grid cells along the longest side of the meshed box.
         resolution: u32,
-        /// Edge length of one grid cell.
+        /// Edge length of one grid cell (world units).
         cell: f32,
-        /// Largest distance of a mesh point from the true surface, as the mesher states it.
+        /// Largest distance (world units) of a mesh point from the true surface, as the mesher
+        /// states it; a hit distance is compared within `tolerance / |n·d|`.
         tolerance: f32,
         /// Triangles of the mesh.
         triangles: usize,
@@ -106,12 +107,12 @@ pub enum ObjectCheck {
     },
 }
 
-impl ObjectCheck {
+impl SdfCheck {
     /// One line saying how the object is checked.
     pub fn describe(&self) -> String {
         match self {
-            ObjectCheck::Analytic => "analytic (closed-form intersection)".into(),
-            ObjectCheck::Meshed {
+            SdfCheck::Analytic => "analytic (closed-form intersection)".into(),
+            SdfCheck::Meshed {
                 resolution,
                 cell,
                 tolerance,
@@ -127,40 +128,9 @@ impl ObjectCheck {
                 }
                 s
             }
-            ObjectCheck::Skipped { why } => format!("SKIPPED: {why}"),
+            SdfCheck::Skipped { why } => format!("SKIPPED: {why}"),
         }
     }
-}
-
-/// How the Embree referee represents each SDF object of its scene, with the box a clipped
-/// unbounded object's mesh stands for it in ([`super::embree::EmbreeScene::mesh_region`]).
-#[cfg(feature = "embree")]
-pub fn object_checks(embree: &super::embree::EmbreeScene) -> Vec<ObjectCheck> {
-    use super::embree::SdfCheck;
-    embree
-        .checks
-        .iter()
-        .enumerate()
-        .map(|(i, c)| match c {
-            SdfCheck::Analytic => ObjectCheck::Analytic,
-            SdfCheck::Meshed {
-                resolution,
-                cell,
-                tolerance,
-                triangles,
-            } => ObjectCheck::Meshed {
-                resolution: *resolution,
-                cell: *cell,
-                tolerance: *tolerance,
-                triangles: *triangles,
-                clipped_to: embree
-                    .mesh_region(i)
-                    .filter(|r| r.clipped)
-                    .map(|r| [r.bounds.min.to_array(), r.bounds.max.to_array()]),
-            },
-            SdfCheck::Skipped(why) => ObjectCheck::Skipped { why: why.clone() },
-        })
-        .collect()
 }
 
 /// The kind of object a ray is classified by.
@@ -359,7 +329,7 @@ pub struct ObjectEntry {
     /// Name.
     pub name: String,
     /// How it was checked.
-    pub check: ObjectCheck,
+    pub check: SdfCheck,
 }
 
 /// One row of the per-kind table.
@@ -891,7 +861,7 @@ pub fn validate<A, B>(
     scene: &Scene,
     ours: &A,
     referee: &B,
-    checks: &[ObjectCheck],
+    checks: &[SdfCheck],
     options: &Options,
 ) -> Result<Report, String>
 where
@@ -918,21 +888,21 @@ where
     let kind_of = |object: ObjectId| match object {
         ObjectId::MeshInstance(_) => Kind::Mesh,
         ObjectId::Sdf(i) => match checks.get(i) {
-            Some(ObjectCheck::Analytic) => Kind::AnalyticSdf,
-            Some(ObjectCheck::Meshed { .. }) => Kind::MeshedSdf,
+            Some(SdfCheck::Analytic) => Kind::AnalyticSdf,
+            Some(SdfCheck::Meshed { .. }) => Kind::MeshedSdf,
             _ => Kind::UncheckedSdf,
         },
     };
     let meshed_tolerance = |object: ObjectId| match object {
         ObjectId::Sdf(i) => match checks.get(i) {
-            Some(ObjectCheck::Meshed { tolerance, .. }) => *tolerance,
+            Some(SdfCheck::Meshed { tolerance, .. }) => *tolerance,
             _ => 0.0,
         },
         ObjectId::MeshInstance(_) => 0.0,
     };
     let meshed_cell = |object: ObjectId| match object {
         ObjectId::Sdf(i) => match checks.get(i) {
-            Some(ObjectCheck::Meshed { cell, .. }) => *cell,
+            Some(SdfCheck::Meshed { cell, .. }) => *cell,
             _ => 0.0,
         },
         ObjectId::MeshInstance(_) => 0.0,
@@ -941,7 +911,7 @@ where
     // tolerance (a hit that close to the box's faces may belong to a cut-off triangle).
     let mesh_box = |object: ObjectId| match object {
         ObjectId::Sdf(i) => match checks.get(i) {
-            Some(ObjectCheck::Meshed {
+            Some(SdfCheck::Meshed {
                 clipped_to: Some([lo, hi]),
                 tolerance,
                 ..
@@ -1449,7 +1419,7 @@ fn failures(
 ) -> Vec<String> {
     let mut out = Vec::new();
     for o in objects {
-        if let ObjectCheck::Skipped { why } = &o.check {
+        if let SdfCheck::Skipped { why } = &o.check {
             out.push(format!(
                 "SDF object #{} `{}` is not checked by the referee: {why}",
                 o.index, o.name
@@ -1545,7 +1515,7 @@ pub fn validate_with_embree_options(
     reference: &super::embree::ReferenceOptions,
 ) -> Result<Report, String> {
     let embree = super::embree::EmbreeScene::build_with(scene, reference)?;
-    let checks = object_checks(&embree);
+    let checks = embree.checks.clone();
     let tracer = crate::trace::SceneTracer::new(scene);
     validate(scene, &tracer, &embree, &checks, options)
 }
@@ -1569,11 +1539,7 @@ mod tests {
         Scene::from_source(src, Path::new("validate-test.ron")).unwrap_or_else(|e| panic!("{e}"))
     }
 
-    const ANALYTIC: [ObjectCheck; 3] = [
-        ObjectCheck::Analytic,
-        ObjectCheck::Analytic,
-        ObjectCheck::Analytic,
-    ];
+    const ANALYTIC: [SdfCheck; 3] = [SdfCheck::Analytic, SdfCheck::Analytic, SdfCheck::Analytic];
 
     fn options() -> Options {
         Options {
@@ -1623,7 +1589,7 @@ mod tests {
         assert!(text.contains("shadow rays"), "{text}");
 
         let mut checks = ANALYTIC.to_vec();
-        checks[1] = ObjectCheck::Skipped { why: "test".into() };
+        checks[1] = SdfCheck::Skipped { why: "test".into() };
         let r = validate(&scene, &tracer, &tracer, &checks, &options()).unwrap();
         assert!(!r.passed());
         assert!(r.failures[0].contains("#1"), "{:?}", r.failures);

@@ -2,13 +2,13 @@
 //! sample pass at a time.
 
 use super::progressive::SampleSums;
-use super::{Framebuffer, RenderOptions, Tile, sample_offset, tiles};
+use super::{Framebuffer, RenderOptions, TILE, Tile, sample_offset, tiles};
 use crate::geom::Ray;
 use crate::scene::Scene;
 use crate::scene::camera::Camera;
 use crate::sdf::tape::MaterialVec;
 use crate::shade::integrator::{self, CameraSample, Primary, trace_camera_ray_from};
-use crate::shade::shadow_query;
+use crate::shade::{ShadingTracer, shadow_query};
 use crate::trace::SceneTracer;
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
@@ -27,8 +27,18 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> anyhow::Result<Framebuffer
 /// [`crate::trace::AccelOptions`]), on the current rayon pool: the passes 0..n of
 /// [`render_pass`] with the scene's camera, averaged.
 pub fn render_with(tracer: &SceneTracer, opts: &RenderOptions) -> anyhow::Result<Framebuffer> {
+    render_through(tracer, opts)
+}
+
+/// [`render_with`] through any [`ShadingTracer`]: the same tiles, camera rays, sample positions
+/// and integrator, so with our [`SceneTracer`] it is `render`'s image bit for bit and with
+/// another tracer (Embree's hits, for `compare`) a difference is that tracer's alone.
+pub fn render_through<T: ShadingTracer + Sync + ?Sized>(
+    tracer: &T,
+    opts: &RenderOptions,
+) -> anyhow::Result<Framebuffer> {
     let camera = &tracer.scene().camera;
-    let tiles_per_pass = tiles(opts.width, opts.height).len() as u64;
+    let tiles_per_pass = tiles(opts.width, opts.height, TILE).len() as u64;
     let bar = if opts.progress {
         let b = ProgressBar::new(tiles_per_pass * opts.samples as u64);
         b.set_style(
@@ -75,8 +85,8 @@ pub fn render_pass(
 }
 
 /// [`render_pass`], counting finished tiles on `bar`.
-fn pass(
-    tracer: &SceneTracer,
+fn pass<T: ShadingTracer + Sync + ?Sized>(
+    tracer: &T,
     camera: &Camera,
     opts: &RenderOptions,
     sample: u32,
@@ -91,7 +101,7 @@ fn pass(
     );
     let materials = tracer.scene().material_table();
     // rayon stops handing out tiles once one comes back None
-    let done: Option<Vec<(Tile, Vec<CameraSample>)>> = tiles(opts.width, opts.height)
+    let done: Option<Vec<(Tile, Vec<CameraSample>)>> = tiles(opts.width, opts.height, TILE)
         .into_par_iter()
         .map(|tile| {
             if cancelled() {
@@ -118,12 +128,12 @@ const BAND_ROWS: u32 = 4;
 
 /// Sample `sample` of every pixel of a tile as `camera` sees it, in row order. Each sample's
 /// camera rays are traced a band of [`BAND_ROWS`] tile rows at a time: the band's closest hits
-/// come from one [`SceneTracer::closest_hits`] call and the shadow rays of their local shading
-/// from one [`SceneTracer::visibilities`] call (bundles), then each ray's path is followed on
-/// its own. The answers are those of tracing every ray alone, so the image does not depend on
+/// come from one [`ShadingTracer::closest_hits`] call and the shadow rays of their local
+/// shading from one [`ShadingTracer::visibilities`] call (on our tracer, ray bundles:
+/// [`SceneTracer::closest_hits`]), then each ray's path is followed on its own. The answers are those of tracing every ray alone, so the image does not depend on
 /// this grouping.
-fn render_tile(
-    tracer: &SceneTracer,
+fn render_tile<T: ShadingTracer + Sync + ?Sized>(
+    tracer: &T,
     materials: &[MaterialVec],
     camera: &Camera,
     opts: &RenderOptions,

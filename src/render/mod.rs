@@ -115,16 +115,17 @@ pub struct Tile {
     pub h: u32,
 }
 
-/// The image cut into tiles of side [`TILE`], row by row.
-pub fn tiles(width: u32, height: u32) -> Vec<Tile> {
+/// The image cut into square tiles of side `side` (the CPU renders in [`TILE`]s, the GPU in
+/// larger ones), row by row; the last column and row are cut to the image.
+pub fn tiles(width: u32, height: u32, side: u32) -> Vec<Tile> {
     let mut v = Vec::new();
-    for y0 in (0..height).step_by(TILE as usize) {
-        for x0 in (0..width).step_by(TILE as usize) {
+    for y0 in (0..height).step_by(side as usize) {
+        for x0 in (0..width).step_by(side as usize) {
             v.push(Tile {
                 x0,
                 y0,
-                w: TILE.min(width - x0),
-                h: TILE.min(height - y0),
+                w: side.min(width - x0),
+                h: side.min(height - y0),
             });
         }
     }
@@ -167,4 +168,28 @@ pub fn hash3(x: u32, y: u32, z: u32) -> u32 {
     v[2] ^= v[2] >> 16;
     v[0] = v[0].wrapping_add(v[1].wrapping_mul(v[2]));
     v[0]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tiles_cover_the_image_once() {
+        for (w, h, side) in [(128, 96, 64), (130, 7, 8), (1, 1, 64), (65, 64, 64)] {
+            let mut covered = vec![0u32; (w * h) as usize];
+            for t in tiles(w, h, side) {
+                assert!(t.w >= 1 && t.h >= 1 && t.w <= side && t.h <= side);
+                for y in t.y0..t.y0 + t.h {
+                    for x in t.x0..t.x0 + t.w {
+                        covered[(y * w + x) as usize] += 1;
+                    }
+                }
+            }
+            assert!(
+                covered.iter().all(|&c| c == 1),
+                "{w}×{h} in tiles of {side}"
+            );
+        }
+    }
 }

@@ -40,6 +40,21 @@ pub trait ShadingTracer {
     fn distance(&self, p: Vec3, reach: f32) -> f32;
     /// The material at a hit (`materials` is the scene's table as the tapes expect it).
     fn material_at(&self, hit: &Hit, p: Vec3, materials: &[MaterialVec]) -> MaterialParams;
+    /// [`ShadingTracer::closest_hit`] of every ray over (tmin, tmax), into `out` (of the same
+    /// length). A tracer may answer coherent rays together (the CPU's ray bundles), but the
+    /// answers must be those of asking one ray at a time.
+    fn closest_hits(&self, rays: &[Ray], tmin: f32, tmax: f32, out: &mut [Option<Hit>]) {
+        for (ray, o) in rays.iter().zip(out) {
+            *o = self.closest_hit(ray, tmin, tmax);
+        }
+    }
+    /// [`ShadingTracer::visibility`] of every shadow query, into `out`; as with
+    /// [`ShadingTracer::closest_hits`], the answers of asking one at a time.
+    fn visibilities(&self, queries: &[ShadowQuery], out: &mut [f32]) {
+        for (q, o) in queries.iter().zip(out) {
+            *o = self.visibility(&q.ray, q.tmin, q.tmax, q.shadow);
+        }
+    }
 }
 
 impl ShadingTracer for SceneTracer<'_> {
@@ -60,6 +75,12 @@ impl ShadingTracer for SceneTracer<'_> {
     }
     fn material_at(&self, hit: &Hit, p: Vec3, materials: &[MaterialVec]) -> MaterialParams {
         SceneTracer::material_at(self, hit, p, materials)
+    }
+    fn closest_hits(&self, rays: &[Ray], tmin: f32, tmax: f32, out: &mut [Option<Hit>]) {
+        SceneTracer::closest_hits(self, rays, tmin, tmax, out)
+    }
+    fn visibilities(&self, queries: &[ShadowQuery], out: &mut [f32]) {
+        SceneTracer::visibilities(self, queries, out)
     }
 }
 
