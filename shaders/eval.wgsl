@@ -1,4 +1,4 @@
-// The tape evaluation kernel: the distance tape of object `chunk.mode` at every point of one
+// The tape evaluation kernel: the distance tape of object `chunk.object` at every point of one
 // chunk (the GPU side of the SDF conformance suite).
 
 @group(1) @binding(0) var<storage, read> eval_points: array<vec4<f32>>;
@@ -11,5 +11,5 @@ fn eval_main(@builtin(global_invocation_id) id: vec3<u32>) {
         return;
     }
     let i = chunk.first + id.x;
-    eval_values[i] = tape_eval(objects[chunk.mode].distance, eval_points[i].xyz);
+    eval_values[i] = tape_eval(objects[chunk.object].distance, eval_points[i].xyz);
 }

@@ -1,4 +1,4 @@
-// The field probe kernel: for the object `chunk.mode`, the field and the leaf at each ray's
+// The field probe kernel: for the object `chunk.object`, the field and the leaf at each ray's
 // origin (field_eval, field_locate) and the leaves the octree walk meets over the ray's
 // interval (field_walk_begin, field_next_leaf), so that tests can compare them with
 // FieldOctree::locate, the CPU's leaf tapes and RayWalk.
@@ -14,7 +14,7 @@ fn field_probe_main(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     let i = chunk.first + id.x;
     let ray = field_probe_rays[i];
-    let object = chunk.mode;
+    let object = chunk.object;
     var r: FieldProbeResult;
     r.value = field_eval(object, ray.origin);
     r.leaf = field_locate(object, ray.origin);

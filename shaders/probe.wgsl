@@ -1,6 +1,6 @@
 // The probe kernel: the scene queries shading builds on (scene_material, scene_exit,
 // scene_visibility, scene_distance), evaluated per ray so tests can compare them with the CPU.
-// `chunk.mode` carries the penumbra sharpness k as f32 bits, `chunk.part` the query of this pass.
+// `chunk.penumbra_k` is the penumbra sharpness k, `chunk.part` the query of this pass.
 
 @group(1) @binding(0) var<storage, read> probe_rays: array<QueryRay>;
 @group(1) @binding(1) var<storage, read_write> probe_results: array<ProbeResult>;
@@ -21,7 +21,7 @@ fn probe_main(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     let i = chunk.first + id.x;
     let ray = probe_rays[i];
-    let k = bitcast<f32>(chunk.mode);
+    let k = chunk.penumbra_k;
     // One query per pass (chunk.part), each pass its own dispatch: see GpuQuery::probe.
     var r = probe_results[i];
     if chunk.part == 0u {

@@ -14,7 +14,7 @@ fn query_main(@builtin(global_invocation_id) id: vec3<u32>) {
     let ray = query_rays[i];
     var result: QueryResult;
     result.kind = HIT_MISS;
-    if (chunk.mode & QUERY_CLOSEST) != 0u {
+    if (chunk.queries & QUERY_CLOSEST) != 0u {
         let hit = scene_closest_hit(ray.origin, ray.direction, ray.tmin, ray.tmax);
         result.t = hit.t;
         result.kind = hit.kind;
@@ -22,7 +22,7 @@ fn query_main(@builtin(global_invocation_id) id: vec3<u32>) {
         result.normal = hit.normal;
         result.steps = hit.steps;
     }
-    if (chunk.mode & QUERY_OCCLUDED) != 0u {
+    if (chunk.queries & QUERY_OCCLUDED) != 0u {
         result.occluded = select(0u, 1u, scene_occluded(ray.origin, ray.direction, ray.tmin, ray.tmax));
     }
     query_results[i] = result;

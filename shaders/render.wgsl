@@ -5,16 +5,10 @@
 // `render::progressive::PixelSums` adds them (the division is the host's).
 //
 // Needs, from the generated prelude: ShadeCamera, ShadeSettings, ShadeLight, RenderTile,
-// RenderPixel and the PROJECTION_*, MAX_BOUNCES and RENDER_STACK constants
+// RenderPixel, the bindings of groups 1 and 2 (shade_settings, shade_lights; shade_camera,
+// render_tile, render_pixels) and the PROJECTION_*, MAX_BOUNCES and RENDER_STACK constants
 // (src/gpu/shade.rs); from shaders/scene.wgsl: SceneHit, scene_closest_hit, scene_exit,
 // scene_material; from shaders/shade.wgsl: the shading functions.
-
-// group 1: what the scene fixes; group 2: the view and the sums it accumulates into
-@group(1) @binding(0) var<uniform> shade_settings: ShadeSettings;
-@group(1) @binding(1) var<storage, read> shade_lights: array<ShadeLight>;
-@group(2) @binding(0) var<uniform> shade_camera: ShadeCamera;
-@group(2) @binding(1) var<uniform> render_tile: RenderTile;
-@group(2) @binding(2) var<storage, read_write> render_pixels: array<RenderPixel>;
 
 /// Paths lighter than this are not followed (integrator::MIN_WEIGHT).
 const MIN_WEIGHT: f32 = 1e-3;

@@ -16,10 +16,10 @@ fn tape_run(tape: TapeRef, p: vec3<f32>, materials_on: bool) {
     regs[2] = p.z;
     for (var i = 0u; i < tape.len; i = i + 1u) {
         let ins = instrs[tape.start + i];
-        let op = ins.code & 0xffu;
-        let out = (ins.code >> 8u) & 0xffu;
-        let a = regs[(ins.code >> 16u) & 0xffu];
-        let b = regs[ins.code >> 24u];
+        let op = (ins.code >> INSTR_OP_SHIFT) & 0xffu;
+        let out = (ins.code >> INSTR_OUT_SHIFT) & 0xffu;
+        let a = regs[(ins.code >> INSTR_A_SHIFT) & 0xffu];
+        let b = regs[(ins.code >> INSTR_B_SHIFT) & 0xffu];
         let k = bitcast<f32>(ins.imm);
         var v = 0.0;
         var write = true;
@@ -73,8 +73,8 @@ fn tape_run(tape: TapeRef, p: vec3<f32>, materials_on: bool) {
             case OP_MATMIX: {
                 write = false;
                 if materials_on {
-                    let ma = mat_regs[((ins.code >> 16u) & 0xffu) % MAX_MATERIAL_REGISTERS];
-                    let mb = mat_regs[(ins.code >> 24u) % MAX_MATERIAL_REGISTERS];
+                    let ma = mat_regs[((ins.code >> INSTR_A_SHIFT) & 0xffu) % MAX_MATERIAL_REGISTERS];
+                    let mb = mat_regs[((ins.code >> INSTR_B_SHIFT) & 0xffu) % MAX_MATERIAL_REGISTERS];
                     let h = regs[ins.imm & 0xffu];
                     var mixed: array<vec4<f32>, 3>;
                     for (var j = 0u; j < 3u; j = j + 1u) {

@@ -22,6 +22,18 @@ use glam::Vec3;
 /// kernel (SDF rays on lavapipe) stays far below a driver watchdog's seconds.
 pub const DEFAULT_CHUNK: u32 = 8192;
 
+/// What a kernel's chunks are told besides their range ([`ChunkParams`]); each kernel reads
+/// its own field.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct KernelArgs {
+    /// The query kernel: `QUERY_*` bits.
+    pub queries: u32,
+    /// Tape evaluation and the field probe: the SDF object.
+    pub object: u32,
+    /// The probe kernel: the penumbra sharpness k.
+    pub penumbra_k: f32,
+}
+
 /// A compute kernel over the scene library: group 0 the scene, group 1 an input array, an
 /// output array and the chunk parameters.
 pub struct Kernel {
@@ -114,9 +126,9 @@ impl Kernel {
         output: &wgpu::Buffer,
         count: u32,
         chunk: u32,
-        mode: u32,
+        args: KernelArgs,
     ) -> Result<(), GpuError> {
-        self.run_part(ctx, scene, input, output, count, chunk, mode, 0)
+        self.run_part(ctx, scene, input, output, count, chunk, args, 0)
     }
 
     /// [`Kernel::run`] for one pass (`part`) of a multi-pass kernel.
@@ -129,7 +141,7 @@ impl Kernel {
         output: &wgpu::Buffer,
         count: u32,
         chunk: u32,
-        mode: u32,
+        args: KernelArgs,
         part: u32,
     ) -> Result<(), GpuError> {
         let chunk = chunk.clamp(1, 65535 * WORKGROUP_SIZE);
@@ -139,8 +151,11 @@ impl Kernel {
             let params = ChunkParams {
                 first,
                 count: n,
-                mode,
                 part,
+                queries: args.queries,
+                object: args.object,
+                penumbra_k: args.penumbra_k,
+                ..Default::default()
             };
             let uniform = ctx.uniform_buffer("hytrace chunk", bytemuck::bytes_of(&params));
             let io = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -222,10 +237,14 @@ impl<'a> GpuQuery<'a> {
         &self.scene
     }
 
-    /// Runs the query kernel over rays with per-ray intervals; `mode` is a set of
+    /// Runs the query kernel over rays with per-ray intervals; `queries` is a set of
     /// `QUERY_*` bits.
-    pub fn run(&self, rays: &[QueryRay], mode: u32) -> Result<Vec<QueryResult>, GpuError> {
-        self.run_kernel(&self.kernel, rays, mode, 1)
+    pub fn run(&self, rays: &[QueryRay], queries: u32) -> Result<Vec<QueryResult>, GpuError> {
+        let args = KernelArgs {
+            queries,
+            ..Default::default()
+        };
+        self.run_kernel(&self.kernel, rays, args, 1)
     }
 
     /// Runs the probe kernel (`shaders/probe.wgsl`: material, exit, soft visibilities with
@@ -235,7 +254,11 @@ impl<'a> GpuQuery<'a> {
         // One pass per query, each its own dispatch: with all queries in one invocation,
         // lavapipe (Mesa 22.3) returned wrong values for some lanes on glass.ron — the same
         // driver trouble the render kernel met with several samples per invocation.
-        self.run_kernel(&kernel, rays, k.to_bits(), PROBE_PASSES)
+        let args = KernelArgs {
+            penumbra_k: k,
+            ..Default::default()
+        };
+        self.run_kernel(&kernel, rays, args, PROBE_PASSES)
     }
 
     /// Runs the field probe kernel (`shaders/field_probe.wgsl`: the field and its leaf at
@@ -264,7 +287,11 @@ impl<'a> GpuQuery<'a> {
             )));
         }
         let kernel = Kernel::from_source(self.ctx, "field_probe.wgsl", source, "field_probe_main")?;
-        self.run_kernel(&kernel, rays, object, 1)
+        let args = KernelArgs {
+            object,
+            ..Default::default()
+        };
+        self.run_kernel(&kernel, rays, args, 1)
     }
 
     /// Runs `passes` passes of `kernel` (`chunk.part` = 0, 1, …) over the rays into one result
@@ -273,7 +300,7 @@ impl<'a> GpuQuery<'a> {
         &self,
         kernel: &Kernel,
         rays: &[QueryRay],
-        mode: u32,
+        args: KernelArgs,
         passes: u32,
     ) -> Result<Vec<T>, GpuError> {
         if rays.is_empty() {
@@ -296,7 +323,7 @@ impl<'a> GpuQuery<'a> {
                 &output,
                 count,
                 self.chunk,
-                mode,
+                args,
                 part,
             )?;
         }
@@ -407,8 +434,15 @@ impl<'a> GpuSdfEvaluator<'a> {
         let output = self
             .ctx
             .storage_buffer("hytrace values", &vec![0u8; size as usize], true);
-        self.kernel
-            .run(self.ctx, &scene, &input, &output, count, self.chunk, 0)?;
+        self.kernel.run(
+            self.ctx,
+            &scene,
+            &input,
+            &output,
+            count,
+            self.chunk,
+            KernelArgs::default(),
+        )?;
         let bytes = self.ctx.read_buffer(&output, size)?;
         Ok(bytemuck::pod_collect_to_vec(&bytes))
     }

@@ -29,8 +29,9 @@ gpu_struct! {
 
 gpu_struct! {
     /// One tape instruction as the GPU reads it: the bytes of [`crate::sdf::tape::Instr`],
-    /// whose first word packs `op | out << 8 | a << 16 | b << 24` (little-endian bytes) and
-    /// whose second is the immediate.
+    /// whose first word holds the operation and register bytes (at the bit positions
+    /// `INSTR_*_SHIFT` that `sdf::tape::wgsl_constants` generates from `Instr`) and whose
+    /// second is the immediate.
     pub struct InstrRecord(8) {
         /// Operation, destination and operand registers, a byte each.
         pub code: u32,
@@ -42,6 +43,7 @@ gpu_struct! {
 // The GPU buffer is the tape's instructions reinterpreted: same size, same bytes.
 const _: () =
     assert!(std::mem::size_of::<InstrRecord>() == std::mem::size_of::<crate::sdf::tape::Instr>());
+const _: () = assert!(std::mem::offset_of!(InstrRecord, imm) == crate::sdf::tape::INSTR_IMM_OFFSET);
 
 /// The GPU view of a tape's instructions (a copy of the same bytes).
 pub fn instr_records(instrs: &[crate::sdf::tape::Instr]) -> &[InstrRecord] {
@@ -324,16 +326,23 @@ gpu_struct! {
 
 gpu_struct! {
     /// Parameters of one chunk of a dispatch.
-    pub struct ChunkParams(16) {
+    pub struct ChunkParams(32) {
         /// First item of the chunk.
         pub first: u32,
         /// Items in the chunk.
         pub count: u32,
-        /// What to compute (`QUERY_*` bits) or, for tape evaluation and the field probe, the
-        /// object.
-        pub mode: u32,
         /// Which pass of a multi-pass kernel runs (the probe kernel); 0 otherwise.
         pub part: u32,
+        /// The query kernel: what to compute (`QUERY_*` bits).
+        pub queries: u32,
+        /// Tape evaluation and the field probe: the SDF object.
+        pub object: u32,
+        /// The probe kernel: the soft shadows' penumbra sharpness k.
+        pub penumbra_k: f32,
+        /// Padding to WGSL's 16-byte uniform alignment.
+        pub pad0: u32,
+        /// Padding.
+        pub pad1: u32,
     }
 }
 

@@ -5,8 +5,11 @@
 
 use super::context::GpuContext;
 use super::scene::{GpuScene, SceneData, scene_layout};
-use super::shade::{RenderPixel, RenderTile, ShadeCamera, ShadeLight, ShadeSettings, wgsl_prelude};
-use super::shaders::with_kernel;
+use super::shade::{
+    RenderPixel, RenderTile, ShadeCamera, ShadeLight, ShadeSettings, pass_bindings,
+    shading_bindings, wgsl_prelude,
+};
+use super::shaders::{bind_buffers, layout_entries, with_kernel};
 use crate::render::progressive::{PixelSums, SampleSums};
 use crate::render::{Framebuffer, RenderOptions, Tile};
 use crate::scene::Scene;
@@ -86,34 +89,13 @@ impl GpuRenderer {
             label: Some("render.wgsl"),
             source: wgpu::ShaderSource::Wgsl(render_shader_source().into()),
         });
-        let uniform = |binding| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Uniform,
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
-        let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
-        // binding numbers as declared at the top of render.wgsl
         let shading_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("render scene bindings"),
-            entries: &[uniform(0), storage(1, true)],
+            entries: &layout_entries(&shading_bindings()),
         });
         let passes_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("render pass bindings"),
-            entries: &[uniform(0), uniform(1), storage(2, false)],
+            entries: &layout_entries(&pass_bindings()),
         });
         let buffers_layout = scene_layout(ctx);
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -170,20 +152,12 @@ impl GpuRenderer {
             wgpu::BufferUsages::STORAGE,
         );
         // the bind group keeps its buffers alive
-        let bindings = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("render scene bindings"),
-            layout: &self.scene_layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: settings_buffer.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: light_buffer.as_entire_binding(),
-                },
-            ],
-        });
+        let bindings = bind_buffers(
+            &ctx.device,
+            "render scene bindings",
+            &self.scene_layout,
+            &[&settings_buffer, &light_buffer],
+        );
         Ok(PreparedScene {
             scene: gpu_scene,
             bindings,
@@ -344,24 +318,12 @@ impl GpuPasses {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
-        let bindings = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("render pass bindings"),
-            layout: &renderer.passes_layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: camera.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: tile.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: sums.as_entire_binding(),
-                },
-            ],
-        });
+        let bindings = bind_buffers(
+            device,
+            "render pass bindings",
+            &renderer.passes_layout,
+            &[&camera, &tile, &sums],
+        );
         Ok(GpuPasses {
             width,
             height,

@@ -25,7 +25,10 @@
 use super::GpuError;
 use super::context::GpuContext;
 use super::records::*;
-use super::shaders::{BindingKind, normals_code, scene_bindings, verdict_code, wrap_code};
+use super::shaders::{
+    BindingKind, bind_buffers, layout_entries, normals_code, scene_bindings, verdict_code,
+    wrap_code,
+};
 use crate::accel::SdfAccel;
 use crate::accel::bvh::{AabbBvh, FIRST_MASK, LEAF_BIT, WideNode, leaf_first};
 use crate::accel::field::{FieldOctree, LEAF};
@@ -475,27 +478,10 @@ fn supported(scene: &Scene) -> Result<(), GpuError> {
 
 /// The bind group layout of the scene buffers (group 0), the same for every scene.
 pub fn scene_layout(ctx: &GpuContext) -> wgpu::BindGroupLayout {
-    let entries: Vec<wgpu::BindGroupLayoutEntry> = scene_bindings()
-        .iter()
-        .enumerate()
-        .map(|(i, (_, kind, _))| wgpu::BindGroupLayoutEntry {
-            binding: i as u32,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: match kind {
-                    BindingKind::Uniform => wgpu::BufferBindingType::Uniform,
-                    BindingKind::Storage => wgpu::BufferBindingType::Storage { read_only: true },
-                },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        })
-        .collect();
     ctx.device
         .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("hytrace scene"),
-            entries: &entries,
+            entries: &layout_entries(&scene_bindings()),
         })
 }
 
@@ -528,21 +514,11 @@ impl GpuScene {
             buffers.push(match kind {
                 BindingKind::Uniform => ctx.uniform_buffer(name, bytes),
                 BindingKind::Storage => ctx.storage_buffer(name, bytes, false),
+                BindingKind::StorageReadWrite => ctx.storage_buffer(name, bytes, true),
             });
         }
-        let entries: Vec<wgpu::BindGroupEntry> = buffers
-            .iter()
-            .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry {
-                binding: i as u32,
-                resource: b.as_entire_binding(),
-            })
-            .collect();
-        let bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("hytrace scene"),
-            layout: &layout,
-            entries: &entries,
-        });
+        let refs: Vec<&wgpu::Buffer> = buffers.iter().collect();
+        let bind_group = bind_buffers(&ctx.device, "hytrace scene", &layout, &refs);
         Ok(GpuScene {
             bind_group,
             layout,

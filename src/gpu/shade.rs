@@ -2,8 +2,8 @@
 //! settings, the pixels being rendered and the per-pixel sums, as `#[repr(C)]` Pod structs whose
 //! WGSL twins (and the constants the shaders test against) are generated here.
 
-use crate::gpu::layout::WgslStruct;
-use crate::gpu::shaders::shadow_code;
+use crate::gpu::layout::{WgslStruct, WgslType};
+use crate::gpu::shaders::{BindingKind, Bindings, bindings_wgsl, shadow_code};
 use crate::render::RenderOptions;
 use crate::render::Tile;
 use crate::scene::camera::{Camera, Projection};
@@ -147,6 +147,40 @@ pub const LIGHT_AMBIENT: u32 = 2;
 /// (see `shade::integrator`), and one more keeps the bound obvious.
 pub const RENDER_STACK: u32 = MAX_BOUNCES + 2;
 
+/// The render kernel's group 1, what the scene fixes: its shading settings and lights.
+pub fn shading_bindings() -> Bindings {
+    vec![
+        (
+            "shade_settings",
+            BindingKind::Uniform,
+            ShadeSettings::wgsl_name(),
+        ),
+        (
+            "shade_lights",
+            BindingKind::Storage,
+            format!("array<{}>", ShadeLight::wgsl_name()),
+        ),
+    ]
+}
+
+/// The render kernel's group 2, one pass: the camera, the rectangle rendered and the sums it
+/// adds to.
+pub fn pass_bindings() -> Bindings {
+    vec![
+        (
+            "shade_camera",
+            BindingKind::Uniform,
+            ShadeCamera::wgsl_name(),
+        ),
+        ("render_tile", BindingKind::Uniform, RenderTile::wgsl_name()),
+        (
+            "render_pixels",
+            BindingKind::StorageReadWrite,
+            format!("array<{}>", RenderPixel::wgsl_name()),
+        ),
+    ]
+}
+
 /// The WGSL declarations of this module's structs and constants, generated from the Rust ones.
 pub fn wgsl_prelude() -> String {
     let mut s =
@@ -160,6 +194,9 @@ pub fn wgsl_prelude() -> String {
     ] {
         s += &decl;
     }
+    // group 1: what the scene fixes; group 2: the view and the sums it accumulates into
+    s += &bindings_wgsl(1, &shading_bindings());
+    s += &bindings_wgsl(2, &pass_bindings());
     for (name, value) in [
         ("PROJECTION_PERSPECTIVE", PROJECTION_PERSPECTIVE),
         ("PROJECTION_ORTHOGRAPHIC", PROJECTION_ORTHOGRAPHIC),

@@ -43,9 +43,9 @@ pub const HIT_SDF: u32 = 1;
 /// A mesh instance was hit.
 pub const HIT_MESH: u32 = 2;
 
-/// `ChunkParams.mode` bit of the query kernel: compute the closest hit.
+/// `ChunkParams.queries` bit of the query kernel: compute the closest hit.
 pub const QUERY_CLOSEST: u32 = 1;
-/// `ChunkParams.mode` bit of the query kernel: compute occlusion.
+/// `ChunkParams.queries` bit of the query kernel: compute occlusion.
 pub const QUERY_OCCLUDED: u32 = 2;
 
 /// The number a shadow kind has in WGSL (`SHADOW_*`) and its sharpness k.
@@ -84,19 +84,86 @@ pub fn wrap_code(wrap: Wrap) -> u32 {
     }
 }
 
-/// How a scene buffer is bound.
+/// How a buffer is bound.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum BindingKind {
     /// `var<uniform>`.
     Uniform,
     /// `var<storage, read>`.
     Storage,
+    /// `var<storage, read_write>`.
+    StorageReadWrite,
+}
+
+/// A bind group's buffers in binding order: (WGSL name, kind, WGSL type). The WGSL
+/// declarations ([`bindings_wgsl`]) and the host's layout ([`layout_entries`]) are both made
+/// from one such list, so binding numbers are never written by hand.
+pub type Bindings = Vec<(&'static str, BindingKind, String)>;
+
+/// The WGSL declarations of `bindings` as group `group`.
+pub fn bindings_wgsl(group: u32, bindings: &Bindings) -> String {
+    let mut s = String::new();
+    for (i, (name, kind, ty)) in bindings.iter().enumerate() {
+        let space = match kind {
+            BindingKind::Uniform => "uniform",
+            BindingKind::Storage => "storage, read",
+            BindingKind::StorageReadWrite => "storage, read_write",
+        };
+        s += &format!("@group({group}) @binding({i}) var<{space}> {name}: {ty};\n");
+    }
+    s
+}
+
+/// The compute-stage layout entries of `bindings`, numbered as [`bindings_wgsl`] numbers them.
+pub fn layout_entries(bindings: &Bindings) -> Vec<wgpu::BindGroupLayoutEntry> {
+    bindings
+        .iter()
+        .enumerate()
+        .map(|(i, (_, kind, _))| wgpu::BindGroupLayoutEntry {
+            binding: i as u32,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: match kind {
+                    BindingKind::Uniform => wgpu::BufferBindingType::Uniform,
+                    BindingKind::Storage => wgpu::BufferBindingType::Storage { read_only: true },
+                    BindingKind::StorageReadWrite => {
+                        wgpu::BufferBindingType::Storage { read_only: false }
+                    }
+                },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        })
+        .collect()
+}
+
+/// A bind group of `buffers`, given in the order of the list `layout` was made from.
+pub fn bind_buffers(
+    device: &wgpu::Device,
+    label: &str,
+    layout: &wgpu::BindGroupLayout,
+    buffers: &[&wgpu::Buffer],
+) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry> = buffers
+        .iter()
+        .enumerate()
+        .map(|(i, b)| wgpu::BindGroupEntry {
+            binding: i as u32,
+            resource: b.as_entire_binding(),
+        })
+        .collect();
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some(label),
+        layout,
+        entries: &entries,
+    })
 }
 
 /// The scene buffers of bind group 0 in binding order: (name, kind, WGSL type). The host
 /// creates its buffers in this order ([`crate::gpu::scene::GpuScene`]) and the prelude
 /// declares them from the same list.
-pub fn scene_bindings() -> Vec<(&'static str, BindingKind, String)> {
+pub fn scene_bindings() -> Bindings {
     use BindingKind::*;
     let array = |t: String| format!("array<{t}>");
     vec![
@@ -246,13 +313,7 @@ pub fn wgsl_prelude() -> String {
     }
     s += &material_wgsl();
     s += "\n";
-    for (i, (name, kind, ty)) in scene_bindings().iter().enumerate() {
-        let space = match kind {
-            BindingKind::Uniform => "uniform",
-            BindingKind::Storage => "storage, read",
-        };
-        s += &format!("@group(0) @binding({i}) var<{space}> {name}: {ty};\n");
-    }
+    s += &bindings_wgsl(0, &scene_bindings());
     s += "// ---- end of generated prelude ----\n\n";
     s
 }

@@ -215,8 +215,9 @@ pub fn apply<L: Lanes>(op: Op, a: L, b: L, c: L, imm: f32) -> L {
     }
 }
 
-/// One tape instruction; mirrors `struct Instr` in `shaders/tape.wgsl`, which reads the four
-/// bytes of the first word as `op | out << 8 | a << 16 | b << 24`.
+/// One tape instruction. The GPU reads the same bytes as two `u32` words (`InstrRecord` in
+/// `crate::gpu::records`): the byte fields' positions in the first word are generated from
+/// this declaration ([`wgsl_constants`]: `INSTR_*_SHIFT`), so the field order is stated once.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Pod, Zeroable)]
 pub struct Instr {
@@ -227,6 +228,19 @@ pub struct Instr {
     imm: u32,
 }
 const _: () = assert!(std::mem::size_of::<Instr>() == 8);
+// WGSL storage buffers are little-endian: the byte at offset k of the first word is its bits
+// 8k..8k+8 only on a little-endian host.
+#[cfg(not(target_endian = "little"))]
+compile_error!("the GPU reads tape instructions as little-endian words");
+// The byte fields fill the first word, the immediate is the second.
+const _: () = assert!(
+    std::mem::offset_of!(Instr, op) < 4
+        && std::mem::offset_of!(Instr, out) < 4
+        && std::mem::offset_of!(Instr, a) < 4
+        && std::mem::offset_of!(Instr, b) < 4
+);
+/// Byte offset of an instruction's immediate (the GPU record's second word).
+pub const INSTR_IMM_OFFSET: usize = std::mem::offset_of!(Instr, imm);
 
 impl Instr {
     /// An instruction; only [`crate::sdf::ssa`]'s register allocator makes them, so that a
@@ -511,5 +525,14 @@ pub fn wgsl_constants() -> String {
         MAX_MATERIAL_REGISTERS
     );
     s += &format!("const MATERIAL_FLOATS: u32 = {}u;\n", MATERIAL_FLOATS);
+    // bit positions of the byte fields in an instruction's first word
+    for (name, offset) in [
+        ("OP", std::mem::offset_of!(Instr, op)),
+        ("OUT", std::mem::offset_of!(Instr, out)),
+        ("A", std::mem::offset_of!(Instr, a)),
+        ("B", std::mem::offset_of!(Instr, b)),
+    ] {
+        s += &format!("const INSTR_{name}_SHIFT: u32 = {}u;\n", 8 * offset);
+    }
     s
 }
