@@ -13,6 +13,7 @@ use hytrace::reference::embree::{
     DEFAULT_MESH_RESOLUTION, EmbreeScene, ReferenceOptions, SdfCheck,
 };
 use hytrace::reference::mesher::{MeshOptions, mesh_sdf};
+use hytrace::reference::validate::{mesh_dt_tolerance, sdf_dt_tolerance};
 use hytrace::rng::Rng;
 use hytrace::scene::{Light, Scene};
 use hytrace::trace::query::{ObjectId, QueryHit, RayQuery};
@@ -378,15 +379,14 @@ fn compare(scene: &Scene, candidate: &dyn RayQuery, referee: &EmbreeScene, seed:
             (Some(x), Some(y)) => {
                 let tol = match y.object {
                     ObjectId::Sdf(_) => {
-                        let e = epsilon_at(s, y.t);
                         let n = if x.object == y.object {
                             x.normal
                         } else {
                             y.normal
                         };
-                        (10.0 * e).max((2.0 * e + tau(y.object)) / n.dot(ray.direction).abs())
+                        sdf_dt_tolerance(s, y.t, n.dot(ray.direction).abs(), tau(y.object))
                     }
-                    ObjectId::MeshInstance(_) => 1e-4 * diameter,
+                    ObjectId::MeshInstance(_) => mesh_dt_tolerance(diameter),
                 };
                 let d = (x.t - y.t).abs();
                 // The candidate stopped short on the same object: a sphere tracer's near miss

@@ -12,6 +12,7 @@
 use glam::Vec3;
 use hytrace::geom::{Aabb, Ray};
 use hytrace::gpu::{GpuContext, GpuQuery, GpuSdfEvaluator};
+use hytrace::reference::validate::{mesh_dt_tolerance, sdf_dt_tolerance};
 use hytrace::rng::Rng;
 use hytrace::scene::{Light, Scene};
 use hytrace::trace::query::{ObjectId, QueryHit, RayQuery};
@@ -155,10 +156,9 @@ fn compare(name: &str, scene: &Scene, seed: u64) -> Agreement {
                 a.both_hit += 1;
                 let tol = match x.object {
                     ObjectId::Sdf(_) => {
-                        let e = epsilon_at(s, x.t);
-                        (10.0 * e).max(2.0 * e / x.normal.dot(ray.direction).abs())
+                        sdf_dt_tolerance(s, x.t, x.normal.dot(ray.direction).abs(), 0.0)
                     }
-                    ObjectId::MeshInstance(_) => 1e-4 * diameter,
+                    ObjectId::MeshInstance(_) => mesh_dt_tolerance(diameter),
                 };
                 let d = (x.t - y.t).abs();
                 if x.object != y.object {

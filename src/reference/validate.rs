@@ -74,6 +74,28 @@ pub const MESH_AGREEMENT: f64 = 0.9999;
 pub const MESH_DT_OF_DIAMETER: f32 = 1e-4;
 /// Least hit/miss agreement on analytic-SDF rays.
 pub const SDF_AGREEMENT: f64 = 0.999;
+
+/// How far apart two tracers' hit distances on one SDF surface may be: a sphere tracer stops
+/// within ε(t) of the surface, up to ε(t)/|n·d| before it along the ray (Hart 1996), so two
+/// of them may differ by twice that; a surface the referee holds only to within `tau` (a
+/// mesh of the field, whose facets stand up to `tau` off it) adds `tau/|n·d|`; and 10·ε(t)
+/// is allowed in any case. `cos` is |n·d| at the hit (clamped away from 0). The one formula
+/// of `validate`, the Embree reference tests and the GPU tests.
+pub fn sdf_dt_tolerance(
+    settings: &crate::scene::TracerSettings,
+    t: f32,
+    cos: f32,
+    tau: f32,
+) -> f32 {
+    let e = epsilon_at(settings, t);
+    (10.0 * e).max((2.0 * e + tau) / cos.max(1e-6))
+}
+
+/// How far apart two tracers' hit distances on one triangle may be: [`MESH_DT_OF_DIAMETER`]
+/// of the scene's diameter (both are watertight ray–triangle tests in f32).
+pub fn mesh_dt_tolerance(diameter: f32) -> f32 {
+    MESH_DT_OF_DIAMETER * diameter
+}
 /// Least agreement of shadow rays.
 pub const SHADOW_AGREEMENT: f64 = 0.999;
 
@@ -883,7 +905,7 @@ where
     }
     let settings = &scene.tracer;
     let diameter = scene_bounds(scene).diagonal();
-    let mesh_tol = MESH_DT_OF_DIAMETER * diameter;
+    let mesh_tol = mesh_dt_tolerance(diameter);
     let tmax = settings.max_distance;
     let kind_of = |object: ObjectId| match object {
         ObjectId::MeshInstance(_) => Kind::Mesh,
@@ -925,12 +947,11 @@ where
     };
     // The |Δt| tolerance at the referee's hit (see the module documentation).
     let tolerance = |hit: &QueryHit, ray: &Ray| {
-        let e = epsilon_at(settings, hit.t);
-        let cos = hit.normal.dot(ray.direction).abs().max(1e-6);
+        let cos = hit.normal.dot(ray.direction).abs();
         match kind_of(hit.object) {
             Kind::Mesh => mesh_tol,
-            Kind::AnalyticSdf => (10.0 * e).max(2.0 * e / cos),
-            Kind::MeshedSdf => (10.0 * e).max((meshed_tolerance(hit.object) + 2.0 * e) / cos),
+            Kind::AnalyticSdf => sdf_dt_tolerance(settings, hit.t, cos, 0.0),
+            Kind::MeshedSdf => sdf_dt_tolerance(settings, hit.t, cos, meshed_tolerance(hit.object)),
             Kind::UncheckedSdf => f32::INFINITY,
         }
     };
@@ -1024,9 +1045,8 @@ where
     // at tmax exactly) does not see. Such a hit agrees when the referee finds the same object
     // within tolerance on the ray extended by that tolerance.
     let beyond_the_end = |x: &QueryHit, ray: &Ray| {
-        let e = epsilon_at(settings, x.t);
         let cos = x.normal.dot(ray.direction).abs().max(1e-6);
-        let reach = (10.0 * e).max(2.0 * e / cos) + meshed_tolerance(x.object) / cos;
+        let reach = sdf_dt_tolerance(settings, x.t, cos, 0.0) + meshed_tolerance(x.object) / cos;
         if x.t + reach <= tmax {
             return None;
         }
