@@ -1,9 +1,7 @@
 // The tape evaluation kernel: the distance tape of object `chunk.object` at every point of one
 // chunk (the GPU side of the SDF conformance suite).
-
-@group(1) @binding(0) var<storage, read> eval_points: array<vec4<f32>>;
-@group(1) @binding(1) var<storage, read_write> eval_values: array<f32>;
-@group(1) @binding(2) var<uniform> chunk: ChunkParams;
+// Group 1 (eval_points, eval_values, chunk) is declared by the generated code of KernelSource::io
+// (src/gpu/shaders.rs).
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn eval_main(@builtin(global_invocation_id) id: vec3<u32>) {

@@ -2,10 +2,8 @@
 // origin (field_eval, field_locate) and the leaves the octree walk meets over the ray's
 // interval (field_walk_begin, field_next_leaf), so that tests can compare them with
 // FieldOctree::locate, the CPU's leaf tapes and RayWalk.
-
-@group(1) @binding(0) var<storage, read> field_probe_rays: array<QueryRay>;
-@group(1) @binding(1) var<storage, read_write> field_probe_results: array<FieldProbeResult>;
-@group(1) @binding(2) var<uniform> chunk: ChunkParams;
+// Group 1 (field_probe_rays, field_probe_results, chunk) is declared by the generated code of KernelSource::io
+// (src/gpu/shaders.rs).
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn field_probe_main(@builtin(global_invocation_id) id: vec3<u32>) {

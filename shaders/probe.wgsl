@@ -1,10 +1,8 @@
 // The probe kernel: the scene queries shading builds on (scene_material, scene_exit,
 // scene_visibility, scene_distance), evaluated per ray so tests can compare them with the CPU.
 // `chunk.penumbra_k` is the penumbra sharpness k, `chunk.part` the query of this pass.
-
-@group(1) @binding(0) var<storage, read> probe_rays: array<QueryRay>;
-@group(1) @binding(1) var<storage, read_write> probe_results: array<ProbeResult>;
-@group(1) @binding(2) var<uniform> chunk: ChunkParams;
+// Group 1 (probe_rays, probe_results, chunk) is declared by the generated code of KernelSource::io
+// (src/gpu/shaders.rs).
 
 fn material_lanes(m: Material) -> array<vec4<f32>, 3> {
     var l: array<vec4<f32>, 3>;

@@ -1,9 +1,7 @@
 // The batch ray-query kernel: closest hit and/or occlusion for each ray of one chunk
 // (src/gpu/query.rs dispatches a batch in chunks so that no dispatch runs long).
-
-@group(1) @binding(0) var<storage, read> query_rays: array<QueryRay>;
-@group(1) @binding(1) var<storage, read_write> query_results: array<QueryResult>;
-@group(1) @binding(2) var<uniform> chunk: ChunkParams;
+// Group 1 (query_rays, query_results, chunk) is declared by the generated code of KernelSource::io
+// (src/gpu/shaders.rs).
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn query_main(@builtin(global_invocation_id) id: vec3<u32>) {

@@ -801,7 +801,7 @@ fn field_octrees_locate_evaluate_and_walk_as_on_the_cpu() {
     let cpu = SceneTracer::new(&scene);
     let gpu = GpuQuery::with_tracer(ctx(), &cpu).unwrap();
     let rays = field_rays(cpu.fields()[i].octree.as_ref().unwrap(), 5);
-    let source = hytrace::gpu::shaders::with_kernel(hytrace::gpu::shaders::FIELD_PROBE_WGSL);
+    let source = hytrace::gpu::shaders::FIELD_PROBE_KERNEL.module();
     for (what, from, to) in [
         (
             "mirroring ignored",

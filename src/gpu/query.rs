@@ -7,8 +7,8 @@ use super::context::GpuContext;
 use super::records::{ChunkParams, FieldProbeResult, ProbeResult, QueryRay, QueryResult};
 use super::scene::{GpuScene, SceneData, scene_layout};
 use super::shaders::{
-    EVAL_WGSL, FIELD_PROBE_WGSL, HIT_MESH, HIT_SDF, PROBE_WGSL, QUERY_CLOSEST, QUERY_OCCLUDED,
-    QUERY_WGSL, WORKGROUP_SIZE, with_kernel,
+    EVAL_KERNEL, FIELD_PROBE_KERNEL, HIT_MESH, HIT_SDF, KernelSource, PROBE_KERNEL, QUERY_CLOSEST,
+    QUERY_KERNEL, QUERY_OCCLUDED, WORKGROUP_SIZE, layout_entries,
 };
 use crate::geom::Ray;
 use crate::scene::Scene;
@@ -45,39 +45,25 @@ pub struct Kernel {
 const PROBE_PASSES: u32 = 4;
 
 impl Kernel {
-    /// Compiles `kernel` (appended to the scene library) with entry point `entry`.
-    pub fn new(ctx: &GpuContext, name: &str, kernel: &str, entry: &str) -> Result<Self, GpuError> {
-        Self::from_source(ctx, name, &with_kernel(kernel), entry)
+    /// Compiles a kernel over the scene library.
+    pub fn new(ctx: &GpuContext, kernel: &KernelSource) -> Result<Self, GpuError> {
+        Self::from_source(ctx, kernel, &kernel.module())
     }
 
-    /// Compiles a complete module (the scene library and a kernel, as [`with_kernel`] gives
-    /// them, perhaps altered: tests check that a broken library is caught).
+    /// Compiles `kernel` from a complete module (as [`KernelSource::module`] gives it, perhaps
+    /// altered: tests check that a broken library is caught).
     pub fn from_source(
         ctx: &GpuContext,
-        name: &str,
+        kernel: &KernelSource,
         source: &str,
-        entry: &str,
     ) -> Result<Self, GpuError> {
+        let (name, entry) = (kernel.file, kernel.entry);
         let scene_layout = scene_layout(ctx);
-        let buffer = |binding, ty| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty,
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
         let io_layout = ctx
             .device
             .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
                 label: Some(name),
-                entries: &[
-                    buffer(0, wgpu::BufferBindingType::Storage { read_only: true }),
-                    buffer(1, wgpu::BufferBindingType::Storage { read_only: false }),
-                    buffer(2, wgpu::BufferBindingType::Uniform),
-                ],
+                entries: &layout_entries(&kernel.io()),
             });
         let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = ctx
@@ -220,7 +206,7 @@ impl<'a> GpuQuery<'a> {
         Ok(GpuQuery {
             ctx,
             scene: GpuScene::new(ctx, data)?,
-            kernel: Kernel::new(ctx, "query.wgsl", QUERY_WGSL, "query_main")?,
+            kernel: Kernel::new(ctx, &QUERY_KERNEL)?,
             chunk: DEFAULT_CHUNK,
             objects: data.objects.len() as u32,
         })
@@ -250,7 +236,7 @@ impl<'a> GpuQuery<'a> {
     /// Runs the probe kernel (`shaders/probe.wgsl`: material, exit, soft visibilities with
     /// sharpness `k`, distance) over rays; compiles it on each call.
     pub fn probe(&self, rays: &[QueryRay], k: f32) -> Result<Vec<ProbeResult>, GpuError> {
-        let kernel = Kernel::new(self.ctx, "probe.wgsl", PROBE_WGSL, "probe_main")?;
+        let kernel = Kernel::new(self.ctx, &PROBE_KERNEL)?;
         // One pass per query, each its own dispatch: with all queries in one invocation,
         // lavapipe (Mesa 22.3) returned wrong values for some lanes on glass.ron — the same
         // driver trouble the render kernel met with several samples per invocation.
@@ -269,7 +255,7 @@ impl<'a> GpuQuery<'a> {
         rays: &[QueryRay],
         object: u32,
     ) -> Result<Vec<FieldProbeResult>, GpuError> {
-        self.field_probe_source(&with_kernel(FIELD_PROBE_WGSL), rays, object)
+        self.field_probe_source(&FIELD_PROBE_KERNEL.module(), rays, object)
     }
 
     /// [`GpuQuery::field_probe`] with the module compiled from `source` (the library and the
@@ -286,7 +272,7 @@ impl<'a> GpuQuery<'a> {
                 self.objects
             )));
         }
-        let kernel = Kernel::from_source(self.ctx, "field_probe.wgsl", source, "field_probe_main")?;
+        let kernel = Kernel::from_source(self.ctx, &FIELD_PROBE_KERNEL, source)?;
         let args = KernelArgs {
             object,
             ..Default::default()
@@ -412,7 +398,7 @@ impl<'a> GpuSdfEvaluator<'a> {
     pub fn new(ctx: &'a GpuContext) -> Result<Self, GpuError> {
         Ok(GpuSdfEvaluator {
             ctx,
-            kernel: Kernel::new(ctx, "eval.wgsl", EVAL_WGSL, "eval_main")?,
+            kernel: Kernel::new(ctx, &EVAL_KERNEL)?,
             chunk: DEFAULT_CHUNK,
         })
     }

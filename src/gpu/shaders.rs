@@ -22,16 +22,80 @@ pub const SDF_WGSL: &str = include_str!("../../shaders/sdf.wgsl");
 pub const MESH_WGSL: &str = include_str!("../../shaders/mesh.wgsl");
 /// The hybrid scene queries (`SceneTracer`).
 pub const SCENE_WGSL: &str = include_str!("../../shaders/scene.wgsl");
-/// The batch query kernel ([`crate::gpu::query::GpuQuery`]).
-pub const QUERY_WGSL: &str = include_str!("../../shaders/query.wgsl");
-/// The tape evaluation kernel ([`crate::gpu::query::GpuSdfEvaluator`]).
-pub const EVAL_WGSL: &str = include_str!("../../shaders/eval.wgsl");
+/// A compute kernel over the scene library: its file and entry point, and its group 1 (an
+/// input array, an output array, the chunk parameters), declared for WGSL and for the host
+/// from one list ([`KernelSource::io`]).
+#[derive(Debug, Clone, Copy)]
+pub struct KernelSource {
+    /// File name under `shaders/`.
+    pub file: &'static str,
+    /// Its text.
+    pub wgsl: &'static str,
+    /// The `@compute` entry point.
+    pub entry: &'static str,
+    /// (name, WGSL element type) of the input and of the output array.
+    pub input: (&'static str, fn() -> String),
+    /// See [`KernelSource::input`].
+    pub output: (&'static str, fn() -> String),
+}
 
+impl KernelSource {
+    /// Group 1: the input, the output, `chunk`.
+    pub fn io(&self) -> Bindings {
+        vec![
+            (
+                self.input.0,
+                BindingKind::Storage,
+                format!("array<{}>", (self.input.1)()),
+            ),
+            (
+                self.output.0,
+                BindingKind::StorageReadWrite,
+                format!("array<{}>", (self.output.1)()),
+            ),
+            ("chunk", BindingKind::Uniform, ChunkParams::wgsl_name()),
+        ]
+    }
+
+    /// The whole module: the scene library, group 1, the kernel.
+    pub fn module(&self) -> String {
+        with_kernel(&(bindings_wgsl(1, &self.io()) + self.wgsl))
+    }
+}
+
+/// The batch query kernel ([`crate::gpu::query::GpuQuery`]).
+pub const QUERY_KERNEL: KernelSource = KernelSource {
+    file: "query.wgsl",
+    wgsl: include_str!("../../shaders/query.wgsl"),
+    entry: "query_main",
+    input: ("query_rays", QueryRay::wgsl_name),
+    output: ("query_results", QueryResult::wgsl_name),
+};
+/// The tape evaluation kernel ([`crate::gpu::query::GpuSdfEvaluator`]).
+pub const EVAL_KERNEL: KernelSource = KernelSource {
+    file: "eval.wgsl",
+    wgsl: include_str!("../../shaders/eval.wgsl"),
+    entry: "eval_main",
+    input: ("eval_points", <[f32; 4]>::wgsl_name),
+    output: ("eval_values", f32::wgsl_name),
+};
 /// The probe kernel: shading's scene queries per ray, for tests against the CPU.
-pub const PROBE_WGSL: &str = include_str!("../../shaders/probe.wgsl");
+pub const PROBE_KERNEL: KernelSource = KernelSource {
+    file: "probe.wgsl",
+    wgsl: include_str!("../../shaders/probe.wgsl"),
+    entry: "probe_main",
+    input: ("probe_rays", QueryRay::wgsl_name),
+    output: ("probe_results", ProbeResult::wgsl_name),
+};
 /// The field probe kernel: point location and the octree walk per ray, for tests against the
 /// CPU.
-pub const FIELD_PROBE_WGSL: &str = include_str!("../../shaders/field_probe.wgsl");
+pub const FIELD_PROBE_KERNEL: KernelSource = KernelSource {
+    file: "field_probe.wgsl",
+    wgsl: include_str!("../../shaders/field_probe.wgsl"),
+    entry: "field_probe_main",
+    input: ("field_probe_rays", QueryRay::wgsl_name),
+    output: ("field_probe_results", FieldProbeResult::wgsl_name),
+};
 
 /// Threads per workgroup of the compute kernels (1-D).
 pub const WORKGROUP_SIZE: u32 = 64;
@@ -330,20 +394,18 @@ pub fn scene_library() -> String {
     s
 }
 
-/// The library followed by a kernel source (a `@compute` entry point and its group-1
-/// bindings).
+/// The library followed by a kernel source (a `@compute` entry point, after the declarations
+/// of its other bind groups: [`KernelSource::module`], `gpu::render::render_shader_source`).
 pub fn with_kernel(kernel: &str) -> String {
     scene_library() + kernel
 }
 
 /// Every shader module the crate builds, by name (validated with naga in the tests).
 pub fn all_modules() -> Vec<(&'static str, String)> {
-    vec![
-        ("query.wgsl", with_kernel(QUERY_WGSL)),
-        ("eval.wgsl", with_kernel(EVAL_WGSL)),
-        ("probe.wgsl", with_kernel(PROBE_WGSL)),
-        ("field_probe.wgsl", with_kernel(FIELD_PROBE_WGSL)),
-    ]
+    [QUERY_KERNEL, EVAL_KERNEL, PROBE_KERNEL, FIELD_PROBE_KERNEL]
+        .iter()
+        .map(|k| (k.file, k.module()))
+        .collect()
 }
 
 #[cfg(test)]
