@@ -2,20 +2,8 @@
 //! (the peer section's too when built with the `fidget` feature).
 //! Only the shape of the report is checked, never a time (speed is measured, not tested).
 
-use std::path::PathBuf;
-use std::process::Command;
-
-fn assets() -> PathBuf {
-    std::env::var_os("HYTRACE_ASSETS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/assets"))
-}
-
-fn hytrace() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_hytrace"));
-    c.current_dir(env!("CARGO_MANIFEST_DIR"));
-    c
-}
+mod common;
+use common::{assets, hytrace};
 
 #[test]
 fn quick_bench_writes_tables_and_json() {

@@ -6,9 +6,11 @@
 //! (`HYTRACE_ASSETS` defaults to `../shared/assets` beside the crate); when it is missing the
 //! test says so loudly, and fails under `CI=true`.
 
+mod common;
+
 use std::collections::HashMap;
 use std::ops::ControlFlow;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use glam::{Affine3A, Quat, Vec3};
 use hytrace::accel::bvh::{
@@ -223,10 +225,7 @@ fn random_soups_match_brute_force_for_every_quality() {
 // Watertightness on the bunny.
 
 fn assets_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("HYTRACE_ASSETS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets"));
-    Some(dir)
+    Some(common::assets())
 }
 
 /// The bunny as (positions, triangles), or `None` (after a loud message; a panic under

@@ -9,6 +9,9 @@
 //! Figures are printed (run with `--nocapture` to see them).
 #![cfg(feature = "gpu")]
 
+mod common;
+use common::assets;
+
 use glam::Vec3;
 use hytrace::geom::{Aabb, Ray};
 use hytrace::gpu::{GpuContext, GpuQuery, GpuSdfEvaluator};
@@ -288,12 +291,6 @@ fn every_shipped_scene_agrees_with_the_cpu() {
         let a = compare(&name, &scene, 100 + k as u64);
         check(&name, &a);
     }
-}
-
-fn assets() -> PathBuf {
-    std::env::var_os("HYTRACE_ASSETS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets"))
 }
 
 #[test]

@@ -7,6 +7,8 @@
 //! `mesa-vulkan-drivers`, installed by scripts/setup.sh). A missing adapter fails them.
 #![cfg(feature = "gpu")]
 
+mod common;
+
 use hytrace::geom::Ray;
 use hytrace::gpu::context::GpuContext;
 use hytrace::gpu::render::GpuRenderer;
@@ -74,22 +76,7 @@ fn options(samples: u32) -> RenderOptions {
 
 /// The shared third-party assets, or None (loudly) outside CI when they are missing.
 fn assets() -> Option<PathBuf> {
-    let dir = std::env::var_os("HYTRACE_ASSETS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets"));
-    if dir.is_dir() {
-        return Some(dir);
-    }
-    eprintln!(
-        "!!! shared assets not found at {}: scenes using them NOT RUN !!!",
-        dir.display()
-    );
-    assert!(
-        std::env::var("CI").as_deref() != Ok("true"),
-        "CI must have the shared assets at {}",
-        dir.display()
-    );
-    None
+    common::assets_or_skip("the scenes using them")
 }
 
 /// The tone-mapped 8-bit sRGB picture of a render, as `hytrace render` writes it.

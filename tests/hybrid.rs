@@ -1,6 +1,8 @@
 //! Meshes and SDFs in one scene: shadows cast both ways, the SDF BVH against the linear scan,
 //! and the hybrid showcase on the real assets.
 
+mod common;
+
 use glam::Vec3;
 use hytrace::geom::Ray;
 use hytrace::render::{Framebuffer, RenderOptions};
@@ -184,22 +186,7 @@ fn sdf_bvh_gives_the_same_image_as_the_linear_scan() {
 }
 
 fn assets() -> Option<PathBuf> {
-    let dir = std::env::var_os("HYTRACE_ASSETS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets"));
-    if dir.is_dir() {
-        return Some(dir);
-    }
-    eprintln!(
-        "!!! shared assets not found at {}: hybrid showcase test NOT RUN !!!",
-        dir.display()
-    );
-    assert!(
-        std::env::var("CI").as_deref() != Ok("true"),
-        "CI must have the shared assets at {}",
-        dir.display()
-    );
-    None
+    common::assets_or_skip("the hybrid showcase test")
 }
 
 #[test]

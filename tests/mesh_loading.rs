@@ -7,6 +7,8 @@
 //! glTF JSON walked with the `gltf` crate's document API (and its own accessor reader for
 //! bounds), OBJ face lines counted in the text, PLY files written here.
 
+mod common;
+
 use glam::{DMat4, DVec3, Mat4, Vec2, Vec3, Vec4};
 use hytrace::scene::mesh::{
     CameraProjection, LightKind, MeshAsset, MeshError, Texture, Wrap, load,
@@ -79,10 +81,7 @@ fn required_dir(path: PathBuf, what: &str) -> Option<PathBuf> {
 }
 
 fn assets_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("HYTRACE_ASSETS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets"));
-    required_dir(dir, "the shared assets ($HYTRACE_ASSETS)")
+    required_dir(common::assets(), "the shared assets ($HYTRACE_ASSETS)")
 }
 
 fn assimp_dir() -> Option<PathBuf> {

@@ -5,6 +5,9 @@
 //! conversion). Runs with `--features fidget`.
 #![cfg(feature = "fidget")]
 
+mod common;
+use common::assets;
+
 use fidget::vm::VmShape;
 use hytrace::bench::peer::{
     self,
@@ -14,7 +17,7 @@ use hytrace::rng::Rng;
 use hytrace::scene::Scene;
 use hytrace::sdf::ssa::{Builder, SsaTape};
 use hytrace::sdf::tape::{Op, Shape, Tape};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// |b − a| / (1 + |a|), NaN on one side only infinitely wrong.
 fn relative(a: f32, b: f32) -> f32 {
@@ -131,12 +134,6 @@ fn select_takes_the_right_branch_at_zero_values() {
         [3.0, 2.0, 0.0],
     ];
     assert_eq!(worst(&tape, &points).0, 0.0);
-}
-
-fn assets() -> PathBuf {
-    std::env::var_os("HYTRACE_ASSETS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/assets"))
 }
 
 /// The shipped scenes and the peer section's generated models.

@@ -7,6 +7,8 @@
 //! the tables are printed (run with `--nocapture`).
 #![cfg(feature = "embree")]
 
+mod common;
+
 use glam::Vec3;
 use hytrace::geom::Ray;
 use hytrace::reference::embree::EmbreeScene;
@@ -47,22 +49,7 @@ fn temp_dir(name: &str) -> PathBuf {
 /// The shared third-party models (`$HYTRACE_ASSETS`, default ../shared/assets). Missing: an
 /// error under CI=true, a loud message otherwise.
 fn assets(test: &str) -> Option<PathBuf> {
-    let dir = std::env::var_os("HYTRACE_ASSETS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| root().join("../shared/assets"));
-    if dir.is_dir() {
-        return Some(dir);
-    }
-    eprintln!(
-        "!!! shared assets not found at {}: {test} NOT RUN !!!",
-        dir.display()
-    );
-    assert!(
-        std::env::var("CI").as_deref() != Ok("true"),
-        "CI must have the shared assets at {}",
-        dir.display()
-    );
-    None
+    common::assets_or_skip(test)
 }
 
 /// Validates and prints the table; the report.

@@ -6,6 +6,9 @@
 //! Xvfb and xdotool come from `scripts/setup.sh`; when either is missing the tests fail and
 //! say so (they never skip).
 
+mod common;
+use common::assets;
+
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -21,12 +24,6 @@ fn hytrace() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_hytrace"));
     c.env("HYTRACE_ASSETS", assets());
     c
-}
-
-fn assets() -> PathBuf {
-    std::env::var_os("HYTRACE_ASSETS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets"))
 }
 
 /// A virtual X server on a display number of its own, stopped on drop.
