@@ -47,8 +47,11 @@ use wide::{Frustum, NodeRay, PACKET, PacketLeaf};
 
 // The trees' own layout, for the GPU's walker (`crate::gpu::scene` uploads these very nodes
 // and leaf blocks, so both backends traverse one structure).
+#[cfg(feature = "gpu")]
 pub(crate) use leaf::Leaves;
-pub(crate) use wide::{FIRST_MASK, LEAF_BIT, WIDEN, WideNode, leaf_first};
+pub(crate) use wide::WideNode;
+#[cfg(feature = "gpu")]
+pub(crate) use wide::{FIRST_MASK, LEAF_BIT, WIDEN, leaf_first};
 
 pub use crate::scene::file::BuildQuality;
 
@@ -408,11 +411,13 @@ impl MeshBvh {
 
     /// The nodes as the walk reads them (root at 0; none for an empty mesh); leaf children
     /// point at blocks of [`MeshBvh::leaf_blocks`].
+    #[cfg(feature = "gpu")]
     pub(crate) fn wide_nodes(&self) -> &[WideNode] {
         &self.nodes
     }
 
     /// The triangles in the leaves' blocks, with the mesh's index of each.
+    #[cfg(feature = "gpu")]
     pub(crate) fn leaf_blocks(&self) -> &Leaves {
         &self.leaves
     }
@@ -1068,17 +1073,20 @@ impl InstanceBvh {
 
     /// The nodes as the walk reads them (root at 0; none without instances); a leaf child's
     /// range indexes [`InstanceBvh::leaf_instances`].
+    #[cfg(feature = "gpu")]
     pub(crate) fn wide_nodes(&self) -> &[WideNode] {
         &self.nodes
     }
 
     /// The scene index of each instance in the tree, in leaf order.
+    #[cfg(feature = "gpu")]
     pub(crate) fn leaf_instances(&self) -> impl Iterator<Item = u32> + '_ {
         self.placed.iter().map(|p| p.index)
     }
 
     /// A ray's node-test margin is this times its origin's largest |component| (see
     /// [`InstanceBvh::build`]).
+    #[cfg(feature = "gpu")]
     pub(crate) fn origin_margin(&self) -> f32 {
         self.origin_margin
     }
@@ -1243,11 +1251,13 @@ impl AabbBvh {
 
     /// The nodes as the walk reads them (root at 0; none without finite boxes); a leaf
     /// child's range indexes [`AabbBvh::leaf_boxes`].
+    #[cfg(feature = "gpu")]
     pub(crate) fn wide_nodes(&self) -> &[WideNode] {
         &self.nodes
     }
 
     /// The caller's index of each box in the tree, in leaf order.
+    #[cfg(feature = "gpu")]
     pub(crate) fn leaf_boxes(&self) -> impl Iterator<Item = u32> + '_ {
         self.boxes.iter().map(|b| b.0)
     }

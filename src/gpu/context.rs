@@ -6,6 +6,9 @@ use wgpu::util::DeviceExt;
 
 /// The smallest storage buffer created: larger than any record of [`super::records`].
 pub const MIN_STORAGE_BYTES: usize = 512;
+// An empty buffer is bound as one zeroed record: the smallest buffer must hold the largest.
+const _: () = assert!(size_of::<super::records::TriBlockRecord>() <= MIN_STORAGE_BYTES);
+const _: () = assert!(size_of::<super::records::WideNodeRecord>() <= MIN_STORAGE_BYTES);
 
 /// A wgpu device and queue with no window or surface.
 pub struct GpuContext {

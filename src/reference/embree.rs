@@ -591,7 +591,7 @@ pub const DEFAULT_MESH_RESOLUTION: u32 = 128;
 /// Default [`ReferenceOptions::mesh_max_triangles`].
 pub const DEFAULT_MESH_MAX_TRIANGLES: usize = 1_000_000;
 
-pub use super::validate::SdfCheck;
+pub use super::check::SdfCheck;
 
 impl EmbreeScene {
     /// The box the mesh of SDF object `object` covers, if it was meshed.

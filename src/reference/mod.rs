@@ -2,6 +2,7 @@
 //! own mesher, Embree 4 tracing both (behind the `embree` feature), and the ray-by-ray
 //! validation of a backend against a referee.
 pub mod analytic;
+pub mod check;
 #[cfg(feature = "embree")]
 pub mod embree;
 pub mod mesher;

@@ -53,6 +53,7 @@
 //! of the referee's mesh; the referee's mesh blocking at a point outside the true solid) is
 //! undecidable at that tolerance: it is left out of the agreement and counted.
 
+pub use super::check::SdfCheck;
 use crate::accel::field::FieldCursor;
 use crate::geom::{Aabb, Ray};
 use crate::rng::Rng;
@@ -98,62 +99,6 @@ pub fn mesh_dt_tolerance(diameter: f32) -> f32 {
 }
 /// Least agreement of shadow rays.
 pub const SHADOW_AGREEMENT: f64 = 0.999;
-
-/// How the referee represents one SDF object (the Embree scene's [`super::embree::EmbreeScene`]
-/// `checks`, and the report's).
-#[derive(Debug, Clone, PartialEq, Serialize)]
-#[serde(tag = "check", rename_all = "snake_case")]
-pub enum SdfCheck {
-    /// A closed-form ray intersection (Embree user geometry).
-    Analytic,
-    /// A triangle mesh extracted from the field by our mesher.
-    Meshed {
-        /// Grid cells along the longest side of the meshed box.
-        resolution: u32,
-        /// Edge length of one grid cell (world units).
-        cell: f32,
-        /// Largest distance (world units) of a mesh point from the true surface, as the mesher
-        /// states it; a hit distance is compared within `tolerance / |n·d|`.
-        tolerance: f32,
-        /// Triangles of the mesh.
-        triangles: usize,
-        /// For an unbounded object meshed only inside a box (infinite repetition, say): that
-        /// box as (min, max). A hit of the true surface outside it has no counterpart in the
-        /// mesh, so rays whose hit lies there are left out of the comparison (and counted).
-        clipped_to: Option<[[f32; 3]; 2]>,
-    },
-    /// Not represented: the object cannot be validated.
-    Skipped {
-        /// Why.
-        why: String,
-    },
-}
-
-impl SdfCheck {
-    /// One line saying how the object is checked.
-    pub fn describe(&self) -> String {
-        match self {
-            SdfCheck::Analytic => "analytic (closed-form intersection)".into(),
-            SdfCheck::Meshed {
-                resolution,
-                cell,
-                tolerance,
-                triangles,
-                clipped_to,
-            } => {
-                let mut s = format!(
-                    "meshed: {resolution} cells along the longest side (cell {cell:.3e}), \
-                     {triangles} triangles, tolerance {tolerance:.3e}"
-                );
-                if let Some([lo, hi]) = clipped_to {
-                    let _ = write!(s, ", unbounded: meshed inside {lo:?}..{hi:?}");
-                }
-                s
-            }
-            SdfCheck::Skipped { why } => format!("SKIPPED: {why}"),
-        }
-    }
-}
 
 /// The kind of object a ray is classified by.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
