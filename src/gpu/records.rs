@@ -106,10 +106,9 @@ gpu_struct! {
     /// A node of a wide BVH exactly as the CPU walks it (`crate::accel::bvh::WideNode`), its
     /// eight children's boxes as structure of arrays: plane `p = 2·axis + side` (side 0 the
     /// minima, 1 the maxima) of children `4·h .. 4·h + 4` is `bounds[2·p + h]`. Empty slots
-    /// hold the inverted box (+`f32::MAX`, −`f32::MAX`), which no ray enters. `meta` per child
-    /// (the CPU's `meta`, a name WGSL reserves): a node index, or `LEAF_BIT | (count − 1) << 29 |
-    /// first`; both rebased
-    /// into the shared buffers.
+    /// hold the inverted box (+`f32::MAX`, −`f32::MAX`), which no ray enters. `children` is
+    /// the CPU's `meta` (a word WGSL reserves): per child a node index, or `LEAF_BIT | (count −
+    /// 1) << 29 | first`, both rebased into the shared buffers.
     pub struct WideNodeRecord(224) {
         /// Children's planes, four lanes to a vector.
         pub bounds: [[f32; 4]; 12],

@@ -14,6 +14,7 @@ use crate::render::progressive::{PixelSums, SampleSums};
 use crate::render::{Framebuffer, RenderOptions, Tile};
 use crate::scene::Scene;
 use crate::scene::camera::Camera;
+use crate::trace::SceneTracer;
 use anyhow::{Result, bail};
 use glam::Vec3;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -125,7 +126,17 @@ impl GpuRenderer {
     /// Uploads the scene: its buffers, shading settings and lights (not its camera, which
     /// every pass names).
     pub fn prepare(&self, ctx: &GpuContext, scene: &Scene) -> Result<PreparedScene> {
-        let gpu_scene = GpuScene::new(ctx, &SceneData::from_scene(scene)?)?;
+        self.upload(ctx, scene, &SceneData::from_scene(scene)?)
+    }
+
+    /// [`GpuRenderer::prepare`] with the acceleration structures of a CPU tracer built already
+    /// (the viewer keeps one for picking): they are uploaded, not built again.
+    pub fn prepare_with(&self, ctx: &GpuContext, tracer: &SceneTracer) -> Result<PreparedScene> {
+        self.upload(ctx, tracer.scene(), &SceneData::from_tracer(tracer)?)
+    }
+
+    fn upload(&self, ctx: &GpuContext, scene: &Scene, data: &SceneData) -> Result<PreparedScene> {
+        let gpu_scene = GpuScene::new(ctx, data)?;
         let settings = ShadeSettings::new(scene);
         // A storage binding cannot be empty: a scene without lights gets one unused record
         // (light_count says how many are real).

@@ -88,6 +88,15 @@ fn padded(lo: Vec3, hi: Vec3) -> Option<(Vec3, Vec3)> {
     Some((lo - pad, hi + pad))
 }
 
+/// Eight lanes as the two four-lane vectors of a GPU record.
+fn halves<T: Copy + Default>(lanes: &[T; 8]) -> [[T; 4]; 2] {
+    let mut out = [[T::default(); 4]; 2];
+    for (i, &x) in lanes.iter().enumerate() {
+        out[i / 4][i % 4] = x;
+    }
+    out
+}
+
 /// Infinite coordinates as ±`f32::MAX` (GPU compilers need not preserve infinities).
 fn finite_or_max(v: Vec3) -> [f32; 3] {
     v.to_array().map(|c| {
@@ -203,14 +212,10 @@ impl SceneData {
             for (block, ids) in leaves.blocks.iter().zip(&leaves.ids) {
                 let mut r = TriBlockRecord::default();
                 for (row, lanes) in block.v.iter().enumerate() {
-                    r.v[2 * row] = lanes[..4].try_into().unwrap();
-                    r.v[2 * row + 1] = lanes[4..].try_into().unwrap();
+                    [r.v[2 * row], r.v[2 * row + 1]] = halves(lanes);
                 }
-                r.slot = [
-                    block.slot[..4].try_into().unwrap(),
-                    block.slot[4..].try_into().unwrap(),
-                ];
-                r.id = [ids[..4].try_into().unwrap(), ids[4..].try_into().unwrap()];
+                r.slot = halves(&block.slot);
+                r.id = halves(ids);
                 data.tri_blocks.push(r);
             }
             let root = data.add_tree(bvh.wide_nodes(), blocks_start)?;

@@ -225,7 +225,7 @@ fn serve(
         if let Some(g) = gpu.as_deref_mut() {
             g.passes = None;
             g.prepared = None;
-            match g.renderer.prepare(&g.ctx, &scene) {
+            match g.renderer.prepare_with(&g.ctx, &tracer) {
                 Ok(p) => {
                     g.prepared = Some(p);
                     backend = g.describe();
