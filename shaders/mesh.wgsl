@@ -347,14 +347,6 @@ fn blas_walk(root: u32, o: vec3<f32>, d: vec3<f32>, tmin_in: f32, tmax_in: f32, 
     return best;
 }
 
-fn blas_closest(root: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32) -> MeshHit {
-    return blas_walk(root, o, d, tmin, tmax, false);
-}
-
-fn blas_any(root: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32) -> bool {
-    return blas_walk(root, o, d, tmin, tmax, true).hit;
-}
-
 // An affine map stored as three rows (x, y, z, translation) applied to a point, summed in
 // glam's order (x_axis·x + y_axis·y + z_axis·z + translation).
 fn rows_point(m: array<vec4<f32>, 3>, p: vec3<f32>) -> vec3<f32> {
