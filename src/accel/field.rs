@@ -977,6 +977,38 @@ fn propose(c: Candidate, depth: u32, simplifier: &mut Simplifier) -> Proposal {
     }
 }
 
+/// An error model of the values a tape computes: within `relative`·(`scale` + |p|∞) of the
+/// exact function at p, |p|∞ the point's largest coordinate. Each operation rounds to half
+/// a unit in the last place of its result; on quantities no larger than the point's
+/// coordinates and the tape's constants (true of the shapes, transforms and maxima a convex
+/// field is made of: [`crate::sdf::SdfNode::is_convex`]), the errors of a chain of n of them
+/// add up to n/2 units of the largest, and the model allows n/2 + 4 (the point itself is
+/// computed as o + t·d, a few units off the ray). Tested against dense samples in
+/// `src/trace/sphere.rs`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RoundingModel {
+    /// The error per unit of magnitude.
+    pub relative: f32,
+    /// 1 + the largest constant of the tape.
+    pub scale: f32,
+}
+
+impl RoundingModel {
+    /// The model of `tape`'s values.
+    pub fn of(tape: &Tape) -> Self {
+        RoundingModel {
+            relative: (4.0 + 0.5 * tape.len() as f32) * f32::EPSILON,
+            scale: 1.0 + tape.largest_constant(),
+        }
+    }
+
+    /// The largest error of a value computed at a point whose coordinates are at most
+    /// `reach` in magnitude.
+    pub fn error(&self, reach: f32) -> f32 {
+        self.relative * (self.scale + reach)
+    }
+}
+
 /// An evaluation cursor over an object's field: the last leaf found, so that consecutive
 /// points in one box skip the descent, and the interpreter's registers.
 pub struct FieldCursor<'f, 'r> {
@@ -984,6 +1016,7 @@ pub struct FieldCursor<'f, 'r> {
     whole: &'f Tape,
     cell: Option<Cell<'f>>,
     path: Path,
+    convex: Option<RoundingModel>,
     /// Scalar registers.
     pub regs: &'r mut Registers,
 }
@@ -997,6 +1030,9 @@ pub struct ObjectField {
     pub whole: Tape,
     /// The whole shading tape.
     pub whole_shading: Tape,
+    /// For a convex field ([`crate::sdf::SdfNode::is_convex`]), the error model of its whole
+    /// tape's values (the leaves' tapes compute the same values); `None` otherwise.
+    pub convex: Option<RoundingModel>,
 }
 
 /// What the tracer needs to know about the region around a point.
@@ -1016,15 +1052,18 @@ impl ObjectField {
             octree: FieldOctree::build(&lowered.program, region),
             whole: lowered.distance.clone(),
             whole_shading: lowered.shading.clone(),
+            convex: lowered.convex.then(|| RoundingModel::of(&lowered.distance)),
         }
     }
 
-    /// The whole tapes only (the reference the octree is tested against).
+    /// The whole tapes only, marched without shortcuts: the reference the octree and the
+    /// penumbra's convexity bound are tested against.
     pub fn whole(whole: &Tape, whole_shading: &Tape) -> Self {
         ObjectField {
             octree: None,
             whole: whole.clone(),
             whole_shading: whole_shading.clone(),
+            convex: None,
         }
     }
 
@@ -1043,6 +1082,7 @@ impl ObjectField {
             whole: &self.whole,
             cell: None,
             path: Path::default(),
+            convex: self.convex,
             regs,
         }
     }
@@ -1056,8 +1096,15 @@ impl<'f, 'r> FieldCursor<'f, 'r> {
             whole: tape,
             cell: None,
             path: Path::default(),
+            convex: None,
             regs,
         }
+    }
+
+    /// For a convex field, the error model of its computed values; `None` for a field not
+    /// known to be convex.
+    pub fn convex(&self) -> Option<RoundingModel> {
+        self.convex
     }
 
     /// The whole tape.
@@ -1469,6 +1516,7 @@ pub(crate) mod tests {
             octree: Some(tree.clone()),
             whole: Tape::default(),
             whole_shading: Tape::default(),
+            convex: None,
         };
         let mut rng = Rng::new(3);
         let mut regs = Registers::new();

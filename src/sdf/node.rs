@@ -187,6 +187,51 @@ impl SdfNode {
             .sum::<usize>()
     }
 
+    /// Whether the field this node lowers to is a convex function of the point. The signed
+    /// distance to a closed convex set is one (it is the supremum over unit vectors a of the
+    /// affine functions a·p − h(a), h the set's support function: Boyd & Vandenberghe, *Convex
+    /// Optimization*, §3.2.3), so every primitive is but the torus: the exact ones are signed
+    /// distances to convex sets, the ellipsoid's bound is the maximum of two norms less
+    /// constants. Convexity survives a maximum (intersection), the smooth maximum (Quilez's
+    /// polynomial one is convex and nondecreasing in both arguments), subtracting a constant
+    /// (rounding), an affine map of the point times a positive factor (transforms, non-uniform
+    /// scale) and painting. Unions, subtractions, shells, domain operators and implicits are
+    /// taken as not convex. The tracer's penumbra march bounds a convex field beyond its
+    /// samples by the extension of their chord.
+    pub fn is_convex(&self) -> bool {
+        use SdfNode::*;
+        match self {
+            Sphere { .. }
+            | Cuboid { .. }
+            | RoundBox { .. }
+            | Plane { .. }
+            | Cylinder { .. }
+            | Cone { .. }
+            | Capsule { .. }
+            | Ellipsoid { .. }
+            | Octahedron { .. }
+            | HexPrism { .. } => true,
+            Intersection(v) | SmoothIntersection { shapes: v, .. } => {
+                !v.is_empty() && v.iter().all(SdfNode::is_convex)
+            }
+            Round { shape, .. }
+            | Transform { shape, .. }
+            | Scale { shape, .. }
+            | Material { shape, .. } => shape.is_convex(),
+            Torus { .. }
+            | Union(_)
+            | Subtraction { .. }
+            | SmoothUnion { .. }
+            | SmoothSubtraction { .. }
+            | Onion { .. }
+            | Repeat { .. }
+            | RepeatLimited { .. }
+            | Twist { .. }
+            | Bend { .. }
+            | Implicit { .. } => false,
+        }
+    }
+
     /// The direct children of this node.
     pub fn children(&self) -> Vec<&SdfNode> {
         use SdfNode::*;

@@ -381,6 +381,18 @@ impl Tape {
         self.instrs.is_empty()
     }
 
+    /// The largest magnitude among the tape's constants (0 without any): with the point's, it
+    /// sets the scale of the values the tape computes, and so of its rounding errors.
+    pub fn largest_constant(&self) -> f32 {
+        self.instrs
+            .iter()
+            .filter(|i| matches!(i.op().shape(), Shape::Nullary | Shape::WithImm))
+            .filter(|i| i.op() != Op::Input)
+            .map(|i| i.imm().abs())
+            .filter(|v| v.is_finite())
+            .fold(0.0, f32::max)
+    }
+
     /// Register holding the distance at the end.
     pub fn result(&self) -> u8 {
         self.result

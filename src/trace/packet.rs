@@ -18,7 +18,7 @@
 //! the interpreter waiting on its register file; eight keep it busy).
 
 use super::crossing::{Candidate, Confirmation, Progress};
-use super::sphere::{Along, Part, Parts, hart_step, penumbra_estimate};
+use super::sphere::{Along, ConvexBound, Part, Parts, hart_step, penumbra_estimate};
 use super::step::{TraceResult, epsilon_at};
 use crate::accel::field::{Cell, ObjectField};
 use crate::geom::Ray;
@@ -270,9 +270,11 @@ fn march_step(st: &mut State, lane: &Lane, d: f32, s: &TracerSettings) {
 struct Shadowed {
     res: f32,
     previous: f32,
+    previous_t: f32,
     t: f32,
     samples: u32,
     done: bool,
+    bound: Option<ConvexBound>,
 }
 
 /// Quilez's penumbra ([`super::sphere::penumbra`]) of up to [`BUNDLE`] shadow rays through
@@ -300,9 +302,13 @@ pub fn penumbra_packet(
         .map(|l| Shadowed {
             res: 1.0,
             previous: f32::INFINITY,
+            previous_t: f32::NEG_INFINITY,
             t: l.t0,
             samples: 0,
             done: s.max_steps == 0,
+            bound: field
+                .convex
+                .map(|model| ConvexBound::new(model, &l.ray, l.t0, l.t1)),
         })
         .collect();
     let mut round = Round::new();
@@ -330,7 +336,15 @@ pub fn penumbra_packet(
                 st.res = st
                     .res
                     .min(penumbra_estimate(h[j], st.previous, t, k, improved));
+                if st
+                    .bound
+                    .is_some_and(|b| b.settles(st.previous_t, st.previous, t, h[j], st.res, k, s))
+                {
+                    st.done = true;
+                    continue;
+                }
                 st.previous = h[j];
+                st.previous_t = t;
                 st.t = t + h[j];
                 if st.t > lanes[i].t1 || st.res < 1e-4 || st.samples >= s.max_steps {
                     st.done = true;

@@ -90,6 +90,8 @@ pub struct LoweredSdf {
     pub program: SsaTape,
     /// Conservative object-space bounds of the surface (may be infinite).
     pub bounds: Aabb,
+    /// Whether the distance is a convex function of the point ([`SdfNode::is_convex`]).
+    pub convex: bool,
 }
 
 /// Lowers `node` with the object-to-world transform already folded in by the caller (use
@@ -116,6 +118,7 @@ pub fn lower(
         shading,
         program,
         bounds,
+        convex: node.is_convex(),
     })
 }
 
