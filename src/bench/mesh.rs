@@ -4,14 +4,13 @@
 use super::rays::{self, Query, QueryRay, RaySet};
 use super::{BenchOptions, Workers, alternate, geomean, median};
 use crate::accel::MeshAccel;
-use crate::scene::mesh::TriangleMesh;
-use crate::scene::meshes::SceneInstance;
+pub use crate::geom::icosphere;
+use crate::scene::generate::icosphere_scene;
 use crate::scene::{Scene, SceneMeshes};
 use anyhow::Context;
 use arrayvec::ArrayVec;
-use glam::{Affine3A, Mat3A, Vec3};
+use glam::{Mat3A, Vec3};
 use serde::Serialize;
-use std::collections::HashMap;
 use std::fmt::Write;
 use std::hint::black_box;
 use std::path::Path;
@@ -514,96 +513,6 @@ impl MeshReport {
     }
 }
 
-/// A unit icosphere: the icosahedron with every triangle split in four `level` times
-/// (20·4^level triangles), vertices pushed onto the sphere.
-pub fn icosphere(level: u32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
-    let p = (1.0 + 5.0f32.sqrt()) / 2.0;
-    let mut v: Vec<Vec3> = [
-        (-1.0, p, 0.0),
-        (1.0, p, 0.0),
-        (-1.0, -p, 0.0),
-        (1.0, -p, 0.0),
-        (0.0, -1.0, p),
-        (0.0, 1.0, p),
-        (0.0, -1.0, -p),
-        (0.0, 1.0, -p),
-        (p, 0.0, -1.0),
-        (p, 0.0, 1.0),
-        (-p, 0.0, -1.0),
-        (-p, 0.0, 1.0),
-    ]
-    .iter()
-    .map(|&(x, y, z)| Vec3::new(x, y, z).normalize())
-    .collect();
-    let mut f: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..level {
-        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
-        let mut midpoint = |a: u32, b: u32, v: &mut Vec<Vec3>| {
-            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                v.push((v[a as usize] + v[b as usize]).normalize());
-                (v.len() - 1) as u32
-            })
-        };
-        let mut next = Vec::with_capacity(f.len() * 4);
-        for [a, b, c] in f {
-            let ab = midpoint(a, b, &mut v);
-            let bc = midpoint(b, c, &mut v);
-            let ca = midpoint(c, a, &mut v);
-            next.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        f = next;
-    }
-    (v, f)
-}
-
-/// A scene holding one icosphere, seen by a camera at distance 3.
-/// A scene holding one icosphere mesh instance (see [`icosphere`]) and no SDF objects.
-pub(crate) fn icosphere_scene(level: u32) -> anyhow::Result<Scene> {
-    let mut scene = Scene::from_source(
-        "Scene(camera: Perspective(position: (0.4, 0.3, 3), look_at: (0, 0, 0), fov: 45), objects: [])",
-        Path::new("<bench icosphere>"),
-    )?;
-    let (positions, triangles) = icosphere(level);
-    scene.meshes.meshes.push(TriangleMesh {
-        name: format!("icosphere {level}"),
-        normals: positions.clone(),
-        triangle_material: vec![0; triangles.len()],
-        positions,
-        triangles,
-        uvs: Vec::new(),
-    });
-    scene.meshes.instances.push(SceneInstance {
-        mesh: 0,
-        transform: Affine3A::IDENTITY,
-        normal_matrix: Mat3A::IDENTITY,
-        material_base: scene.meshes.material_offset,
-        material_override: Some(0),
-        name: "icosphere".into(),
-    });
-    Ok(scene)
-}
-
 /// Frame times of primary rays on icospheres of growing size, ours and Embree, all threads.
 pub fn scaling(opts: &BenchOptions) -> anyhow::Result<Vec<MeshScalingRow>> {
     let levels: &[u32] = if opts.quick {
@@ -662,20 +571,4 @@ pub fn scaling(opts: &BenchOptions) -> anyhow::Result<Vec<MeshScalingRow>> {
         });
     }
     Ok(out)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn icosphere_counts_and_radius() {
-        for level in 0..4 {
-            let (v, f) = icosphere(level);
-            assert_eq!(f.len(), 20 * 4usize.pow(level));
-            // Euler: V − E + F = 2 with E = 3F/2.
-            assert_eq!(v.len() + f.len() - 3 * f.len() / 2, 2);
-            assert!(v.iter().all(|p| (p.length() - 1.0).abs() < 1e-6));
-        }
-    }
 }

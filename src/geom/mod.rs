@@ -1,7 +1,10 @@
 //! Small geometric types shared by every stage: axis-aligned boxes, rays and affine maps, and
 //! the validated numbers scene descriptions are made of ([`values`]).
 
+mod icosphere;
 pub mod values;
+
+pub use icosphere::icosphere;
 
 use glam::{Affine3A, Vec3};
 

@@ -896,7 +896,7 @@ mod tests {
     /// outside `RayHit` is touched.
     #[test]
     fn a_hit_record_of_a_newer_library_fits_in_ray_hit() {
-        let scene = crate::bench::mesh::icosphere_scene(1).expect("icosphere scene");
+        let scene = crate::scene::generate::icosphere_scene(1).expect("icosphere scene");
         let embree = EmbreeScene::build(&scene).expect("Embree scene");
         let marker = 0xdead_beef;
         let mut slot = RayHit {

@@ -1,6 +1,12 @@
-//! Generated scenes for scaling tests and benchmarks: many small SDF objects.
+//! Generated scenes for scaling tests and benchmarks: many small SDF objects, one icosphere mesh.
 
+use super::mesh::TriangleMesh;
+use super::meshes::SceneInstance;
+use super::{Scene, SceneError};
+use crate::geom::icosphere;
+use glam::{Affine3A, Mat3A};
 use std::fmt::Write;
+use std::path::Path;
 
 /// A scene of `n` small SDF objects (spheres, boxes, tori and capsules in turn) scattered on a
 /// jittered grid over a ground plane, each its own object so that the SDF acceleration
@@ -52,6 +58,34 @@ pub fn many_objects(n: usize) -> String {
         "    ],\n    tracer: (epsilon: 1e-4, epsilon_per_unit: 5e-4, max_distance: 200),\n)\n",
     );
     s
+}
+
+/// A scene holding one unit icosphere mesh instance ([`icosphere`], 20·4^`level` triangles)
+/// seen by a camera at distance 3, and no SDF objects: a closed mesh whose hits have a known
+/// answer, for mesh benchmarks and tests.
+pub fn icosphere_scene(level: u32) -> Result<Scene, SceneError> {
+    let mut scene = Scene::from_source(
+        "Scene(camera: Perspective(position: (0.4, 0.3, 3), look_at: (0, 0, 0), fov: 45), objects: [])",
+        Path::new("<icosphere>"),
+    )?;
+    let (positions, triangles) = icosphere(level);
+    scene.meshes.meshes.push(TriangleMesh {
+        name: format!("icosphere {level}"),
+        normals: positions.clone(),
+        triangle_material: vec![0; triangles.len()],
+        positions,
+        triangles,
+        uvs: Vec::new(),
+    });
+    scene.meshes.instances.push(SceneInstance {
+        mesh: 0,
+        transform: Affine3A::IDENTITY,
+        normal_matrix: Mat3A::IDENTITY,
+        material_base: scene.meshes.material_offset,
+        material_override: Some(0),
+        name: "icosphere".into(),
+    });
+    Ok(scene)
 }
 
 #[cfg(test)]

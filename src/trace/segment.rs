@@ -170,10 +170,15 @@ mod tests {
                 stepper: Stepper::Segment,
                 ..scene.tracer
             };
-            let rays = crate::bench::rays::primary(&scene, 64, 48);
+            // The camera's rays through the centres of a 64×48 image.
+            let rays: Vec<_> = (0..64 * 48)
+                .map(|i| {
+                    let (u, v) = ((i % 64) as f32 + 0.5, (i / 64) as f32 + 0.5);
+                    scene.camera.ray(u / 64.0, v / 48.0, 64.0 / 48.0)
+                })
+                .collect();
             let mut hits = 0;
-            for (i, q) in rays.iter().enumerate() {
-                let ray = &q.ray;
+            for (i, ray) in rays.iter().enumerate() {
                 for object in &scene.objects {
                     let Some((t0, t1)) = object.bounds().ray_interval(ray, 0.0, s.max_distance)
                     else {
