@@ -1,17 +1,28 @@
-//! Wavefront OBJ with MTL material libraries.
+//! Wavefront OBJ with MTL material libraries, read by a line-based parser of our own.
 //!
-//! `tobj` parses the geometry (polygons kept whole, separate position / texture / normal
-//! indices); a first pass over the text here checks every statement `tobj` would reject or
-//! misread, so errors carry line numbers, and strips what `tobj` would misread (`l` lines with
-//! three or more points, vertex colours present on only some `v` lines). MTL files are parsed
-//! here, leniently: a missing or unreadable library or texture is a warning, never a failure.
+//! Statements read: `v` (x y z, with an optional w that divides them, or x y z r g b: vertex
+//! colours, which the renderer does not use), `vt`, `vn`, `f` (indices `v`, `v/vt`, `v//vn`,
+//! `v/vt/vn`, negative ones relative to the end of the list so far; polygons kept whole and
+//! split by ear clipping), `o` and `g` (the name of the following faces; faces of one name form
+//! one mesh), `usemtl` and `mtllib`; `l` and `p` are checked and skipped, `s` and unknown
+//! statements ignored. A line ending in `\` continues on the next; `#` starts a comment where
+//! a word starts. Every error names the file and the line.
+//!
+//! Why not a library: `tobj`, which this module used, reports no line numbers, reads `l`
+//! statements with three or more points as faces, misreads vertex colours given on only some
+//! `v` lines, knows no line continuations and no comments after a statement, and invents
+//! texture coordinates and normals for face corners that give none (those of another corner).
+//! Checking the text first and rewriting it to steer `tobj` past those cases was a second
+//! parser anyway.
+//!
+//! MTL files are parsed here, leniently: a missing or unreadable library or texture is a
+//! warning, never a failure.
 
 use super::polygon::triangulate;
 use super::texture::{self, Wrap};
 use super::{MeshAsset, MeshError, MeshInstance, MeshMaterial, TriangleMesh, unit};
 use crate::scene::material::MaterialParams;
 use glam::{Affine3A, Vec2, Vec3};
-use std::cell::RefCell;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -29,36 +40,19 @@ pub(super) fn load(file: &Path, bytes: &[u8]) -> Result<MeshAsset, MeshError> {
         ));
     }
     let bytes = bytes.strip_prefix(&[0xEF, 0xBB, 0xBF]).unwrap_or(bytes);
-    let scan = prescan(bytes).map_err(|(line, m)| err(Some(line), m))?;
-    if scan.v == 0 && scan.faces == 0 {
+    let base = file.parent().unwrap_or(Path::new(".")).to_path_buf();
+    let mut libs = Libraries::default();
+    let obj =
+        parse(bytes, &mut |name| libs.load(&base, name)).map_err(|(line, m)| err(Some(line), m))?;
+    if obj.v_lines == 0 && obj.faces == 0 {
         return Err(err(
             None,
             "no vertices and no faces (not an OBJ file?)".into(),
         ));
     }
-    let text: std::borrow::Cow<[u8]> = if scan.needs_rewrite() {
-        std::borrow::Cow::Owned(rewrite(bytes, scan.mixed_colors))
-    } else {
-        std::borrow::Cow::Borrowed(bytes)
-    };
-
-    let base = file.parent().unwrap_or(Path::new(".")).to_path_buf();
-    let libs = RefCell::new(Libraries::default());
-    let options = tobj::LoadOptions {
-        single_index: false,
-        triangulate: false,
-        ignore_points: true,
-        ignore_lines: true,
-    };
-    let mut reader: &[u8] = &text;
-    let (models, _) = tobj::load_obj_buf(&mut reader, &options, |mtl: &Path| {
-        libs.borrow_mut().load(&base, mtl)
-    })
-    .map_err(|e| err(None, tobj_message(e)))?;
-    let libs = libs.into_inner();
 
     let mut asset = MeshAsset::empty();
-    asset.warnings.extend(libs.warnings);
+    asset.warnings.extend(std::mem::take(&mut libs.warnings));
     let stem = file
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
@@ -96,10 +90,8 @@ pub(super) fn load(file: &Path, bytes: &[u8]) -> Result<MeshAsset, MeshError> {
             base_color_texture,
         });
     }
-    let known: std::collections::HashSet<&str> =
-        libs.materials.iter().map(|m| m.name.as_str()).collect();
-    for (name, line) in &scan.usemtl {
-        if !known.contains(name.as_str()) {
+    for (name, line) in &obj.usemtl {
+        if !libs.by_name.contains_key(name) {
             asset.warnings.push(format!(
                 "{}:{line}: usemtl {name}: no such material in the loaded libraries; the \
                  default material is used",
@@ -107,36 +99,36 @@ pub(super) fn load(file: &Path, bytes: &[u8]) -> Result<MeshAsset, MeshError> {
             ));
         }
     }
-    if scan.lines > 0 || scan.points > 0 {
+    if obj.lines > 0 || obj.points > 0 {
         asset.warnings.push(format!(
             "{}: {} line and {} point elements skipped (only faces are drawn)",
             file.display(),
-            scan.lines,
-            scan.points
+            obj.lines,
+            obj.points
         ));
     }
-    for line in &scan.empty_usemtl {
+    for line in &obj.empty_usemtl {
         asset.warnings.push(format!(
             "{}:{line}: `usemtl` without a name; the default material is used",
             file.display()
         ));
     }
-    if scan.not_utf8.0 > 0 {
+    if obj.not_utf8.0 > 0 {
         asset.warnings.push(format!(
             "{}:{}: {} lines are not UTF-8; read with replacement characters",
             file.display(),
-            scan.not_utf8.1,
-            scan.not_utf8.0
+            obj.not_utf8.1,
+            obj.not_utf8.0
         ));
     }
-    if scan.small_faces > 0 {
+    if obj.small_faces > 0 {
         asset.warnings.push(format!(
             "{}: {} faces with fewer than 3 vertices skipped",
             file.display(),
-            scan.small_faces
+            obj.small_faces
         ));
     }
-    if let Some(line) = scan.mixed_colors {
+    if let Some(line) = obj.mixed_colors {
         asset.warnings.push(format!(
             "{}:{line}: vertex colours on only some `v` lines; all vertex colours ignored",
             file.display()
@@ -145,11 +137,11 @@ pub(super) fn load(file: &Path, bytes: &[u8]) -> Result<MeshAsset, MeshError> {
 
     let n_materials = libs.materials.len();
     let mut by_name: HashMap<String, usize> = HashMap::new();
-    for model in &models {
-        let name = if model.name.is_empty() || model.name == "unnamed_object" {
+    for group in &obj.groups {
+        let name = if group.name.is_empty() || group.name == UNNAMED {
             stem.clone()
         } else {
-            model.name.clone()
+            group.name.clone()
         };
         let slot = *by_name.entry(name.clone()).or_insert_with(|| {
             asset.meshes.push(TriangleMesh {
@@ -158,12 +150,12 @@ pub(super) fn load(file: &Path, bytes: &[u8]) -> Result<MeshAsset, MeshError> {
             });
             asset.meshes.len() - 1
         });
-        let material = match model.mesh.material_id {
+        let material = match group.material {
             Some(id) if id < n_materials => id as u32 + 1,
             _ => 0,
         };
-        append_model(&mut asset.meshes[slot], &model.mesh, material)
-            .map_err(|m| err(None, format!("{}: {m}", model.name)))?;
+        append_group(&mut asset.meshes[slot], &obj, group, material)
+            .map_err(|(line, m)| err(Some(line), m))?;
     }
     asset.meshes.retain(|m| !m.triangles.is_empty());
     if asset.meshes.is_empty() {
@@ -181,47 +173,71 @@ pub(super) fn load(file: &Path, bytes: &[u8]) -> Result<MeshAsset, MeshError> {
     Ok(asset)
 }
 
-/// What the first pass found.
-#[derive(Default)]
-struct Scan {
-    v: usize,
+/// The name of faces before any `o` or `g` statement, or after one without a name: the mesh
+/// takes the file's stem.
+const UNNAMED: &str = "unnamed_object";
+
+/// A face corner's index that the file does not give (`v//vn` has no texture coordinate).
+const MISSING: u32 = u32::MAX;
+
+/// One face corner: 0-based indices into the position, texture-coordinate and normal lists.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+struct Corner {
+    v: u32,
+    vt: u32,
+    vn: u32,
+}
+
+/// A run of faces with one name and one material: between two `o`, `g` or `usemtl`
+/// statements that change them.
+#[derive(Debug, Default)]
+struct Group {
+    name: String,
+    /// Index into the libraries' materials (`None`: the default material).
+    material: Option<usize>,
+    /// The corners of every face, face after face.
+    corners: Vec<Corner>,
+    /// Per face: its number of corners and its line; faces with fewer than 3 corners are not
+    /// kept.
+    faces: Vec<(u32, usize)>,
+    /// Whether an `f` statement was read since the group began (including faces skipped for
+    /// having fewer than 3 corners): only then does a new name or material begin a new group.
+    any_face: bool,
+}
+
+/// What the parser read.
+#[derive(Debug, Default)]
+struct Obj {
+    positions: Vec<Vec3>,
+    texcoords: Vec<Vec2>,
+    normals: Vec<Vec3>,
+    /// The groups in file order (a name can come back later: its faces join the same mesh).
+    groups: Vec<Group>,
+    v_lines: usize,
     faces: usize,
     lines: usize,
     points: usize,
     small_faces: usize,
     /// A line where a `v` statement's colours differ in presence from an earlier one.
     mixed_colors: Option<usize>,
+    /// Every material name `usemtl` names, with the first line that names it.
     usemtl: Vec<(String, usize)>,
-    /// `l` statements with three or more points, which `tobj` would read as faces.
-    long_lines: bool,
-    /// `usemtl` or `mtllib` statements not written as `keyword name` from the line's start,
-    /// which `tobj` would misread.
-    odd_statements: bool,
     /// Lines of `usemtl` statements without a name.
     empty_usemtl: Vec<usize>,
     /// How many lines are not UTF-8 (read with replacement characters), and the first.
     not_utf8: (usize, usize),
 }
 
-impl Scan {
-    fn needs_rewrite(&self) -> bool {
-        self.long_lines || self.mixed_colors.is_some() || self.odd_statements || self.not_utf8.0 > 0
-    }
-}
+/// Statements, each with the line it starts on.
+type Statements = Vec<(usize, String)>;
 
-/// What `usemtl` without a name is rewritten to: a name no library defines, so `tobj` gives
-/// the following faces no material (the default one).
-const NO_MATERIAL: &str = "\u{1}hytrace: no material";
-
-/// Checks every statement `tobj` reads; the error is (line, message).
-fn prescan(bytes: &[u8]) -> Result<Scan, (usize, String)> {
-    let mut s = Scan::default();
-    let (mut vt, mut vn) = (0usize, 0usize);
-    let mut with_color: Option<bool> = None;
-    // Largest positive index per kind, with its line, checked against the totals at the end
-    // (tobj resolves positive indices when a group ends).
-    let mut max_ref = [(0usize, 0usize); 3];
-    let mut seen_usemtl = std::collections::HashSet::new();
+/// The statements of an OBJ file, one per line after joining lines continued with `\`, with
+/// the line each starts on, comments (from a `#` that starts a word) removed; and how many
+/// lines are not UTF-8, with the first.
+fn statements(bytes: &[u8]) -> Result<(Statements, (usize, usize)), (usize, String)> {
+    let mut out = Vec::new();
+    let mut not_utf8 = (0, 0);
+    let mut pending: Option<(usize, String)> = None;
     for (i, raw) in bytes.split(|&b| b == b'\n').enumerate() {
         let ln = i + 1;
         if raw.contains(&0) {
@@ -230,27 +246,89 @@ fn prescan(bytes: &[u8]) -> Result<Scan, (usize, String)> {
                 "contains NUL bytes: a binary file, not OBJ text".to_string(),
             ));
         }
-        let line = String::from_utf8_lossy(raw);
-        if let std::borrow::Cow::Owned(_) = line {
-            if s.not_utf8.0 == 0 {
-                s.not_utf8.1 = ln;
+        let text = String::from_utf8_lossy(raw);
+        if let std::borrow::Cow::Owned(_) = text {
+            if not_utf8.0 == 0 {
+                not_utf8.1 = ln;
             }
-            s.not_utf8.0 += 1;
+            not_utf8.0 += 1;
         }
-        let line: &str = &line;
+        let text = strip_comment(&text);
+        let (start, mut line) = match pending.take() {
+            Some((start, mut so_far)) => {
+                so_far.push(' ');
+                so_far.push_str(text);
+                (start, so_far)
+            }
+            None => (ln, text.to_string()),
+        };
+        let end = line.trim_end();
+        if let Some(head) = end.strip_suffix('\\') {
+            line.truncate(head.len());
+            pending = Some((start, line));
+        } else {
+            out.push((start, line));
+        }
+    }
+    // A `\` on the last line continues nothing.
+    out.extend(pending);
+    Ok((out, not_utf8))
+}
+
+/// `line` up to a `#` at the start of a word (a comment); a `#` inside a word (`mat#2`) is
+/// part of it.
+fn strip_comment(line: &str) -> &str {
+    let mut prev_space = true;
+    for (i, c) in line.char_indices() {
+        if c == '#' && prev_space {
+            return &line[..i];
+        }
+        prev_space = c.is_whitespace();
+    }
+    line
+}
+
+/// Parses the OBJ text `bytes`; `mtllib` statements call `load_library` with the name they
+/// give, which returns the name → material index map of every library loaded so far. The
+/// error is (line, message).
+fn parse(
+    bytes: &[u8],
+    load_library: &mut dyn FnMut(&str) -> HashMap<String, usize>,
+) -> Result<Obj, (usize, String)> {
+    let (statements, not_utf8) = statements(bytes)?;
+    let mut o = Obj {
+        not_utf8,
+        ..Obj::default()
+    };
+    let mut with_color: Option<bool> = None;
+    // Largest positive index per kind, with its line, checked against the totals at the end:
+    // a face may name a vertex given later in the file.
+    let mut max_ref = [(0usize, 0usize); 3];
+    let mut materials: HashMap<String, usize> = HashMap::new();
+    let mut seen_usemtl = std::collections::HashSet::new();
+    let mut group = Group {
+        name: UNNAMED.to_string(),
+        ..Group::default()
+    };
+    for (ln, line) in &statements {
+        let ln = *ln;
         let mut words = line.split_whitespace();
         let Some(key) = words.next() else { continue };
-        // tobj reads the first `n` numbers of `vt` and `vn` and ignores the rest.
+        // The rest of the statement after its keyword (a name may contain spaces).
+        let rest = || line.trim_start()[key.len()..].trim();
+        let number = |w: &str, what: &str| {
+            w.parse::<f32>()
+                .map_err(|_| (ln, format!("`{key}`: cannot read {what}{w:?} as a number")))
+        };
+        // `vt` and `vn` take the first `n` numbers and ignore the rest (`vt u v w`).
         let floats = |words: std::str::SplitWhitespace, n: usize, what: &str| {
             let v: Vec<&str> = words.take(n).collect();
             if v.len() < n {
                 return Err((ln, format!("`{key}` needs {n} numbers ({what})")));
             }
-            for w in &v {
-                w.parse::<f32>()
-                    .map_err(|_| (ln, format!("`{key}`: cannot read {w:?} as a number")))?;
-            }
-            Ok(())
+            v.iter()
+                .map(|w| number(w, ""))
+                .collect::<Result<Vec<f32>, _>>()
         };
         match key {
             "v" => {
@@ -260,9 +338,7 @@ fn prescan(bytes: &[u8]) -> Result<Scan, (usize, String)> {
                 }
                 let mut xyz = [0f32; 3];
                 for (k, w) in words[..3].iter().enumerate() {
-                    xyz[k] = w
-                        .parse()
-                        .map_err(|_| (ln, format!("`v`: cannot read {w:?} as a number")))?;
+                    xyz[k] = number(w, "")?;
                 }
                 let mut colored = false;
                 match words.len() {
@@ -278,9 +354,7 @@ fn prescan(bytes: &[u8]) -> Result<Scan, (usize, String)> {
                     }
                     6 => {
                         for w in &words[3..] {
-                            w.parse::<f32>().map_err(|_| {
-                                (ln, format!("`v`: cannot read colour {w:?} as a number"))
-                            })?;
+                            number(w, "colour ")?;
                         }
                         colored = true;
                     }
@@ -296,219 +370,224 @@ fn prescan(bytes: &[u8]) -> Result<Scan, (usize, String)> {
                 }
                 match with_color {
                     None => with_color = Some(colored),
-                    Some(c) if c != colored && s.mixed_colors.is_none() => {
-                        s.mixed_colors = Some(ln)
+                    Some(c) if c != colored && o.mixed_colors.is_none() => {
+                        o.mixed_colors = Some(ln)
                     }
                     _ => {}
                 }
-                s.v += 1;
+                o.v_lines += 1;
+                o.positions.push(Vec3::from(xyz));
             }
             "vt" => {
-                floats(words, 2, "u v")?;
-                vt += 1;
+                let uv = floats(words, 2, "u v")?;
+                o.texcoords.push(Vec2::new(uv[0], uv[1]));
             }
             "vn" => {
-                floats(words, 3, "x y z")?;
-                vn += 1;
+                let n = floats(words, 3, "x y z")?;
+                o.normals.push(Vec3::new(n[0], n[1], n[2]));
             }
             "f" | "l" => {
-                let counts = [s.v, vt, vn];
-                let mut corners = 0;
+                let counts = [o.positions.len(), o.texcoords.len(), o.normals.len()];
+                let first = group.corners.len();
                 for token in words {
-                    corners += 1;
-                    let parts: Vec<&str> = token.split('/').collect();
-                    if parts.len() > 3 {
-                        return Err((ln, format!("`{key}`: bad vertex {token:?}")));
-                    }
-                    if parts[0].is_empty() {
-                        return Err((
-                            ln,
-                            format!("`{key}`: vertex {token:?} has no position index"),
-                        ));
-                    }
-                    for (kind, part) in parts.iter().enumerate() {
-                        if part.is_empty() {
-                            continue;
-                        }
-                        let x: isize = part.parse().map_err(|_| {
-                            (
-                                ln,
-                                format!("`{key}`: cannot read index {part:?} in {token:?}"),
-                            )
-                        })?;
-                        let what = ["position", "texture coordinate", "normal"][kind];
-                        if x == 0 {
-                            return Err((
-                                ln,
-                                format!("`{key}`: {what} index 0 (indices start at 1)"),
-                            ));
-                        }
-                        if x < 0 {
-                            if x.unsigned_abs() > counts[kind] {
-                                return Err((
-                                    ln,
-                                    format!(
-                                        "`{key}`: relative {what} index {x} reaches before the \
-                                         first one ({} so far)",
-                                        counts[kind]
-                                    ),
-                                ));
-                            }
-                        } else if x as usize > max_ref[kind].0 {
-                            max_ref[kind] = (x as usize, ln);
-                        }
+                    let c = corner(key, token, counts, &mut max_ref, ln)?;
+                    if key == "f" {
+                        group.corners.push(c);
                     }
                 }
                 if key == "l" {
-                    s.lines += 1;
-                    if corners >= 3 {
-                        s.long_lines = true;
-                    }
-                } else if corners < 3 {
-                    s.small_faces += 1;
-                } else {
-                    s.faces += 1;
-                }
-            }
-            "p" => s.points += 1,
-            "usemtl" | "mtllib" => {
-                let name = line.trim_start()[key.len()..].trim();
-                if name.is_empty() && key == "usemtl" {
-                    s.empty_usemtl.push(ln);
-                    s.odd_statements = true;
+                    o.lines += 1;
                     continue;
                 }
-                if line.trim_end() != format!("{key} {name}") {
-                    s.odd_statements = true;
+                group.any_face = true;
+                let n = group.corners.len() - first;
+                if n < 3 {
+                    group.corners.truncate(first);
+                    o.small_faces += 1;
+                } else {
+                    let n = u32::try_from(n)
+                        .map_err(|_| (ln, format!("`f` has {n} corners; at most 2³² − 1")))?;
+                    group.faces.push((n, ln));
+                    o.faces += 1;
                 }
-                if key == "usemtl" && seen_usemtl.insert(name.to_string()) {
-                    s.usemtl.push((name.to_string(), ln));
+            }
+            "p" => o.points += 1,
+            "o" | "g" => {
+                let name = match rest() {
+                    "" => UNNAMED.to_string(),
+                    name => name.to_string(),
+                };
+                let material = group.material;
+                close(&mut o.groups, &mut group, name, material);
+            }
+            "mtllib" => materials = load_library(rest()),
+            "usemtl" => {
+                let name = rest();
+                let material = if name.is_empty() {
+                    o.empty_usemtl.push(ln);
+                    None
+                } else {
+                    if seen_usemtl.insert(name.to_string()) {
+                        o.usemtl.push((name.to_string(), ln));
+                    }
+                    materials.get(name).copied()
+                };
+                if material != group.material {
+                    let name = group.name.clone();
+                    close(&mut o.groups, &mut group, name, material);
                 }
             }
             _ => {}
         }
     }
-    for (kind, (total, what)) in [
-        (s.v, "positions"),
-        (vt, "texture coordinates"),
-        (vn, "normals"),
-    ]
-    .into_iter()
-    .enumerate()
+    o.groups.push(group);
+    let totals = [o.positions.len(), o.texcoords.len(), o.normals.len()];
+    for (kind, what) in ["positions", "texture coordinates", "normals"]
+        .into_iter()
+        .enumerate()
     {
         let (max, ln) = max_ref[kind];
-        // tobj ignores texture and normal indices when the file has none of them.
-        let ignored = kind > 0 && total == 0;
-        if max > total && !ignored {
+        // Texture and normal indices are ignored when the file has none of them.
+        let ignored = kind > 0 && totals[kind] == 0;
+        if max > totals[kind] && !ignored {
             return Err((
                 ln,
-                format!("index {max} is out of range: the file has {total} {what}"),
+                format!(
+                    "index {max} is out of range: the file has {} {what}",
+                    totals[kind]
+                ),
             ));
         }
     }
-    Ok(s)
-}
-
-/// The text with `l` statements blanked, `usemtl` and `mtllib` statements written plainly
-/// and, when `colors` is set, vertex colours removed.
-fn rewrite(bytes: &[u8], colors: Option<usize>) -> Vec<u8> {
-    let mut out = Vec::with_capacity(bytes.len());
-    for raw in bytes.split(|&b| b == b'\n') {
-        let line = String::from_utf8_lossy(raw);
-        let mut words = line.split_whitespace();
-        match words.next() {
-            Some("l") => {}
-            Some(key @ ("usemtl" | "mtllib")) => {
-                let mut name = line.trim_start()[key.len()..].trim();
-                if name.is_empty() && key == "usemtl" {
-                    name = NO_MATERIAL;
-                }
-                out.extend_from_slice(format!("{key} {name}").as_bytes());
-            }
-            Some("v") if colors.is_some() => {
-                let w: Vec<&str> = words.collect();
-                if w.len() == 6 {
-                    out.extend_from_slice(format!("v {} {} {}", w[0], w[1], w[2]).as_bytes());
-                } else {
-                    out.extend_from_slice(line.as_bytes());
+    for (kind, total) in totals.iter().enumerate().skip(1) {
+        if *total == 0 {
+            for g in &mut o.groups {
+                for c in &mut g.corners {
+                    *[&mut c.vt, &mut c.vn][kind - 1] = MISSING;
                 }
             }
-            _ => out.extend_from_slice(line.as_bytes()),
         }
-        out.push(b'\n');
     }
-    out
+    Ok(o)
 }
 
-fn tobj_message(e: tobj::LoadError) -> String {
-    use tobj::LoadError as E;
-    match e {
-        E::FaceVertexOutOfBounds => {
-            "a face refers to a vertex defined later, after its group ends".into()
-        }
-        E::FaceTexCoordOutOfBounds => {
-            "a face refers to a texture coordinate defined after its group ends".into()
-        }
-        E::FaceNormalOutOfBounds => "a face refers to a normal defined after its group ends".into(),
-        other => other.to_string(),
+/// Gives the faces from here on the name `name` and the material `material`: the current
+/// group is kept if it read a face, and a new one begins; otherwise it is renamed.
+fn close(groups: &mut Vec<Group>, group: &mut Group, name: String, material: Option<usize>) {
+    if group.any_face {
+        groups.push(std::mem::take(group));
     }
+    group.name = name;
+    group.material = material;
 }
 
-/// Appends a `tobj` model's faces (triangulated) to `out`, all with `material`.
-fn append_model(out: &mut TriangleMesh, m: &tobj::Mesh, material: u32) -> Result<(), String> {
-    let np = m.positions.len() / 3;
-    let positions: Vec<Vec3> = (0..np)
-        .map(|i| {
-            Vec3::new(
-                m.positions[3 * i],
-                m.positions[3 * i + 1],
-                m.positions[3 * i + 2],
+/// One corner `token` of an `f` or `l` statement (`key`) on line `ln`, with `counts` the
+/// positions, texture coordinates and normals read so far (negative indices count back from
+/// there); positive indices raise `max_ref`, checked once the file is read.
+fn corner(
+    key: &str,
+    token: &str,
+    counts: [usize; 3],
+    max_ref: &mut [(usize, usize); 3],
+    ln: usize,
+) -> Result<Corner, (usize, String)> {
+    let parts: Vec<&str> = token.split('/').collect();
+    if parts.len() > 3 {
+        return Err((ln, format!("`{key}`: bad vertex {token:?}")));
+    }
+    if parts[0].is_empty() {
+        return Err((
+            ln,
+            format!("`{key}`: vertex {token:?} has no position index"),
+        ));
+    }
+    let mut index = [MISSING; 3];
+    for (kind, part) in parts.iter().enumerate() {
+        if part.is_empty() {
+            continue;
+        }
+        let x: isize = part.parse().map_err(|_| {
+            (
+                ln,
+                format!("`{key}`: cannot read index {part:?} in {token:?}"),
             )
+        })?;
+        let what = ["position", "texture coordinate", "normal"][kind];
+        if x == 0 {
+            return Err((ln, format!("`{key}`: {what} index 0 (indices start at 1)")));
+        }
+        let i = if x < 0 {
+            if x.unsigned_abs() > counts[kind] {
+                return Err((
+                    ln,
+                    format!(
+                        "`{key}`: relative {what} index {x} reaches before the first one ({} so \
+                         far)",
+                        counts[kind]
+                    ),
+                ));
+            }
+            counts[kind] - x.unsigned_abs()
+        } else {
+            let x = x as usize;
+            if x > max_ref[kind].0 {
+                max_ref[kind] = (x, ln);
+            }
+            x - 1
+        };
+        // An index past 2³² − 2 is past the end of any list (checked at the end of the file).
+        index[kind] = u32::try_from(i).unwrap_or(MISSING - 1);
+    }
+    Ok(Corner {
+        v: index[0],
+        vt: index[1],
+        vn: index[2],
+    })
+}
+
+/// Appends a group's faces (triangulated) to `out`, all with `material`; the error is (line,
+/// message).
+fn append_group(
+    out: &mut TriangleMesh,
+    obj: &Obj,
+    group: &Group,
+    material: u32,
+) -> Result<(), (usize, String)> {
+    let corners = &group.corners;
+    // The group's positions in the order its corners first name them, so that the normals
+    // accumulate over the group alone.
+    let mut local_of: HashMap<u32, usize> = HashMap::new();
+    let mut positions: Vec<Vec3> = Vec::new();
+    let local: Vec<usize> = corners
+        .iter()
+        .map(|c| {
+            *local_of.entry(c.v).or_insert_with(|| {
+                positions.push(obj.positions[c.v as usize]);
+                positions.len() - 1
+            })
         })
         .collect();
-    let corners = m.indices.len();
-    let has_uv = !m.texcoords.is_empty() && m.texcoord_indices.len() == corners;
-    let has_n = !m.normals.is_empty() && m.normal_indices.len() == corners;
-    let position_of = |c: usize| -> Result<usize, String> {
-        let p = m.indices[c] as usize;
-        if p < np {
-            Ok(p)
-        } else {
-            Err(format!("position index {p} out of range ({np})"))
-        }
-    };
+    let has_uv = corners.iter().any(|c| c.vt != MISSING);
 
     // Triangles over corners.
     let mut tris: Vec<[usize; 3]> = Vec::new();
-    let mut local: Vec<[usize; 3]> = Vec::new();
+    let mut tri_local: Vec<[usize; 3]> = Vec::new();
     let mut pts: Vec<Vec3> = Vec::new();
     let mut at = 0usize;
-    let arities: Box<dyn Iterator<Item = usize>> = if m.face_arities.is_empty() {
-        Box::new(std::iter::repeat_n(3, corners / 3))
-    } else {
-        Box::new(m.face_arities.iter().map(|&a| a as usize))
-    };
-    for k in arities {
-        let end = at
-            .checked_add(k)
-            .filter(|&e| e <= corners)
-            .ok_or("face past the indices")?;
-        if k >= 3 {
-            pts.clear();
-            for c in at..end {
-                pts.push(positions[position_of(c)?]);
-            }
-            local.clear();
-            triangulate(&pts, &mut local);
-            tris.extend(local.iter().map(|t| t.map(|i| at + i)));
-        }
+    for &(k, _) in &group.faces {
+        let end = at + k as usize;
+        pts.clear();
+        pts.extend((at..end).map(|c| positions[local[c]]));
+        tri_local.clear();
+        triangulate(&pts, &mut tri_local);
+        tris.extend(tri_local.iter().map(|t| t.map(|i| at + i)));
         at = end;
     }
 
     // Area-weighted normals per position, so that uv seams do not split the shading.
-    let mut acc = vec![Vec3::ZERO; np];
+    let mut acc = vec![Vec3::ZERO; positions.len()];
     for t in &tris {
-        let [a, b, c] = [position_of(t[0])?, position_of(t[1])?, position_of(t[2])?];
+        let [a, b, c] = t.map(|c| local[c]);
         let n = (positions[b] - positions[a]).cross(positions[c] - positions[a]);
         if n.is_finite() {
             acc[a] += n;
@@ -521,44 +600,31 @@ fn append_model(out: &mut TriangleMesh, m: &tobj::Mesh, material: u32) -> Result
         out.uvs.resize(out.positions.len(), Vec2::ZERO);
     }
     let uv_wanted = has_uv || !out.uvs.is_empty();
-    let mut vertex_of: HashMap<(u32, u32, u32), u32> = HashMap::new();
-    let mut vertex = |c: usize, out: &mut TriangleMesh| -> Result<u32, String> {
-        let p = position_of(c)?;
-        let t = if has_uv {
-            m.texcoord_indices[c]
-        } else {
-            u32::MAX
-        };
-        let n = if has_n { m.normal_indices[c] } else { u32::MAX };
-        if let Some(&v) = vertex_of.get(&(p as u32, t, n)) {
+    let mut vertex_of: HashMap<Corner, u32> = HashMap::new();
+    let line = group.faces.first().map_or(0, |f| f.1);
+    let mut vertex = |c: usize, out: &mut TriangleMesh| -> Result<u32, (usize, String)> {
+        let corner = corners[c];
+        if let Some(&v) = vertex_of.get(&corner) {
             return Ok(v);
         }
-        let id = u32::try_from(out.positions.len()).map_err(|_| "more than 2³² vertices")?;
+        let id = u32::try_from(out.positions.len())
+            .map_err(|_| (line, "more than 2³² vertices".to_string()))?;
+        let p = local[c];
         out.positions.push(positions[p]);
         let computed = unit(acc[p]).unwrap_or(Vec3::Z);
-        let normal = if has_n {
-            let n = n as usize;
-            match m.normals.get(3 * n..3 * n + 3) {
-                Some(v) => unit(Vec3::new(v[0], v[1], v[2])).unwrap_or(computed),
-                None => return Err(format!("normal index {n} out of range")),
-            }
-        } else {
-            computed
+        let normal = match obj.normals.get(corner.vn as usize) {
+            Some(&n) => unit(n).unwrap_or(computed),
+            None => computed,
         };
         out.normals.push(normal);
         if uv_wanted {
-            let uv = if has_uv {
-                let t = t as usize;
-                match m.texcoords.get(2 * t..2 * t + 2) {
-                    Some(v) => Vec2::new(v[0], 1.0 - v[1]),
-                    None => return Err(format!("texture coordinate index {t} out of range")),
-                }
-            } else {
-                Vec2::ZERO
-            };
+            let uv = obj
+                .texcoords
+                .get(corner.vt as usize)
+                .map_or(Vec2::ZERO, |t| Vec2::new(t.x, 1.0 - t.y));
             out.uvs.push(uv);
         }
-        vertex_of.insert((p as u32, t, n), id);
+        vertex_of.insert(corner, id);
         Ok(id)
     };
     for t in &tris {
@@ -577,27 +643,28 @@ struct MtlMaterial {
     map_kd: Option<(PathBuf, Wrap, String)>,
 }
 
-/// The materials of every `mtllib` in the order `tobj` numbers them.
+/// The materials of every `mtllib`, numbered in the order they were read.
 #[derive(Default)]
 struct Libraries {
     materials: Vec<MtlMaterial>,
+    /// Name → index into `materials`; a later definition of a name wins.
+    by_name: HashMap<String, usize>,
     warnings: Vec<String>,
 }
 
 impl Libraries {
-    /// `tobj`'s material loader: parses the library (or libraries, when a `mtllib` line
-    /// names several files) and returns the names in the order they were appended here.
-    fn load(&mut self, base: &Path, mtl: &Path) -> tobj::MTLLoadResult {
-        let text = mtl.to_string_lossy();
-        if text.trim().is_empty() {
+    /// Reads the library (or libraries, when a `mtllib` line names several files) `name`
+    /// relative to `base`; returns the name → index map of every material read so far.
+    fn load(&mut self, base: &Path, name: &str) -> HashMap<String, usize> {
+        if name.trim().is_empty() {
             self.warnings
                 .push("`mtllib` without a file name ignored".to_string());
-            return Err(tobj::LoadError::OpenFileFailed);
+            return self.by_name.clone();
         }
-        let whole = resolve(base, &text);
+        let whole = resolve(base, name);
         let mut files = vec![whole.clone()];
-        if !whole.is_file() && text.split_whitespace().count() > 1 {
-            files = text.split_whitespace().map(|f| resolve(base, f)).collect();
+        if !whole.is_file() && name.split_whitespace().count() > 1 {
+            files = name.split_whitespace().map(|f| resolve(base, f)).collect();
         }
         for f in &mut files {
             // A library named with another extension (`x.mat`) when `x.mtl` exists.
@@ -611,15 +678,11 @@ impl Libraries {
                 *f = alt;
             }
         }
-        let mut names: Vec<tobj::Material> = Vec::new();
         for f in files {
             match std::fs::read(&f) {
                 Ok(bytes) => {
                     for m in parse_mtl(&bytes, &f, &mut self.warnings) {
-                        names.push(tobj::Material {
-                            name: m.name.clone(),
-                            ..Default::default()
-                        });
+                        self.by_name.insert(m.name.clone(), self.materials.len());
                         self.materials.push(m);
                     }
                 }
@@ -629,13 +692,7 @@ impl Libraries {
                 )),
             }
         }
-        // Later definitions of a name win, as in tobj.
-        let map = names
-            .iter()
-            .enumerate()
-            .map(|(i, m)| (m.name.clone(), i))
-            .collect();
-        Ok((names, map))
+        self.by_name.clone()
     }
 }
 
@@ -854,19 +911,69 @@ mod tests {
         assert_eq!(texture_argument("-bm 0.3"), None);
     }
 
+    fn parse_text(text: &[u8]) -> Result<Obj, (usize, String)> {
+        parse(text, &mut |_| HashMap::new())
+    }
+
+    const TRIANGLE: &[u8] = b"v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+
     #[test]
-    fn prescan_reports_lines() {
-        let e = prescan(b"v 0 0 0\nv 1 0 0\nf 1 2 3\n").err().unwrap();
-        assert_eq!(e.0, 3);
-        let e = prescan(b"v 0 0 0\nf -2 1 1\n").err().unwrap();
-        assert_eq!(e.0, 2);
-        let e = prescan(b"v 0 0 nan\n").err().unwrap();
-        assert_eq!(e.0, 1);
-        assert!(
-            prescan(b"v 0 0 0 1 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
-                .unwrap()
-                .mixed_colors
-                .is_some()
+    fn errors_name_their_line() {
+        let line = |text: &[u8]| parse_text(text).unwrap_err().0;
+        assert_eq!(line(b"v 0 0 0\nv 1 0 0\nf 1 2 3\n"), 3);
+        assert_eq!(line(b"v 0 0 0\nf -2 1 1\n"), 2);
+        assert_eq!(line(b"v 0 0 nan\n"), 1);
+        assert_eq!(line(b"v 1e39 0 0\n"), 1);
+        assert_eq!(line(b"v 0 0 0\nvt 0\n"), 2);
+        assert_eq!(line(b"v 0 0 0\n\nf 1 1 0\n"), 3);
+        // A continued statement's line is the one it starts on.
+        assert_eq!(line(b"v 0 0 0\nf 1 \\\n 1 9\n"), 2);
+        // Indices too large for any list are errors, not allocations.
+        let (ln, message) = parse_text(b"v 0 0 0\nf 1 1 99999999999999999999999\n").unwrap_err();
+        assert_eq!(ln, 2, "{message}");
+        let (ln, message) = parse_text(b"v 0 0 0\nf 1 1 4294967297\n").unwrap_err();
+        assert_eq!(ln, 2);
+        assert!(message.contains("out of range"), "{message}");
+        assert!(parse_text(b"v 0 0 0\x00\n").is_err());
+    }
+
+    #[test]
+    fn statements_are_read_as_written() {
+        // An `l` with three points is a polyline, not a face.
+        let o = parse_text(&[TRIANGLE, b"l 1 2 3\nf 1 2 3\n"].concat()).unwrap();
+        assert_eq!((o.faces, o.lines), (1, 1));
+        // Vertex colours on only some `v` lines.
+        let o = parse_text(b"v 0 0 0 1 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+        assert_eq!(o.mixed_colors, Some(2));
+        // Comments after statements and continued lines.
+        let o = parse_text(b"v 0 0 0 # origin\nv 1 0 0\nv 0 1 0\nf 1 \\\r\n 2 3 # face\n").unwrap();
+        assert_eq!(o.faces, 1);
+        assert_eq!(o.groups.last().unwrap().corners.len(), 3);
+        // Negative indices and the index forms.
+        let o =
+            parse_text(&[TRIANGLE, b"vt 0 0\nvn 0 0 1\nf -3/1/1 -2//1 -1/-1\n"].concat()).unwrap();
+        let c = |v, vt, vn| Corner { v, vt, vn };
+        assert_eq!(
+            o.groups.last().unwrap().corners,
+            [c(0, 0, 0), c(1, MISSING, 0), c(2, 0, MISSING)]
+        );
+        // Names and materials split the faces into groups; a name without faces renames.
+        let mut libs = |_: &str| HashMap::from([("red".to_string(), 0)]);
+        let text = [
+            b"mtllib m.mtl\n",
+            TRIANGLE,
+            b"g a\ng b\nf 1 2 3\nusemtl red\nf 1 2 3\nusemtl red\nf 1 2 3\no c # object\nf 1 2 3\n",
+        ]
+        .concat();
+        let o = parse(&text, &mut libs).unwrap();
+        let groups: Vec<(&str, Option<usize>, usize)> = o
+            .groups
+            .iter()
+            .map(|g| (g.name.as_str(), g.material, g.faces.len()))
+            .collect();
+        assert_eq!(
+            groups,
+            [("b", None, 1), ("b", Some(0), 2), ("c", Some(0), 1)]
         );
     }
 }
