@@ -1,9 +1,11 @@
 //! What the integration tests share: the repository, the shared third-party assets, the
 //! binary, temporary folders, the rays the backend comparisons cast ([`rays`]), image metrics
-//! ([`psnr`], the library's) and the GPU context ([`gpu`]). Each test crate compiles this
-//! module on its own and uses a part of it.
-#![allow(dead_code)]
+//! ([`psnr`], the library's), the GPU context ([`gpu`]) and the conformance macros
+//! ([`conformance`]). Each test crate compiles this module on its own and uses a part of it.
+#![allow(dead_code, unused_macros, unused_imports)]
 
+#[macro_use]
+pub mod conformance;
 #[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod rays;
