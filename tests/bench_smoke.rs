@@ -7,8 +7,8 @@ use common::{assets, hytrace};
 
 #[test]
 fn quick_bench_writes_tables_and_json() {
-    let json =
-        std::env::temp_dir().join(format!("hytrace-bench-smoke-{}.json", std::process::id()));
+    let dir = common::temp_dir("bench-smoke");
+    let json = dir.path().join("bench.json");
     let out = hytrace()
         .args(["bench", "--quick", "--threads", "1,2", "--assets"])
         .arg(assets())
@@ -36,7 +36,6 @@ fn quick_bench_writes_tables_and_json() {
     assert_eq!(rows.len(), 8, "4 ray sets × 2 thread counts:\n{stdout}");
 
     let text = std::fs::read_to_string(&json).expect("the JSON report was written");
-    let _ = std::fs::remove_file(&json);
     let v: serde_json::Value = serde_json::from_str(&text).expect("well-formed JSON");
     assert_eq!(v["quick"], true);
     assert!(v["machine"]["cpu"].is_string() && v["machine"]["commit"].is_string());

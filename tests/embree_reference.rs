@@ -6,16 +6,18 @@
 //! Figures are printed (run with `--nocapture` to see them).
 #![cfg(feature = "embree")]
 
+mod common;
+use common::rays::{self, bounds};
+
 use glam::Vec3;
-use hytrace::geom::{Aabb, Ray};
+use hytrace::geom::Ray;
 use hytrace::reference::analytic;
 use hytrace::reference::embree::{
     DEFAULT_MESH_RESOLUTION, EmbreeScene, ReferenceOptions, SdfCheck,
 };
 use hytrace::reference::mesher::{MeshOptions, mesh_sdf};
 use hytrace::reference::validate::{mesh_dt_tolerance, sdf_dt_tolerance};
-use hytrace::rng::Rng;
-use hytrace::scene::{Light, Scene};
+use hytrace::scene::Scene;
 use hytrace::trace::query::{ObjectId, QueryHit, RayQuery};
 use hytrace::trace::{SceneTracer, epsilon_at};
 use std::cell::Cell;
@@ -41,12 +43,6 @@ fn scene(objects: &str) -> Scene {
     Scene::from_source(&src, Path::new("embree-reference.ron")).unwrap_or_else(|e| panic!("{e}"))
 }
 
-fn temp_dir() -> PathBuf {
-    let d = std::env::temp_dir().join(format!("hytrace-embree-ref-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
 /// A unit icosphere (icosahedron subdivided twice, 320 triangles) as an OBJ file,
 /// counter-clockwise seen from outside.
 fn write_icosphere(dir: &Path) -> PathBuf {
@@ -69,46 +65,11 @@ fn write_icosphere(dir: &Path) -> PathBuf {
     path
 }
 
-/// Bounds of everything finite: SDF objects and mesh instances.
-fn bounds(scene: &Scene) -> Aabb {
-    let b = scene.finite_bounds().union(&scene.meshes.bounds());
-    if b.is_empty() {
-        Aabb::symmetric(Vec3::splat(2.0))
-    } else {
-        b
-    }
-}
-
-/// Primary rays through a camera grid, then random rays from a sphere around the scene's
-/// bounds toward random points in them. Random origins inside a solid (below a ground plane)
-/// are drawn again: there the tracer reports a hit at t = tmin, Embree the surface crossing.
+/// Primary rays through a camera grid, then random rays from outside every solid
+/// ([`rays::scene_rays`]).
 fn rays(scene: &Scene, seed: u64) -> Vec<Ray> {
-    let tracer = SceneTracer::new(scene);
     let aspect = GRID_W as f32 / GRID_H as f32;
-    let mut out = Vec::new();
-    for j in 0..GRID_H {
-        for i in 0..GRID_W {
-            let (u, v) = (
-                (i as f32 + 0.5) / GRID_W as f32,
-                (j as f32 + 0.5) / GRID_H as f32,
-            );
-            out.push(scene.camera.ray(u, v, aspect));
-        }
-    }
-    let b = bounds(scene);
-    let (c, r) = (b.center(), 0.5 * b.diagonal());
-    let mut rng = Rng::new(seed);
-    for _ in 0..RANDOM_RAYS {
-        let o = loop {
-            let o = c + 1.5 * r * rng.direction();
-            if tracer.distance(o, f32::INFINITY) > 1e-3 {
-                break o;
-            }
-        };
-        let target = rng.in_box(b.min, b.max);
-        out.push(Ray::new(o, target - o));
-    }
-    out
+    rays::scene_rays(scene, GRID_W, GRID_H, aspect, RANDOM_RAYS, seed)
 }
 
 /// Agreement between a candidate and the referee over one scene's rays.
@@ -290,13 +251,9 @@ fn outside_mesh(referee: &EmbreeScene, object: ObjectId, p: Vec3) -> bool {
 fn compare(scene: &Scene, candidate: &dyn RayQuery, referee: &EmbreeScene, seed: u64) -> Report {
     let s = &scene.tracer;
     let diameter = bounds(scene).diagonal();
-    let light = scene
-        .lights
-        .iter()
-        .find_map(|l| match l {
-            Light::Point { position, .. } => Some(*position),
-            _ => None,
-        })
+    let light = rays::lights(scene)
+        .into_iter()
+        .find(|l| matches!(l, rays::LightAt::Point(_)))
         .expect("a point light");
     let tmax = s.max_distance;
     let tau = |o: ObjectId| mesh_tolerance(referee, o);
@@ -421,15 +378,10 @@ fn compare(scene: &Scene, candidate: &dyn RayQuery, referee: &EmbreeScene, seed:
         // from, as the renderer casts it, plus twice the tolerance of the referee's mesh of
         // the object hit (else the ray could start behind that mesh).
         if let Some(h) = a {
-            let n = if h.normal.dot(ray.direction) > 0.0 {
-                -h.normal
-            } else {
-                h.normal
-            };
-            let o = ray.at(h.t) + (4.0 * epsilon_at(s, h.t) + 2.0 * tau(h.object)) * n;
-            let to_light = light - o;
-            let dist = to_light.length();
-            let shadow = Ray::new(o, to_light);
+            let n = rays::facing(ray, h.normal);
+            let offset = rays::shadow_offset(scene, h.t) + 2.0 * tau(h.object);
+            let o = rays::shadow_origin(ray, h.t, h.normal, offset);
+            let (shadow, dist) = rays::toward(o, light);
             // The blocker is a meshed object the shadow ray passes within its tolerance of: the
             // referee's blocker lies within the tolerance of the true surface, or the
             // candidate's blocker within 3·ε(t) + tolerance of the referee's mesh.
@@ -549,7 +501,8 @@ fn two_icospheres(path: &Path) -> String {
 /// One mesh file placed twice with different transforms: Embree instances it.
 #[test]
 fn instanced_meshes_agree_with_embree() {
-    let path = write_icosphere(&temp_dir());
+    let dir = common::temp_dir("embree-reference");
+    let path = write_icosphere(dir.path());
     let scene = scene(&two_icospheres(&path));
     assert_eq!(scene.meshes.meshes.len(), 1);
     assert_eq!(scene.meshes.instances.len(), 2);
@@ -578,7 +531,8 @@ fn instanced_meshes_agree_with_embree() {
 /// normals up to the smoothing of a 320-triangle sphere.
 #[test]
 fn mesh_normals_agree_with_embree() {
-    let path = write_icosphere(&temp_dir());
+    let dir = common::temp_dir("embree-reference");
+    let path = write_icosphere(dir.path());
     let scene = scene(&two_icospheres(&path));
     let embree = EmbreeScene::build(&scene).unwrap();
     let tracer = SceneTracer::new(&scene);
@@ -598,7 +552,8 @@ fn mesh_normals_agree_with_embree() {
 /// SDF primitives, instanced meshes and an (infinite) ground plane together.
 #[test]
 fn mixed_scene_agrees_with_embree() {
-    let path = write_icosphere(&temp_dir());
+    let dir = common::temp_dir("embree-reference");
+    let path = write_icosphere(dir.path());
     let objects = format!(
         "{},
          (shape: Torus(major: 0.7, minor: 0.2), rotate: (70, 0, 0), translate: (0, 0.4, 1.2)),
@@ -656,20 +611,14 @@ fn composite_objects_are_meshed() {
 /// scene, how many objects are analytic and meshed, their triangles and the build time.
 #[test]
 fn shipped_scenes_build_with_meshes() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/scenes");
-    let mut paths: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "ron"))
-        .collect();
-    paths.sort();
+    let paths = common::conformance::shipped_scenes();
     assert!(paths.len() >= 9, "{paths:?}");
     let mut total = std::time::Duration::ZERO;
     for path in &paths {
         let scene = match Scene::load(path) {
             Ok(s) => s,
             // A scene naming shared mesh assets that are not installed (see tests/hybrid.rs).
-            Err(e) if !shared_assets_present() => {
+            Err(e) if common::assets_or_skip(&format!("{}", path.display())).is_none() => {
                 println!(
                     "{}: not loaded without the shared assets: {e}",
                     path.display()
@@ -736,13 +685,6 @@ fn shipped_scenes_build_with_meshes() {
         }
     }
     println!("all shipped scenes: {:.2} s", total.as_secs_f64());
-}
-
-fn shared_assets_present() -> bool {
-    std::env::var_os("HYTRACE_ASSETS")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets"))
-        .is_dir()
 }
 
 /// A tracer that is off by 20·ε(t) on every hit, or that drops every 50th hit.
@@ -884,7 +826,7 @@ fn meshed_sphere_matches_its_closed_form() {
 }
 
 fn asset_scene(name: &str) -> Scene {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("assets/scenes/{name}.ron"));
+    let path = common::root().join(format!("assets/scenes/{name}.ron"));
     Scene::load(&path).unwrap_or_else(|e| panic!("{e}"))
 }
 

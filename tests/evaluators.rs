@@ -2,6 +2,8 @@
 //! node kind: SIMD lanes against the scalar interpreter (bit for bit), interval enclosures
 //! against point samples, and region-specialised tapes against the whole tape.
 
+mod common;
+
 use glam::Vec3;
 use hytrace::accel::field::FieldOctree;
 use hytrace::rng::Rng;
@@ -363,15 +365,8 @@ fn packets_give_each_ray_its_own_answer_on_every_shipped_object() {
     for file in scene_files(&dir).unwrap() {
         let scene = Scene::load(&file).unwrap_or_else(|e| panic!("{e}"));
         let tracer = SceneTracer::new(&scene);
-        let (w, h) = (48u32, 36u32);
-        let aspect = w as f32 / h as f32;
         // camera rays in row order (coherent), and some scattered ones (incoherent)
-        let mut rays: Vec<hytrace::geom::Ray> = (0..w * h)
-            .map(|k| {
-                let (x, y) = ((k % w) as f32 + 0.5, (k / w) as f32 + 0.5);
-                scene.camera.ray(x / w as f32, y / h as f32, aspect)
-            })
-            .collect();
+        let mut rays = common::rays::camera_grid(&scene, 48, 36, 48.0 / 36.0);
         let b = scene.finite_bounds();
         for _ in 0..256 {
             let o = rng.in_box(b.min - Vec3::splat(1.0), b.max + Vec3::splat(1.0));

@@ -2,6 +2,8 @@
 //! names, 32-bit float samples, lossless compression and y = 0 as the top row; and the
 //! `hytrace render -o x.exr --aov …` command line produces such a file from the showcase.
 
+mod common;
+
 use exr::prelude::{
     AnyChannels, Compression, FlatSamples, Image, Layer, ReadChannels, ReadLayers, read,
 };
@@ -11,29 +13,20 @@ use hytrace::render::exr::{Aov, write_exr};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::sync::atomic::{AtomicUsize, Ordering};
 
-/// A unique path under the system temp dir, removed on drop.
-struct TempPath(PathBuf);
+/// A path in a fresh temporary folder; the folder goes when the value is dropped.
+struct TempPath {
+    path: PathBuf,
+    _dir: tempfile::TempDir,
+}
 
 impl TempPath {
     fn new(tag: &str, ext: &str) -> TempPath {
-        static COUNTER: AtomicUsize = AtomicUsize::new(0);
-        let nanos = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_nanos())
-            .unwrap_or(0);
-        let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-        TempPath(std::env::temp_dir().join(format!(
-            "hytrace-exr-{tag}-{}-{nanos}-{n}.{ext}",
-            std::process::id()
-        )))
-    }
-}
-
-impl Drop for TempPath {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_file(&self.0);
+        let dir = common::temp_dir(&format!("exr-{tag}"));
+        TempPath {
+            path: dir.path().join(format!("{tag}.{ext}")),
+            _dir: dir,
+        }
     }
 }
 
@@ -136,9 +129,9 @@ fn all_aovs_read_back_bit_identical() {
         Aov::Depth,
         Aov::Steps,
     ];
-    write_exr(&fb, &aovs, &path.0).unwrap();
+    write_exr(&fb, &aovs, &path.path).unwrap();
 
-    let layer = read_layer(&path.0);
+    let layer = read_layer(&path.path);
     assert_eq!(layer.size.0, 7);
     assert_eq!(layer.size.1, 5);
     assert_eq!(layer.attributes.layer_position.0, 0);
@@ -187,8 +180,8 @@ fn all_aovs_read_back_bit_identical() {
 fn rgb_only_has_exactly_r_g_b() {
     let fb = sample_framebuffer();
     let path = TempPath::new("rgb", "exr");
-    write_exr(&fb, &[], &path.0).unwrap();
-    let ch = channels(&read_layer(&path.0));
+    write_exr(&fb, &[], &path.path).unwrap();
+    let ch = channels(&read_layer(&path.path));
     let names: Vec<&str> = ch.keys().map(String::as_str).collect();
     assert_eq!(names, ["B", "G", "R"]);
     for (name, values) in &ch {
@@ -209,8 +202,8 @@ fn each_aov_alone_adds_only_its_channels() {
     ];
     for (aov, extra) in cases {
         let path = TempPath::new("one", "exr");
-        write_exr(&fb, &[aov], &path.0).unwrap();
-        let ch = channels(&read_layer(&path.0));
+        write_exr(&fb, &[aov], &path.path).unwrap();
+        let ch = channels(&read_layer(&path.path));
         let mut want: Vec<&str> = vec!["B", "G", "R"];
         want.extend_from_slice(extra);
         want.sort_unstable();
@@ -223,7 +216,7 @@ fn each_aov_alone_adds_only_its_channels() {
 fn unwritable_path_is_an_error_naming_the_file() {
     let fb = sample_framebuffer();
     let dir = TempPath::new("missing-dir", "d");
-    let path = dir.0.join("out.exr");
+    let path = dir.path.join("out.exr");
     let err = write_exr(&fb, &[Aov::Depth], &path).unwrap_err();
     let msg = format!("{err:#}");
     assert!(msg.contains(&path.display().to_string()), "{msg}");
@@ -235,8 +228,8 @@ fn inconsistent_framebuffer_is_an_error_not_a_panic() {
     let mut fb = sample_framebuffer();
     fb.depth.pop();
     let path = TempPath::new("short", "exr");
-    let err = write_exr(&fb, &[Aov::Depth], &path.0).unwrap_err();
-    assert!(format!("{err:#}").contains(&path.0.display().to_string()));
+    let err = write_exr(&fb, &[Aov::Depth], &path.path).unwrap_err();
+    assert!(format!("{err:#}").contains(&path.path.display().to_string()));
 }
 
 #[test]
@@ -244,7 +237,7 @@ fn cli_renders_showcase_with_all_aovs() {
     let path = TempPath::new("cli", "exr");
     let out = Command::new(env!("CARGO_BIN_EXE_hytrace"))
         .args(["render", "--width", "24", "--height", "16", "-q", "-o"])
-        .arg(&path.0)
+        .arg(&path.path)
         .args(["--aov", "depth,normal,albedo,steps"])
         .output()
         .unwrap();
@@ -254,7 +247,7 @@ fn cli_renders_showcase_with_all_aovs() {
         String::from_utf8_lossy(&out.stderr)
     );
 
-    let layer = read_layer(&path.0);
+    let layer = read_layer(&path.path);
     assert_eq!((layer.size.0, layer.size.1), (24, 16));
     let ch = channels(&layer);
     assert_eq!(ch.len(), 3 + 1 + 3 + 3 + 1);
@@ -295,12 +288,12 @@ fn cli_aov_with_png_output_fails_cleanly() {
         .args([
             "render", "--width", "8", "--height", "8", "-q", "--aov", "depth", "-o",
         ])
-        .arg(&path.0)
+        .arg(&path.path)
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "succeeded: {stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert!(stderr.contains("--aov"), "{stderr}");
-    assert!(!path.0.exists());
+    assert!(!path.path.exists());
 }

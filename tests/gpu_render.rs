@@ -88,22 +88,6 @@ fn shaded(scene: &Scene, fb: &Framebuffer) -> RgbImage {
     picture(fb, View::Shaded, tone, scene.tracer.max_steps)
 }
 
-/// Peak signal-to-noise ratio of two 8-bit images over all channels (∞ when identical).
-fn psnr(a: &RgbImage, b: &RgbImage) -> f64 {
-    let sum: f64 = a
-        .as_raw()
-        .iter()
-        .zip(b.as_raw())
-        .map(|(&x, &y)| (x as f64 - y as f64).powi(2))
-        .sum();
-    let mse = sum / a.as_raw().len() as f64;
-    if mse == 0.0 {
-        f64::INFINITY
-    } else {
-        10.0 * (255.0f64 * 255.0 / mse).log10()
-    }
-}
-
 /// Writes CPU, GPU and amplified-difference images where a failing test can be inspected;
 /// returns the folder.
 fn evidence(name: &str, cpu: &RgbImage, gpu: &RgbImage) -> PathBuf {
@@ -186,7 +170,7 @@ fn compare_scene(name: &str, scene: &Scene, gpu: &Gpu) -> Outcome {
     let gpu_fb = gpu.render(scene, &options(spp));
     let gpu_seconds = start.elapsed().as_secs_f64();
     let (cpu_img, gpu_img) = (shaded(scene, &cpu_fb), shaded(scene, &gpu_fb));
-    let psnr = psnr(&cpu_img, &gpu_img);
+    let psnr = common::psnr(&cpu_img, &gpu_img);
     let mut problems = Vec::new();
     if psnr < MIN_PSNR {
         let dir = evidence(name, &cpu_img, &gpu_img);

@@ -12,12 +12,6 @@ use hytrace::shade::integrator::trace_camera_ray;
 use hytrace::trace::{AccelOptions, SceneTracer, Surface};
 use std::path::{Path, PathBuf};
 
-fn temp_dir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("hytrace-hybrid-{tag}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
 /// A square of side 2·h in the plane y = `y`, as an OBJ file (two triangles).
 fn write_quad(dir: &Path, h: f32, y: f32) -> PathBuf {
     let p = dir.join("quad.obj");
@@ -75,7 +69,8 @@ fn shadow_agreement(fb: &Framebuffer, occluder_radius_seen: f32) -> f32 {
 
 #[test]
 fn an_sdf_shadows_a_mesh() {
-    let dir = temp_dir("sdf-on-mesh");
+    let dir_tmp = common::temp_dir("hybrid-sdf-on-mesh");
+    let dir = dir_tmp.path().to_path_buf();
     let quad = write_quad(&dir, 3.0, 0.0);
     let fb = render_top_down(&format!(
         "(mesh: \"{}\"), (shape: Sphere(radius: 0.5), translate: (0, 1, 0))",
@@ -91,7 +86,8 @@ fn a_mesh_shadows_an_sdf() {
     // sphere's silhouette radius gives the same analytic shadow as the sphere: a disk of
     // radius 0.5 at height 1 from a light at height 3 projects to radius 0.75 — use the quad's
     // own geometry: a square of half-side 0.5 projects to a square of half-side 0.75.
-    let dir = temp_dir("mesh-on-sdf");
+    let dir_tmp = common::temp_dir("hybrid-mesh-on-sdf");
+    let dir = dir_tmp.path().to_path_buf();
     let quad = write_quad(&dir, 0.5, 1.0);
     let fb = render_top_down(&format!(
         "(shape: Plane(normal: (0, 1, 0), offset: 0)), (mesh: \"{}\")",
@@ -118,7 +114,8 @@ fn a_mesh_shadows_an_sdf() {
 
 #[test]
 fn closest_hit_picks_the_nearer_of_mesh_and_sdf() {
-    let dir = temp_dir("nearest");
+    let dir_tmp = common::temp_dir("hybrid-nearest");
+    let dir = dir_tmp.path().to_path_buf();
     let quad = write_quad(&dir, 2.0, 0.5);
     for (sphere_y, expect_mesh) in [(-1.0, true), (2.0, false)] {
         let src = format!(
@@ -244,7 +241,8 @@ fn the_binary_renders_the_hybrid_showcase_from_the_repository_root_without_the_v
         );
         return;
     }
-    let png = temp_dir("cli-default-assets").join("hybrid.png");
+    let png_tmp = common::temp_dir("hybrid-cli-default-assets");
+    let png = png_tmp.path().join("hybrid.png");
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_hytrace"))
         .current_dir(root)
         .env_remove("HYTRACE_ASSETS")
@@ -345,7 +343,8 @@ fn bad_mesh_objects_are_clear_errors() {
         assert!(e.contains(expect), "{object}: {e}");
     }
     // a directory and an empty file name the mesh file
-    let dir = temp_dir("bad-mesh");
+    let dir_tmp = common::temp_dir("hybrid-bad-mesh");
+    let dir = dir_tmp.path().to_path_buf();
     std::fs::write(dir.join("empty.glb"), b"").unwrap();
     let src = format!(
         "Scene(camera: Perspective(position: (0, 0, 5), look_at: (0, 0, 0)), objects: [(mesh: \"{}\")])",

@@ -773,13 +773,6 @@ fn obj_features() {
     assert_eq!(bunny.triangle_count(), 69451);
 }
 
-/// A scratch folder for files written by the tests.
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("hytrace-mesh-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
 fn signed_area(m: &hytrace::scene::mesh::TriangleMesh, normal: Vec3) -> Vec<f32> {
     m.triangles
         .iter()
@@ -795,7 +788,8 @@ const L_SHAPE: [(f32, f32); 6] = [(2., 1.), (1., 1.), (1., 2.), (0., 2.), (0., 0
 
 #[test]
 fn concave_obj_polygon_is_covered_exactly() {
-    let dir = scratch("concave");
+    let dir_tmp = common::temp_dir("mesh-concave");
+    let dir = dir_tmp.path().to_path_buf();
     let path = dir.join("l_shape.obj");
     let mut text = String::from("# L-shaped hexagon\n");
     for (x, y) in L_SHAPE {
@@ -979,7 +973,8 @@ fn ply_binary_be() -> Vec<u8> {
 
 #[test]
 fn ply_ascii_and_binary_agree() {
-    let dir = scratch("ply");
+    let dir_tmp = common::temp_dir("mesh-ply");
+    let dir = dir_tmp.path().to_path_buf();
     let mut first: Option<MeshAsset> = None;
     for (name, bytes) in [
         ("ascii.ply", ply_ascii()),
@@ -1024,7 +1019,8 @@ fn ply_ascii_and_binary_agree() {
 
 #[test]
 fn concave_ply_face_and_normals() {
-    let dir = scratch("ply-concave");
+    let dir_tmp = common::temp_dir("mesh-ply-concave");
+    let dir = dir_tmp.path().to_path_buf();
     let mut s = String::from(
         "ply\nformat ascii 1.0\nelement vertex 6\nproperty float x\nproperty float y\n\
          property float z\nproperty float nx\nproperty float ny\nproperty float nz\n\
@@ -1072,7 +1068,8 @@ fn expect_error(path: &Path, what: &str) -> String {
 
 #[test]
 fn bad_input_is_an_error_naming_the_file() {
-    let dir = scratch("bad");
+    let dir_tmp = common::temp_dir("mesh-bad");
+    let dir = dir_tmp.path().to_path_buf();
     let write = |name: &str, bytes: &[u8]| {
         let p = dir.join(name);
         std::fs::write(&p, bytes).unwrap();
@@ -1242,7 +1239,8 @@ fn bad_input_is_an_error_naming_the_file() {
 
 #[test]
 fn missing_mtl_and_textures_are_warnings() {
-    let dir = scratch("mtl");
+    let dir_tmp = common::temp_dir("mesh-mtl");
+    let dir = dir_tmp.path().to_path_buf();
     std::fs::write(
         dir.join("m.mtl"),
         "newmtl red\nKd 1 0 0\nKs 0.5 0.5 0.5\nNs 64\nd 0.25\nNi 1.33\nmap_Kd -s 1 1 1 gone.png\n\
@@ -1433,7 +1431,8 @@ type Seed = (String, Vec<u8>, Option<(String, Vec<u8>)>);
 
 #[test]
 fn mutated_files_never_panic_or_hang() {
-    let dir = scratch("fuzz");
+    let dir_tmp = common::temp_dir("mesh-fuzz");
+    let dir = dir_tmp.path().to_path_buf();
     // (file name, bytes, companion file mutated instead when `true` is drawn)
     let mut seeds: Vec<Seed> = vec![
         ("a.ply".into(), ply_ascii(), None),

@@ -2,6 +2,8 @@
 //! right side of the surface, the white zero line on the surface, every shipped scene on three
 //! planes, the axis convention, determinism, and the command line's errors.
 
+mod common;
+
 use glam::{Vec2, Vec3};
 use hytrace::render::slice::{Axis, Plane, SliceOptions, draw, sample};
 use hytrace::scene::Scene;
@@ -230,12 +232,6 @@ fn thesis_figures_have_their_zero_sets() {
 
 // ---- the command line ----
 
-fn tmp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("hytrace-slice-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
 fn hytrace(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_hytrace"))
         .args(args)
@@ -245,7 +241,8 @@ fn hytrace(args: &[&str]) -> std::process::Output {
 
 #[test]
 fn cli_rejects_bad_input() {
-    let dir = tmp_dir("bad");
+    let dir_tmp = common::temp_dir("slice-bad");
+    let dir = dir_tmp.path().to_path_buf();
     let out = dir.join("out.png");
     let out = out.to_str().unwrap();
     let circle = "assets/scenes/slices/circle.ron";
@@ -308,12 +305,12 @@ fn cli_rejects_bad_input() {
         vec!["slice", circle, "-o", nowhere.to_str().unwrap()],
         "x.png",
     );
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
 fn cli_writes_a_png_of_the_requested_size() {
-    let dir = tmp_dir("ok");
+    let dir_tmp = common::temp_dir("slice-ok");
+    let dir = dir_tmp.path().to_path_buf();
     let out = dir.join("slice.png");
     let o = hytrace(&[
         "slice",
@@ -354,5 +351,4 @@ fn cli_writes_a_png_of_the_requested_size() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(o.stderr.is_empty(), "-q printed something");
     assert_eq!(image::open(&out).unwrap().to_rgb8().dimensions(), (17, 9));
-    std::fs::remove_dir_all(&dir).ok();
 }

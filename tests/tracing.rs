@@ -3,6 +3,7 @@
 use glam::{DVec3, Vec3};
 use hytrace::geom::Ray;
 use hytrace::reference::analytic::{self, AnalyticHit};
+use hytrace::reference::validate::sdf_dt_tolerance;
 use hytrace::render::{RenderOptions, cpu};
 use hytrace::scene::Scene;
 use hytrace::sdf::conformance::Rng;
@@ -22,8 +23,10 @@ type Analytic = dyn Fn(DVec3, DVec3) -> Option<AnalyticHit>;
 /// Random rays from a sphere of radius 4 aimed at points near the shape; compares hit/miss and
 /// t with the closed form. The tolerance follows from the stopping rule: the tracer stops where
 /// f < ε(t), i.e. within ε(t) of the surface for an exact field, which along a ray meeting the
-/// surface at angle θ to the normal is |Δt| ≤ ε(t)/cos θ. Rays with cos θ < 0.05 (the grazing
-/// band at silhouettes) may disagree on hit/miss; nothing else may.
+/// surface at angle θ to the normal is |Δt| ≤ ε(t)/cos θ, within the library's tolerance
+/// ([`sdf_dt_tolerance`], whose bound holds two tracers to each other and so holds one to the
+/// closed form). Rays with cos θ < 0.05 (the grazing band at silhouettes) may disagree on
+/// hit/miss; nothing else may.
 fn check_against_closed_form(name: &str, shape: &str, closed: &Analytic) {
     let scene = scene_with(shape, "epsilon: 1e-5, epsilon_per_unit: 0, max_steps: 2000");
     let tracer = SceneTracer::new(&scene);
@@ -45,7 +48,7 @@ fn check_against_closed_form(name: &str, shape: &str, closed: &Analytic) {
             (Some(a), Some(b)) => {
                 agree += 1;
                 let cos = b.normal.dot(ray.direction.as_dvec3()).abs().max(1e-3) as f32;
-                let tol = epsilon_at(&scene.tracer, a.t) / cos + 1e-4;
+                let tol = sdf_dt_tolerance(&scene.tracer, a.t, cos, 0.0);
                 let dt = (a.t - b.t as f32).abs();
                 if !grazing(&b) {
                     max_dt = max_dt.max(dt);

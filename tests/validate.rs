@@ -40,12 +40,6 @@ fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
 
-fn temp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("hytrace-validate-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
 /// The shared third-party models (`$HYTRACE_ASSETS`, default ../shared/assets). Missing: an
 /// error under CI=true, a loud message otherwise.
 fn assets(test: &str) -> Option<PathBuf> {
@@ -182,17 +176,23 @@ const PLACED_MODELS: &str = r#"Scene(
     shading: (max_bounces: 4, ambient_occlusion: (strength: 1.0, steps: 5, step: 0.08)),
 )"#;
 
-fn placed_models(test: &str) -> Option<(Scene, PathBuf)> {
+/// The placed-models scene, written into a temporary folder that lives as long as the
+/// returned value (the file is read again by the command line).
+fn placed_models(test: &str) -> Option<(Scene, PathBuf, tempfile::TempDir)> {
     assets(test)?;
-    let dir = temp_dir(test);
-    let path = dir.join("placed-models.ron");
+    let dir = common::temp_dir(&format!("validate-{test}"));
+    let path = dir.path().join("placed-models.ron");
     std::fs::write(&path, PLACED_MODELS).unwrap();
-    Some((Scene::load(&path).unwrap_or_else(|e| panic!("{e}")), path))
+    Some((
+        Scene::load(&path).unwrap_or_else(|e| panic!("{e}")),
+        path,
+        dir,
+    ))
 }
 
 #[test]
 fn real_models_placed_in_a_scene_pass() {
-    let Some((scene, _)) = placed_models("placed_models") else {
+    let Some((scene, _, _dir)) = placed_models("placed_models") else {
         return;
     };
     let r = assert_passes("bunny and duck among analytic SDFs", &scene);
@@ -222,7 +222,8 @@ fn analytic_scene() -> Scene {
 /// passing scene; status 1 and the failures on a scene with an object Embree skips.
 #[test]
 fn command_line_validate() {
-    let dir = temp_dir("cli");
+    let dir_tmp = common::temp_dir("validate-cli");
+    let dir = dir_tmp.path().to_path_buf();
     let good = dir.join("analytic.ron");
     std::fs::write(&good, ANALYTIC).unwrap();
     let json = dir.join("report.json");
@@ -514,10 +515,11 @@ fn one_query_at_a_time_renders_the_cpu_renderer_s_image() {
 /// two 8-bit levels (squared error ≈ (2/255)²). MSE ≤ 0.001 + 6e-5, so PSNR ≥ 29.7 dB.
 #[test]
 fn compare_writes_images_and_metrics() {
-    let Some((scene, path)) = placed_models("compare") else {
+    let Some((scene, path, _dir)) = placed_models("compare") else {
         return;
     };
-    let out = temp_dir("compare-out");
+    let out_tmp = common::temp_dir("validate-compare-out");
+    let out = out_tmp.path().to_path_buf();
     let run = Command::new(env!("CARGO_BIN_EXE_hytrace"))
         .arg("compare")
         .arg(&path)

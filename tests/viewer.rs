@@ -174,20 +174,12 @@ fn render(scene: Option<&Path>, out: &Path, extra: &[&str]) {
     assert_ok(&o, "hytrace render");
 }
 
-/// Peak signal-to-noise ratio of two 8-bit images of one size, in dB (infinite when equal).
+/// Peak signal-to-noise ratio of two 8-bit image files of one size, in dB (infinite when
+/// equal).
 fn psnr(a: &Path, b: &Path) -> f64 {
     let a = image::open(a).expect("image a").to_rgb8();
     let b = image::open(b).expect("image b").to_rgb8();
-    assert_eq!(a.dimensions(), b.dimensions(), "image sizes");
-    let n = a.as_raw().len() as f64;
-    let mse = a
-        .as_raw()
-        .iter()
-        .zip(b.as_raw())
-        .map(|(&x, &y)| (x as f64 - y as f64).powi(2))
-        .sum::<f64>()
-        / n;
-    10.0 * (255.0f64 * 255.0 / mse).log10()
+    common::psnr(&a, &b)
 }
 
 /// The screenshot must be what `render` writes: same bytes (which implies PSNR = ∞ ≥ 40 dB).

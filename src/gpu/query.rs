@@ -383,6 +383,16 @@ impl RayQuery for GpuQuery<'_> {
         self.occluded_batch(std::slice::from_ref(ray), tmin, tmax)
             .unwrap_or_else(|e| panic!("GPU query failed: {e}"))[0]
     }
+
+    fn closest_hit_many(&self, rays: &[Ray], tmin: f32, tmax: f32) -> Vec<Option<QueryHit>> {
+        self.closest_hits(rays, tmin, tmax)
+            .unwrap_or_else(|e| panic!("GPU query failed: {e}"))
+    }
+
+    fn occluded_many(&self, rays: &[Ray], tmin: f32, tmax: f32) -> Vec<bool> {
+        self.occluded_batch(rays, tmin, tmax)
+            .unwrap_or_else(|e| panic!("GPU query failed: {e}"))
+    }
 }
 
 /// Tape evaluation on the GPU: the conformance suite's [`Evaluator`] for the WGSL

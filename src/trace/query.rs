@@ -42,6 +42,17 @@ pub trait RayQuery {
     fn closest_hit(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<QueryHit>;
     /// Whether anything lies on the ray with `tmin < t < tmax`.
     fn occluded(&self, ray: &Ray, tmin: f32, tmax: f32) -> bool;
+    /// [`RayQuery::closest_hit`] of every ray: one by one unless the backend batches (the
+    /// GPU answers a batch in one dispatch, where one ray per dispatch is slow).
+    fn closest_hit_many(&self, rays: &[Ray], tmin: f32, tmax: f32) -> Vec<Option<QueryHit>> {
+        rays.iter()
+            .map(|r| self.closest_hit(r, tmin, tmax))
+            .collect()
+    }
+    /// [`RayQuery::occluded`] of every ray, batched as [`RayQuery::closest_hit_many`].
+    fn occluded_many(&self, rays: &[Ray], tmin: f32, tmax: f32) -> Vec<bool> {
+        rays.iter().map(|r| self.occluded(r, tmin, tmax)).collect()
+    }
 }
 
 impl RayQuery for SceneTracer<'_> {
