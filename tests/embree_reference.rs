@@ -46,7 +46,7 @@ fn scene(objects: &str) -> Scene {
 /// A unit icosphere (icosahedron subdivided twice, 320 triangles) as an OBJ file,
 /// counter-clockwise seen from outside.
 fn write_icosphere(dir: &Path) -> PathBuf {
-    let (v, f) = hytrace::bench::mesh::icosphere(2);
+    let (v, f) = hytrace::geom::icosphere(2);
     let mut s = String::new();
     for p in &v {
         s += &format!("v {} {} {}\n", p.x, p.y, p.z);

@@ -4,7 +4,6 @@
 use super::rays::{self, Query, QueryRay, RaySet};
 use super::{BenchOptions, Workers, alternate, geomean, median};
 use crate::accel::MeshAccel;
-pub use crate::geom::icosphere;
 use crate::scene::generate::icosphere_scene;
 use crate::scene::{Scene, SceneMeshes};
 use anyhow::Context;
