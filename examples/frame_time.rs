@@ -1,12 +1,13 @@
 //! Per-frame CPU render time with the acceleration structures built once, as the viewer
-//! renders: `cargo run --release --example frame_time -- [scene.ron] [width] [height] [frames]`
-//! (no scene: the built-in showcase). Prints the build time and the minimum and median of
-//! the frames' times, each one pass of [`cpu::render_pass`] at one sample per pixel.
+//! renders: `cargo run --release --example frame_time -- [scene.ron] [width] [height] [frames]
+//! [native|interpreted]` (no scene: the built-in showcase; tapes as native code by default).
+//! Prints the build time and the minimum and median of the frames' times, each one pass of
+//! [`cpu::render_pass`] at one sample per pixel.
 
 use hytrace::render::progressive::SampleSums;
 use hytrace::render::{RenderOptions, cpu};
 use hytrace::scene::Scene;
-use hytrace::trace::SceneTracer;
+use hytrace::trace::{AccelOptions, SceneTracer};
 use std::path::Path;
 use std::time::Instant;
 
@@ -20,7 +21,19 @@ fn main() -> anyhow::Result<()> {
     let (width, height, frames) = (number(1, 640)?, number(2, 360)?, number(3, 10)?);
     let opts = RenderOptions::single_sample(width, height);
     let start = Instant::now();
-    let tracer = SceneTracer::new(&scene);
+    let native = match args.get(4).map(String::as_str) {
+        None | Some("native") => true,
+        Some("interpreted") => false,
+        Some(other) => anyhow::bail!("expected native or interpreted, not {other}"),
+    };
+    let tracer = SceneTracer::with_options(
+        &scene,
+        AccelOptions {
+            mesh_quality: scene.tracer.bvh,
+            native,
+            ..Default::default()
+        },
+    );
     println!("build {:.1} ms", start.elapsed().as_secs_f64() * 1e3);
     let mut times = Vec::new();
     for _ in 0..frames {

@@ -191,7 +191,7 @@ fn compiled_whole_and_leaf_tapes_convert() {
     let mut rng = Rng::new(17);
     let mut checked = 0;
     for (name, scene) in &shipped_and_generated() {
-        let fields = hytrace::trace::build_fields(scene, true);
+        let fields = hytrace::trace::build_fields(scene, true, true);
         for (o, field) in scene.objects.iter().zip(&fields) {
             let b = o.bounds();
             let (lo, hi) = if b.is_finite() {

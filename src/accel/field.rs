@@ -1056,6 +1056,15 @@ impl ObjectField {
         }
     }
 
+    /// Compiles the distance tapes (the octree's and the whole one) to native code where the
+    /// CPU runs it ([`crate::sdf::jit`]): the same values, without the interpreter's dispatch.
+    pub fn compile_native(&mut self) {
+        if let Some(tree) = &mut self.octree {
+            crate::sdf::jit::compile_all(&mut tree.tapes);
+        }
+        crate::sdf::jit::compile_all(std::slice::from_mut(&mut self.whole));
+    }
+
     /// The whole tapes only, marched without shortcuts: the reference the octree and the
     /// penumbra's convexity bound are tested against.
     pub fn whole(whole: &Tape, whole_shading: &Tape) -> Self {
@@ -1255,7 +1264,20 @@ impl<'a> RayWalk<'a> {
         self.len += 1;
     }
 
-    /// The next leaf along the ray, or `None` past `to` or the tree.
+    /// Leaves that end before `t` will not be wanted: the walk passes over every subtree the
+    /// ray leaves before `t` without descending into it. A march that steps across many
+    /// small leaves (a long step through the empty space around a sparse union) then visits
+    /// the nodes on its way, not every leaf under them.
+    #[inline]
+    pub fn skip_to(&mut self, t: f32) {
+        if t > self.from {
+            self.from = t;
+        }
+    }
+
+    /// The next leaf along the ray, or `None` past `to` or the tree. Leaves that end before
+    /// the start of the walk or the last [`Self::skip_to`] may still be returned (each
+    /// subtree is tested, not each leaf), never one that starts after `to`.
     #[inline]
     ///
     /// The frame being looked at is held in registers, apart from the stack: a frame goes

@@ -8,6 +8,7 @@
 pub mod conformance;
 pub mod expr;
 pub mod interval;
+pub mod jit;
 pub mod lanes;
 pub mod lower;
 pub mod math;

@@ -82,9 +82,30 @@ impl PacketRegisters {
     }
 }
 
-/// The tape at 8 points: lane i is `tape.eval((x[i], y[i], z[i]))`, bit for bit.
+/// The tape at 8 points: lane i is `tape.eval((x[i], y[i], z[i]))`, bit for bit. At the
+/// AVX2 level a tape with native code ([`crate::sdf::jit`]) runs it; [`eval8_interpreted`]
+/// always interprets.
 #[inline]
 pub fn eval8(
+    level: SimdLevel,
+    tape: &Tape,
+    x: &[f32; 8],
+    y: &[f32; 8],
+    z: &[f32; 8],
+    regs: &mut PacketRegisters,
+) -> [f32; 8] {
+    if level == SimdLevel::Avx2
+        && let Some(native) = &tape.native
+    {
+        return native.eval8(x, y, z, &mut regs.regs[..]);
+    }
+    eval8_interpreted(level, tape, x, y, z, regs)
+}
+
+/// [`eval8`] by the interpreter, whether or not the tape has native code (the benchmark and
+/// the tests compare the two).
+#[inline]
+pub fn eval8_interpreted(
     level: SimdLevel,
     tape: &Tape,
     x: &[f32; 8],
@@ -111,6 +132,9 @@ pub fn eval8(
         }
     }
 }
+
+#[cfg(target_arch = "x86_64")]
+pub(crate) use x86::apply_avx2;
 
 #[cfg(target_arch = "x86_64")]
 mod x86 {
@@ -164,6 +188,29 @@ mod x86 {
         let mut out = [0.0f32; 8];
         unsafe { _mm256_storeu_ps(out.as_mut_ptr(), r.0) };
         out
+    }
+
+    /// One operation of the tape on 8 lanes in memory, by the interpreter's own AVX2 lanes:
+    /// what native code ([`crate::sdf::jit`]) calls for the operations it does not write out
+    /// (the transcendental functions), so that their polynomials exist once. `op` is an
+    /// [`crate::sdf::tape::Op`] number, `imm` the instruction's immediate bits.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2; `a`, `b` and `out` point to 8 floats each.
+    #[target_feature(enable = "avx2")]
+    pub(crate) unsafe extern "sysv64" fn apply_avx2(
+        op: u32,
+        a: *const f32,
+        b: *const f32,
+        imm: u32,
+        out: *mut f32,
+    ) {
+        let op = crate::sdf::tape::Op::from_u8(op as u8).expect("native code passes an opcode");
+        unsafe {
+            let (a, b) = (Avx(_mm256_loadu_ps(a)), Avx(_mm256_loadu_ps(b)));
+            let r = crate::sdf::tape::apply(op, a, b, a, f32::from_bits(imm));
+            _mm256_storeu_ps(out, r.0);
+        }
     }
 
     // SAFETY (every `unsafe` block below): SSE2 intrinsics are part of the x86-64 baseline.

@@ -574,6 +574,7 @@ impl SsaTape {
             constant_material,
             registers: used_v,
             material_registers: used_m,
+            native: None,
         })
     }
 }

@@ -304,6 +304,8 @@ pub struct Tape {
     pub(crate) constant_material: Option<u32>,
     pub(crate) registers: usize,
     pub(crate) material_registers: usize,
+    /// The tape compiled to native code ([`crate::sdf::jit`]), where it was.
+    pub(crate) native: Option<crate::sdf::jit::Native>,
 }
 
 /// Scratch value registers for [`Tape::eval_in`].
@@ -366,6 +368,19 @@ impl Drop for PooledRegisters {
 }
 
 impl Tape {
+    /// Whether the tape has native code ([`crate::sdf::jit::compile_all`]).
+    pub fn is_native(&self) -> bool {
+        self.native.is_some()
+    }
+
+    /// The same program without its native code: what the interpreter runs.
+    pub fn interpreted(&self) -> Tape {
+        Tape {
+            native: None,
+            ..self.clone()
+        }
+    }
+
     /// The instructions.
     pub fn instrs(&self) -> &[Instr] {
         &self.instrs

@@ -88,6 +88,9 @@ pub struct AccelOptions {
     /// An octree of region-specialised tapes per SDF object (else every sample evaluates the
     /// whole tape, the reference the octree is tested against).
     pub specialise: bool,
+    /// Every tape compiled to native code where the CPU runs it ([`crate::sdf::jit`]; else
+    /// interpreted, which gives the same bits).
+    pub native: bool,
     /// Coherent rays ([`SceneTracer::closest_hits`]) marched in SIMD packets (else one by
     /// one, which gives the same answers).
     pub packets: bool,
@@ -99,6 +102,7 @@ impl Default for AccelOptions {
             sdf_bvh: true,
             mesh_quality: BuildQuality::Medium,
             specialise: true,
+            native: true,
             packets: true,
         }
     }
@@ -119,19 +123,24 @@ pub fn field_region(object: &SdfObject, scene_box: &Aabb) -> Aabb {
     b.intersection(&scene_box.expand(grow))
 }
 
-/// Builds every object's field (in parallel over objects; each octree builds in parallel too).
-pub fn build_fields(scene: &Scene, specialise: bool) -> Vec<ObjectField> {
+/// Builds every object's field (in parallel over objects; each octree builds in parallel too),
+/// its tapes compiled to native code if `native`.
+pub fn build_fields(scene: &Scene, specialise: bool, native: bool) -> Vec<ObjectField> {
     let scene_box = scene.finite_bounds();
     scene
         .objects
         .par_iter()
         .map(|o| {
             let l = &o.lowered;
-            if specialise {
+            let mut field = if specialise {
                 ObjectField::build(l, field_region(o, &scene_box))
             } else {
                 ObjectField::whole(&l.distance, &l.shading)
+            };
+            if native {
+                field.compile_native();
             }
+            field
         })
         .collect()
 }
@@ -172,6 +181,7 @@ impl<'a> SceneTracer<'a> {
                 sdf_bvh: true,
                 mesh_quality: scene.tracer.bvh,
                 specialise: true,
+                native: true,
                 packets: true,
             },
         )
@@ -180,7 +190,7 @@ impl<'a> SceneTracer<'a> {
     /// Prepares the acceleration structures.
     pub fn with_options(scene: &'a Scene, options: AccelOptions) -> Self {
         let start = std::time::Instant::now();
-        let fields = build_fields(scene, options.specialise);
+        let fields = build_fields(scene, options.specialise, options.native);
         let field_build_time = start.elapsed();
         SceneTracer {
             scene,

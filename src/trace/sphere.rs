@@ -128,6 +128,7 @@ impl<'f> Parts<'f> {
                 }
                 Phase::Walk => {
                     let walk = self.walk.as_mut().expect("a walk in the walk phase");
+                    walk.skip_to(t);
                     match walk.next_leaf() {
                         Some(x) if x.exit < t || x.leaf.verdict == Verdict::Empty => {}
                         Some(x) => {
@@ -266,6 +267,7 @@ impl<'f> Along<'f> {
             }
         }
         let walk = self.walk.as_mut()?;
+        walk.skip_to(t);
         loop {
             match walk.next_leaf() {
                 Some(c) if c.exit < t => continue,

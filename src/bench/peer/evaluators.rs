@@ -263,7 +263,7 @@ pub struct EvalTiming {
 /// One evaluator's figures on a model.
 #[derive(Debug, Clone, Serialize)]
 pub struct EvalFigure {
-    /// "hytrace eval8", "hytrace scalar", "fidget VM" or "fidget JIT".
+    /// "hytrace eval8", "hytrace native", "hytrace scalar", "fidget VM" or "fidget JIT".
     pub evaluator: String,
     /// Points per call.
     pub batch: usize,
@@ -324,7 +324,7 @@ impl EvalReport {
         let _ = writeln!(s, "### Tape evaluators\n");
         let _ = writeln!(
             s,
-            "Our tape interpreter against fidget's float-slice evaluators, single thread, on the tapes the tracer runs: {GROUP} random points in each of up to {} crossed octree leaves per model (each with its leaf's specialised tape), plus one group in {OUTSIDE_EVERY} outside the octree with the whole tape (\"specialised\"), and the same points with the whole tape everywhere (\"whole\"). fidget evaluates our tapes converted to its trees, each built once outside the timing. hytrace eval8: 8-lane packets ({}); scalar: one point per call. Median ns per point evaluation; ns/(pt·instr) divides by our instruction count for every evaluator; \"max rel diff\": the worst |value − ours| / (1 + |ours|) against our scalar interpreter on the same points.\n",
+            "Our tape interpreter against fidget's float-slice evaluators, single thread, on the tapes the tracer runs: {GROUP} random points in each of up to {} crossed octree leaves per model (each with its leaf's specialised tape), plus one group in {OUTSIDE_EVERY} outside the octree with the whole tape (\"specialised\"), and the same points with the whole tape everywhere (\"whole\"). fidget evaluates our tapes converted to its trees, each built once outside the timing. hytrace eval8: 8-lane packets by the interpreter ({}); hytrace native: the same packets run by each tape's native AVX2 code (what the renderer runs where the CPU has AVX2); scalar: one point per call. Median ns per point evaluation; ns/(pt·instr) divides by our instruction count for every evaluator; \"max rel diff\": the worst |value − ours| / (1 + |ours|) against our scalar interpreter on the same points.\n",
             self.groups, self.simd
         );
         let _ = writeln!(
@@ -393,7 +393,7 @@ pub use with_fidget::measure;
 mod with_fidget {
     use super::*;
     use crate::bench::peer::fidget::tape_to_tree;
-    use crate::sdf::simd::{PacketRegisters, SimdLevel, eval8};
+    use crate::sdf::simd::{PacketRegisters, SimdLevel, eval8, eval8_interpreted};
     use crate::sdf::tape::Registers;
     use anyhow::Context as _;
     use fidget::eval::{BulkEvaluator, Function, MathFunction};
@@ -455,6 +455,7 @@ mod with_fidget {
     #[derive(Debug, Clone, Copy)]
     enum Kind {
         Eval8,
+        Native,
         Scalar,
         Vm(usize),
         Jit(usize),
@@ -463,6 +464,9 @@ mod with_fidget {
     impl Kind {
         fn all() -> Vec<Kind> {
             let mut v = vec![Kind::Eval8, Kind::Scalar];
+            if crate::sdf::jit::available() {
+                v.push(Kind::Native);
+            }
             v.extend(FIDGET_BATCHES.iter().map(|&b| Kind::Vm(b)));
             v.extend(FIDGET_BATCHES.iter().map(|&b| Kind::Jit(b)));
             v
@@ -471,6 +475,7 @@ mod with_fidget {
         fn name(self) -> &'static str {
             match self {
                 Kind::Eval8 => "hytrace eval8",
+                Kind::Native => "hytrace native",
                 Kind::Scalar => "hytrace scalar",
                 Kind::Vm(_) => "fidget VM",
                 Kind::Jit(_) => "fidget JIT",
@@ -479,7 +484,7 @@ mod with_fidget {
 
         fn batch(self) -> usize {
             match self {
-                Kind::Eval8 => LANES,
+                Kind::Eval8 | Kind::Native => LANES,
                 Kind::Scalar => 1,
                 Kind::Vm(b) | Kind::Jit(b) => b,
             }
@@ -512,11 +517,16 @@ mod with_fidget {
         let mut pass = |kind: Kind, specialised: bool, out: &mut [f32]| -> anyhow::Result<f64> {
             let start = Instant::now();
             match kind {
-                Kind::Eval8 => {
+                Kind::Eval8 | Kind::Native => {
+                    let eval = if matches!(kind, Kind::Native) {
+                        eval8
+                    } else {
+                        eval8_interpreted
+                    };
                     for (g, res) in w.groups.iter().zip(out.chunks_exact_mut(GROUP)) {
                         let tape = w.tapes[g.tape(specialised)];
                         for (c, r) in res.chunks_exact_mut(LANES).enumerate() {
-                            let v = eval8(level, tape, &g.x[c], &g.y[c], &g.z[c], &mut packet);
+                            let v = eval(level, tape, &g.x[c], &g.y[c], &g.z[c], &mut packet);
                             r.copy_from_slice(&v);
                         }
                     }

@@ -752,7 +752,7 @@ fn evaluator_table(
     };
     for model in models {
         eprintln!("bench: SDF peer, tape evaluators, {}", model.name);
-        let fields = crate::trace::build_fields(&model.scene, true);
+        let fields = crate::trace::build_fields(&model.scene, true, true);
         let bounds: Vec<crate::geom::Aabb> =
             model.scene.objects.iter().map(|o| o.bounds()).collect();
         table

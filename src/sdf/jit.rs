@@ -1,0 +1,771 @@
+//! Native code for tapes: each distance tape compiled to x86-64 AVX2 machine code that
+//! evaluates it at 8 points, with the bits of the interpreter.
+//!
+//! The interpreter ([`crate::sdf::tape`]) decodes every instruction for every pass, and on 8
+//! lanes that dispatch is most of its cost (about 3.6 ns per instruction, where the arithmetic
+//! takes a cycle or two; BENCHMARKS.md, "JIT or library"). Here a tape becomes straight-line
+//! code, in the manner of fidget's JIT and of Keeter's "Massively Parallel Rendering of Complex
+//! Closed-Form Implicit Surfaces" (SIGGRAPH 2020), which also compiles region-specialised
+//! tapes: each instruction is one to six AVX instructions on YMM registers. The tape's
+//! registers (up to 256) live in YMM registers while they are used; a register allocator over
+//! the straight-line program (Belady's rule: evict the value used farthest in the future,
+//! which is optimal for a known sequence of uses) spills the others to a scratch area of 256
+//! eight-lane slots, one per tape register. The tape stays the program: native code is a
+//! derived cache of it, made when an object's field is built ([`compile_all`]).
+//!
+//! Every operation performs exactly the instructions the AVX2 lanes of [`crate::sdf::simd`]
+//! perform (`min`/`max` with the same NaN rule, `vroundps` for `floor`, no fused
+//! multiply-adds), so native code returns the interpreter's bits (tested below on every op,
+//! on spicy inputs, the conformance catalogue and random tapes). The transcendental functions
+//! (`sin`, `cos`, `tan`, `exp`, `ln`, `pow`) are not written again in assembly: the code calls
+//! the interpreter's own 8-lane implementation of the op (`simd::apply_avx2`), so their
+//! polynomials exist once.
+//!
+//! Why dynasmrt: code generation needs an x86-64 assembler at run time, and dynasmrt (also
+//! what fidget uses) gives one with executable buffers; Cranelift would bring a whole compiler
+//! and its own register allocator for straight-line tapes that a few lines here allocate.
+
+use crate::sdf::tape::Tape;
+use std::sync::Arc;
+
+/// A tape's native code: an entry point into an executable buffer shared by the tapes
+/// compiled together.
+#[derive(Clone)]
+pub struct Native {
+    #[cfg(target_arch = "x86_64")]
+    _code: Arc<dynasmrt::ExecutableBuffer>,
+    #[cfg(target_arch = "x86_64")]
+    entry: x86::Entry,
+    #[cfg(not(target_arch = "x86_64"))]
+    _never: std::convert::Infallible,
+}
+
+impl std::fmt::Debug for Native {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Native")
+    }
+}
+
+/// Native code is a cache of the tape's program: two tapes are equal when their programs are.
+impl PartialEq for Native {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+/// Whether this CPU runs native tapes (AVX2).
+pub fn available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Most instructions compiled into one executable buffer: a block of tapes is compiled by one
+/// thread, the blocks in parallel.
+const BLOCK_INSTRUCTIONS: usize = 1 << 16;
+
+/// Compiles every tape of `tapes` that has none yet and that native code serves (distance
+/// tapes: no material operations) into native code, on the rayon pool, and attaches it to
+/// each tape ([`Tape::native`]). Does nothing where [`available`] is false. Code takes about
+/// 12 bytes per instruction.
+pub fn compile_all(tapes: &mut [Tape]) {
+    #[cfg(target_arch = "x86_64")]
+    if available() {
+        x86::compile_all(tapes);
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = tapes;
+}
+
+impl Native {
+    /// The tape at 8 points: lane i is what the interpreter gives at (x[i], y[i], z[i]), bit
+    /// for bit. `scratch` holds the spilled registers.
+    #[inline]
+    pub fn eval8(
+        &self,
+        x: &[f32; 8],
+        y: &[f32; 8],
+        z: &[f32; 8],
+        scratch: &mut [crate::sdf::simd::Lane8],
+    ) -> [f32; 8] {
+        #[cfg(target_arch = "x86_64")]
+        {
+            assert!(scratch.len() >= crate::sdf::tape::MAX_REGISTERS);
+            let mut out = [0.0f32; 8];
+            // SAFETY: the code was made only where AVX2 was detected (`compile_all`); it reads
+            // 8 floats at each of `x`, `y` and `z`, reads and writes the 256 slots of
+            // `scratch` (checked above) and writes 8 floats at `out`; the buffer it lives in
+            // is held by `self`.
+            unsafe {
+                (self.entry)(
+                    x.as_ptr(),
+                    y.as_ptr(),
+                    z.as_ptr(),
+                    scratch.as_mut_ptr().cast(),
+                    out.as_mut_ptr(),
+                )
+            };
+            out
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let _ = (x, y, z, scratch);
+            match self._never {}
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    use super::{BLOCK_INSTRUCTIONS, Native};
+    use crate::sdf::simd::apply_avx2;
+    use crate::sdf::tape::{Instr, Op, Shape, Tape};
+    use dynasmrt::x64::Assembler;
+    use dynasmrt::{AssemblyOffset, DynasmApi, dynasm};
+    use rayon::prelude::*;
+    use std::sync::Arc;
+
+    /// The compiled function: `(x, y, z, scratch, out)`, see [`Native::eval8`].
+    pub(super) type Entry =
+        unsafe extern "sysv64" fn(*const f32, *const f32, *const f32, *mut u8, *mut f32);
+
+    /// YMM registers that hold tape values; 14 and 15 are the operations' temporaries.
+    const ALLOCATABLE: usize = 14;
+    const T0: u8 = 14;
+    const T1: u8 = 15;
+    /// Bytes of one spill slot (8 lanes).
+    const SLOT: i32 = 32;
+    /// "Never read again".
+    const NEVER: usize = usize::MAX;
+
+    pub(super) fn compile_all(tapes: &mut [Tape]) {
+        // Blocks of consecutive tapes of about BLOCK_INSTRUCTIONS each.
+        let mut blocks: Vec<&mut [Tape]> = Vec::new();
+        let mut rest = tapes;
+        while !rest.is_empty() {
+            let mut n = 0;
+            let mut len = 0;
+            while n < rest.len() && (n == 0 || len + rest[n].len() <= BLOCK_INSTRUCTIONS) {
+                len += rest[n].len();
+                n += 1;
+            }
+            let (block, tail) = rest.split_at_mut(n);
+            blocks.push(block);
+            rest = tail;
+        }
+        blocks.into_par_iter().for_each(compile_block);
+    }
+
+    fn compilable(tape: &Tape) -> bool {
+        tape.native.is_none() && tape.instrs().iter().all(|i| !i.op().is_material())
+    }
+
+    fn compile_block(tapes: &mut [Tape]) {
+        let Ok(mut ops) = Assembler::new() else {
+            return; // no executable memory: the tapes stay interpreted
+        };
+        let entries: Vec<Option<AssemblyOffset>> = tapes
+            .iter()
+            .map(|t| compilable(t).then(|| emit_tape(&mut ops, t)))
+            .collect();
+        let Ok(code) = ops.finalize() else {
+            return;
+        };
+        let code = Arc::new(code);
+        for (tape, entry) in tapes.iter_mut().zip(entries) {
+            if let Some(at) = entry {
+                // SAFETY: `at` is the start of a function emitted by `emit_tape` with the
+                // `Entry` signature and the System V calling convention.
+                let entry: Entry = unsafe { std::mem::transmute(code.ptr(at)) };
+                tape.native = Some(Native {
+                    _code: code.clone(),
+                    entry,
+                });
+            }
+        }
+    }
+
+    /// The operand registers an instruction reads, by its shape.
+    fn operands(ins: &Instr) -> ([u8; 3], usize) {
+        match ins.op().shape() {
+            Shape::Nullary | Shape::MatLoad => ([0; 3], 0),
+            Shape::Unary | Shape::WithImm => ([ins.a(), 0, 0], 1),
+            Shape::Binary => ([ins.a(), ins.b(), 0], 2),
+            Shape::Ternary | Shape::MatMix => ([ins.a(), ins.b(), ins.imm_bits() as u8], 3),
+        }
+    }
+
+    /// Whether native code calls the interpreter's lanes for the op.
+    fn is_call(op: Op) -> bool {
+        matches!(
+            op,
+            Op::Sin | Op::Cos | Op::Tan | Op::Exp | Op::Ln | Op::Pow | Op::PowImm
+        )
+    }
+
+    /// Next uses, from a backward pass: `reads[i][k]` is the index of the next instruction
+    /// after `i` that reads the value operand k of instruction i reads (`NEVER` if none, or if
+    /// `i` overwrites it), `written[i]` that of the value instruction i writes; `inputs[r]`
+    /// the first read of input register r. The tape's result is read at `len`.
+    struct Uses {
+        reads: Vec<[usize; 3]>,
+        written: Vec<usize>,
+        inputs: [usize; 3],
+    }
+
+    fn uses(tape: &Tape) -> Uses {
+        let instrs = tape.instrs();
+        let n = instrs.len();
+        let mut next = [NEVER; 256];
+        next[tape.result() as usize] = n;
+        let mut reads = vec![[NEVER; 3]; n];
+        let mut written = vec![NEVER; n];
+        for i in (0..n).rev() {
+            let ins = &instrs[i];
+            written[i] = next[ins.out() as usize];
+            next[ins.out() as usize] = NEVER;
+            let (regs, count) = operands(ins);
+            for k in 0..count {
+                reads[i][k] = next[regs[k] as usize];
+            }
+            for &r in &regs[..count] {
+                next[r as usize] = i;
+            }
+        }
+        Uses {
+            reads,
+            written,
+            inputs: [next[0], next[1], next[2]],
+        }
+    }
+
+    /// Where the tape's values are while code is emitted.
+    struct Allocation {
+        /// What each allocatable YMM register holds: (tape register, its next read).
+        held: [Option<(u8, usize)>; ALLOCATABLE],
+        /// The YMM register holding each tape register, if any.
+        at: [Option<u8>; 256],
+        /// Whether the spill slot of each tape register holds its current value.
+        spilled: [bool; 256],
+    }
+
+    impl Allocation {
+        fn new() -> Self {
+            Allocation {
+                held: [None; ALLOCATABLE],
+                at: [None; 256],
+                spilled: [false; 256],
+            }
+        }
+
+        /// Frees YMM `y` (its value stays in its slot if it was spilled).
+        fn release(&mut self, y: u8) {
+            if let Some((r, _)) = self.held[y as usize].take() {
+                self.at[r as usize] = None;
+            }
+        }
+
+        /// A YMM register to write: a free one, else the one whose value is read farthest in
+        /// the future (Belady), spilled first if its slot is stale and it is read again.
+        fn take(&mut self, ops: &mut Assembler, pinned: &[u8]) -> u8 {
+            if let Some(y) = (0..ALLOCATABLE as u8).find(|&y| self.held[y as usize].is_none()) {
+                return y;
+            }
+            let y = (0..ALLOCATABLE as u8)
+                .filter(|y| !pinned.contains(y))
+                .max_by_key(|&y| self.held[y as usize].map_or(NEVER, |(_, next)| next))
+                .expect("more registers than operands");
+            let (r, next) = self.held[y as usize].expect("taken");
+            if next != NEVER && !self.spilled[r as usize] {
+                store(ops, r, y);
+                self.spilled[r as usize] = true;
+            }
+            self.release(y);
+            y
+        }
+
+        /// The YMM register holding tape register `r`, loaded from its slot if needed.
+        fn load(&mut self, ops: &mut Assembler, r: u8, pinned: &[u8]) -> u8 {
+            if let Some(y) = self.at[r as usize] {
+                return y;
+            }
+            let y = self.take(ops, pinned);
+            let off = SLOT * r as i32;
+            dynasm!(ops ; .arch x64 ; vmovups Ry(y), [rbx + off]);
+            self.held[y as usize] = Some((r, 0));
+            self.at[r as usize] = Some(y);
+            y
+        }
+
+        /// Spills every value read after instruction `i` whose slot is stale, and forgets
+        /// every register: a call clobbers them all.
+        fn spill_all(&mut self, ops: &mut Assembler) {
+            for y in 0..ALLOCATABLE as u8 {
+                if let Some((r, next)) = self.held[y as usize] {
+                    if next != NEVER && !self.spilled[r as usize] {
+                        store(ops, r, y);
+                        self.spilled[r as usize] = true;
+                    }
+                    self.release(y);
+                }
+            }
+        }
+    }
+
+    fn store(ops: &mut Assembler, r: u8, y: u8) {
+        let off = SLOT * r as i32;
+        dynasm!(ops ; .arch x64 ; vmovups [rbx + off], Ry(y));
+    }
+
+    /// Emits one tape as a function with the [`Entry`] signature; returns its start.
+    fn emit_tape(ops: &mut Assembler, tape: &Tape) -> AssemblyOffset {
+        let start = ops.offset();
+        let uses = uses(tape);
+        // rdi, rsi, rdx: the points' x, y and z; rcx: the spill slots; r8: the output. rbx
+        // and r13 keep the slots and the output across calls; three pushes keep the stack
+        // 16-byte aligned for them.
+        dynasm!(ops
+            ; .arch x64
+            ; push rbx
+            ; push r12
+            ; push r13
+            ; mov rbx, rcx
+            ; mov r13, r8
+        );
+        let mut alloc = Allocation::new();
+        for axis in 0..3u8 {
+            if uses.inputs[axis as usize] != NEVER {
+                let y = alloc.take(ops, &[]);
+                match axis {
+                    0 => dynasm!(ops ; .arch x64 ; vmovups Ry(y), [rdi]),
+                    1 => dynasm!(ops ; .arch x64 ; vmovups Ry(y), [rsi]),
+                    _ => dynasm!(ops ; .arch x64 ; vmovups Ry(y), [rdx]),
+                }
+                alloc.held[y as usize] = Some((axis, uses.inputs[axis as usize]));
+                alloc.at[axis as usize] = Some(y);
+            }
+        }
+        for (i, ins) in tape.instrs().iter().enumerate() {
+            let op = ins.op();
+            let (regs, count) = operands(ins);
+            let out = ins.out();
+            if is_call(op) {
+                // The interpreter's lanes read the operands from their slots.
+                for &r in &regs[..count] {
+                    if !alloc.spilled[r as usize] {
+                        let y = alloc.at[r as usize].expect("a value not in its slot is held");
+                        store(ops, r, y);
+                        alloc.spilled[r as usize] = true;
+                    }
+                }
+                for k in 0..count {
+                    if let Some(y) = alloc.at[regs[k] as usize] {
+                        let held = alloc.held[y as usize].as_mut().expect("held");
+                        held.1 = uses.reads[i][k];
+                    }
+                }
+                if let Some(y) = alloc.at[out as usize] {
+                    alloc.release(y);
+                }
+                alloc.spill_all(ops);
+                let slot = |r: u8| SLOT * r as i32;
+                let (a, b) = (
+                    slot(regs[0]),
+                    slot(if count > 1 { regs[1] } else { regs[0] }),
+                );
+                let o = slot(out);
+                let imm = ins.imm_bits() as i32;
+                let f = apply_avx2 as *const () as i64;
+                dynasm!(ops
+                    ; .arch x64
+                    ; mov edi, op as u8 as i32
+                    ; lea rsi, [rbx + a]
+                    ; lea rdx, [rbx + b]
+                    ; mov ecx, imm
+                    ; lea r8, [rbx + o]
+                    ; mov rax, QWORD f
+                    ; call rax
+                );
+                alloc.spilled[out as usize] = true;
+                continue;
+            }
+            let mut y = [0u8; 3];
+            for k in 0..count {
+                y[k] = alloc.load(ops, regs[k], &y[..k]);
+            }
+            // Operands read here for the last time free their registers (the code reads
+            // every operand before it writes the destination, which may be one of them).
+            for k in 0..count {
+                if let Some(held) = alloc.held[y[k] as usize].as_mut() {
+                    held.1 = uses.reads[i][k];
+                }
+            }
+            for k in 0..count {
+                if uses.reads[i][k] == NEVER {
+                    alloc.release(y[k]);
+                }
+            }
+            if let Some(held) = alloc.at[out as usize] {
+                alloc.release(held);
+            }
+            alloc.spilled[out as usize] = false;
+            let live: Vec<u8> = (0..count)
+                .filter(|&k| alloc.at[regs[k] as usize].is_some())
+                .map(|k| y[k])
+                .collect();
+            let d = alloc.take(ops, &live);
+            let (a, b, c) = (y[0], y[1], y[2]);
+            let imm = ins.imm_bits();
+            match op {
+                Op::Const => broadcast(ops, d, imm),
+                Op::Copy => dynasm!(ops ; .arch x64 ; vmovaps Ry(d), Ry(a)),
+                Op::Neg => {
+                    sign_bits(ops, T0);
+                    dynasm!(ops ; .arch x64 ; vxorps Ry(d), Ry(a), Ry(T0));
+                }
+                Op::Abs => {
+                    sign_bits(ops, T0);
+                    dynasm!(ops ; .arch x64 ; vandnps Ry(d), Ry(T0), Ry(a));
+                }
+                Op::Sqrt => dynasm!(ops ; .arch x64 ; vsqrtps Ry(d), Ry(a)),
+                Op::Square => dynasm!(ops ; .arch x64 ; vmulps Ry(d), Ry(a), Ry(a)),
+                Op::Floor => dynasm!(ops ; .arch x64 ; vroundps Ry(d), Ry(a), 1),
+                Op::Add => dynasm!(ops ; .arch x64 ; vaddps Ry(d), Ry(a), Ry(b)),
+                Op::Sub => dynasm!(ops ; .arch x64 ; vsubps Ry(d), Ry(a), Ry(b)),
+                Op::Mul => dynasm!(ops ; .arch x64 ; vmulps Ry(d), Ry(a), Ry(b)),
+                Op::Div => dynasm!(ops ; .arch x64 ; vdivps Ry(d), Ry(a), Ry(b)),
+                Op::Min | Op::Max => {
+                    // min(a, b) as `(a < b || b is NaN) ? a : b`: vminps gives
+                    // `a < b ? a : b`, and a NaN b takes a (as the AVX2 lanes do)
+                    if op == Op::Min {
+                        dynasm!(ops ; .arch x64 ; vminps Ry(T0), Ry(a), Ry(b));
+                    } else {
+                        dynasm!(ops ; .arch x64 ; vmaxps Ry(T0), Ry(a), Ry(b));
+                    }
+                    dynasm!(ops
+                        ; .arch x64
+                        ; vcmpunordps Ry(T1), Ry(b), Ry(b)
+                        ; vblendvps Ry(d), Ry(T0), Ry(a), Ry(T1)
+                    );
+                }
+                Op::Hypot => dynasm!(ops
+                    ; .arch x64
+                    ; vmulps Ry(T0), Ry(a), Ry(a)
+                    ; vmulps Ry(T1), Ry(b), Ry(b)
+                    ; vaddps Ry(T0), Ry(T0), Ry(T1)
+                    ; vsqrtps Ry(d), Ry(T0)
+                ),
+                Op::Hypot3 => dynasm!(ops
+                    ; .arch x64
+                    ; vmulps Ry(T0), Ry(a), Ry(a)
+                    ; vmulps Ry(T1), Ry(b), Ry(b)
+                    ; vaddps Ry(T0), Ry(T0), Ry(T1)
+                    ; vmulps Ry(T1), Ry(c), Ry(c)
+                    ; vaddps Ry(T0), Ry(T0), Ry(T1)
+                    ; vsqrtps Ry(d), Ry(T0)
+                ),
+                Op::Select => dynasm!(ops
+                    ; .arch x64
+                    ; vxorps Ry(T0), Ry(T0), Ry(T0)
+                    // c > 0 (predicate GT_OQ: a NaN c picks b). dynasmrt 5 encodes the
+                    // register operands of `vcmpps` in the reverse order (the first becomes
+                    // the instruction's second source; checked by disassembly), so 0 is
+                    // written first: this is c > 0
+                    ; vcmpps Ry(T1), Ry(T0), Ry(c), 0x1e
+                    ; vblendvps Ry(d), Ry(b), Ry(a), Ry(T1)
+                ),
+                Op::AddImm
+                | Op::SubImm
+                | Op::RsubImm
+                | Op::MulImm
+                | Op::DivImm
+                | Op::RdivImm
+                | Op::MinImm
+                | Op::MaxImm => {
+                    broadcast(ops, T1, imm);
+                    let k = T1;
+                    match op {
+                        Op::AddImm => dynasm!(ops ; .arch x64 ; vaddps Ry(d), Ry(a), Ry(k)),
+                        Op::SubImm => dynasm!(ops ; .arch x64 ; vsubps Ry(d), Ry(a), Ry(k)),
+                        Op::RsubImm => dynasm!(ops ; .arch x64 ; vsubps Ry(d), Ry(k), Ry(a)),
+                        Op::MulImm => dynasm!(ops ; .arch x64 ; vmulps Ry(d), Ry(a), Ry(k)),
+                        Op::DivImm => dynasm!(ops ; .arch x64 ; vdivps Ry(d), Ry(a), Ry(k)),
+                        Op::RdivImm => dynasm!(ops ; .arch x64 ; vdivps Ry(d), Ry(k), Ry(a)),
+                        // a NaN immediate: min(a, NaN) is a, as the lanes give
+                        _ if f32::from_bits(imm).is_nan() => {
+                            dynasm!(ops ; .arch x64 ; vmovaps Ry(d), Ry(a))
+                        }
+                        Op::MinImm => dynasm!(ops ; .arch x64 ; vminps Ry(d), Ry(a), Ry(k)),
+                        _ => dynasm!(ops ; .arch x64 ; vmaxps Ry(d), Ry(a), Ry(k)),
+                    }
+                }
+                // calls above; material ops are never compiled (`compilable`)
+                _ => unreachable!("{op:?} is not compiled inline"),
+            }
+            alloc.held[d as usize] = Some((out, uses.written[i]));
+            alloc.at[out as usize] = Some(d);
+        }
+        let result = tape.result();
+        let y = match alloc.at[result as usize] {
+            Some(y) => y,
+            None => {
+                let off = SLOT * result as i32;
+                dynasm!(ops ; .arch x64 ; vmovups Ry(T0), [rbx + off]);
+                T0
+            }
+        };
+        dynasm!(ops
+            ; .arch x64
+            ; vmovups [r13], Ry(y)
+            ; vzeroupper
+            ; pop r13
+            ; pop r12
+            ; pop rbx
+            ; ret
+        );
+        start
+    }
+
+    /// YMM `y` = the float with `bits` in every lane.
+    fn broadcast(ops: &mut Assembler, y: u8, bits: u32) {
+        dynasm!(ops
+            ; .arch x64
+            ; mov eax, bits as i32
+            ; vmovd Rx(y), eax
+            ; vbroadcastss Ry(y), Rx(y)
+        );
+    }
+
+    /// YMM `y` = the sign bit alone in every lane (−0.0).
+    fn sign_bits(ops: &mut Assembler, y: u8) {
+        dynasm!(ops
+            ; .arch x64
+            ; vpcmpeqd Ry(y), Ry(y), Ry(y)
+            ; vpslld Ry(y), Ry(y), 31
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+    use crate::sdf::conformance::case_tapes;
+    use crate::sdf::simd::{PacketRegisters, SimdLevel, eval8, eval8_interpreted};
+    use crate::sdf::ssa::{Builder, V};
+    use crate::sdf::tape::{Op, Shape};
+    use glam::Vec3;
+
+    /// Compiles `tape` and checks its native code against the interpreter at `pts`, bit for
+    /// bit (NaN against NaN).
+    fn check_native(name: &str, tape: &Tape, pts: &[Vec3]) {
+        let mut native = tape.clone();
+        compile_all(std::slice::from_mut(&mut native));
+        assert!(native.is_native(), "{name}: not compiled");
+        let mut regs = PacketRegisters::new();
+        for chunk in pts.chunks(8) {
+            let mut xyz = [[0.0f32; 8]; 3];
+            for (i, p) in chunk.iter().enumerate() {
+                for a in 0..3 {
+                    xyz[a][i] = p[a];
+                }
+            }
+            let got = eval8(
+                SimdLevel::Avx2,
+                &native,
+                &xyz[0],
+                &xyz[1],
+                &xyz[2],
+                &mut regs,
+            );
+            for (i, p) in chunk.iter().enumerate() {
+                let want = tape.eval(*p);
+                assert!(
+                    got[i].to_bits() == want.to_bits() || (got[i].is_nan() && want.is_nan()),
+                    "{name} at {p}: native {} vs interpreter {}",
+                    got[i],
+                    want
+                );
+            }
+            let interpreted = eval8_interpreted(
+                SimdLevel::Avx2,
+                &native,
+                &xyz[0],
+                &xyz[1],
+                &xyz[2],
+                &mut regs,
+            );
+            for (a, b) in interpreted.iter().zip(&got) {
+                assert!(a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()));
+            }
+        }
+    }
+
+    fn spicy_points() -> Vec<Vec3> {
+        let spicy = [
+            0.0f32,
+            -0.0,
+            1.0,
+            -1.0,
+            0.5,
+            -0.5,
+            1.5,
+            -2.5,
+            f32::MIN_POSITIVE,
+            1e-40,
+            -1e-40,
+            8_388_607.5,
+            -8_388_609.0,
+            1e30,
+            -1e30,
+            f32::MAX,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+            std::f32::consts::PI,
+            100.0,
+            -88.5,
+            89.0,
+            3e9,
+        ];
+        let mut rng = Rng::new(5);
+        let mut pts = Vec::new();
+        for &a in &spicy {
+            for &b in &spicy {
+                let c = spicy[rng.below(spicy.len() as u64) as usize];
+                pts.push(Vec3::new(a, b, c));
+            }
+        }
+        pts.extend((0..512).map(|_| rng.vec3_in(-50.0, 50.0)));
+        pts
+    }
+
+    #[test]
+    fn every_op_gives_the_interpreter_bits_on_spicy_inputs() {
+        if !available() {
+            eprintln!("no AVX2 on this CPU: native code is never made, nothing to compare");
+            return;
+        }
+        let pts = spicy_points();
+        for &op in Op::ALL {
+            if op.is_material() || op == Op::Input {
+                continue;
+            }
+            // each op with register and with immediate operands, including a NaN immediate
+            for k in [1.75f32, -0.0, f32::NAN] {
+                let mut b = Builder::without_sharing(16);
+                let [x, y, z] = b.point();
+                let v = match op.shape() {
+                    Shape::Nullary => b.konst(k),
+                    Shape::Unary => b.unary(op, x),
+                    Shape::Binary => b.binary(op, x, y),
+                    Shape::WithImm => b.with_imm(op, x, k),
+                    Shape::Ternary if op == Op::Hypot3 => b.hypot3(x, y, z),
+                    Shape::Ternary => b.select(z, x, y),
+                    _ => unreachable!(),
+                };
+                let tape = b.finish(v, None).compile().unwrap();
+                check_native(&format!("{} (imm {k})", op.name()), &tape, &pts);
+            }
+        }
+    }
+
+    #[test]
+    fn every_catalogue_case_gives_the_interpreter_bits() {
+        if !available() {
+            eprintln!("no AVX2 on this CPU: native code is never made, nothing to compare");
+            return;
+        }
+        let mut rng = Rng::new(17);
+        for (name, tape, c, r) in case_tapes() {
+            let pts: Vec<Vec3> = (0..512)
+                .map(|_| c + rng.vec3_in(-r, r))
+                .chain([Vec3::ZERO, c, Vec3::splat(1e6), Vec3::splat(-0.0)])
+                .collect();
+            check_native(&name, &tape, &pts);
+        }
+    }
+
+    /// A random program with many values alive at once (so that the allocator spills and
+    /// reloads), every op, transcendental calls between them.
+    fn random_program(rng: &mut Rng, len: usize) -> Tape {
+        let mut b = Builder::without_sharing(len + 8);
+        let [x, y, z] = b.point();
+        let mut values: Vec<V> = vec![x, y, z];
+        let ops: Vec<Op> = Op::ALL
+            .iter()
+            .copied()
+            .filter(|&op| !op.is_material() && op != Op::Input)
+            .collect();
+        let pick = |rng: &mut Rng, values: &[V]| values[rng.below(values.len() as u64) as usize];
+        for _ in 0..len {
+            let op = ops[rng.below(ops.len() as u64) as usize];
+            let a = pick(rng, &values);
+            let c = pick(rng, &values);
+            let d = pick(rng, &values);
+            let k = rng.range_f32(-3.0, 3.0);
+            let v = match op.shape() {
+                Shape::Nullary => b.konst(k),
+                Shape::Unary => b.unary(op, a),
+                Shape::Binary => b.binary(op, a, c),
+                Shape::WithImm => b.with_imm(op, a, k),
+                Shape::Ternary if op == Op::Hypot3 => b.hypot3(a, c, d),
+                Shape::Ternary => b.select(a, c, d),
+                _ => unreachable!(),
+            };
+            values.push(v);
+        }
+        // the result reads many values, so that they all stay alive to the end
+        let mut acc = *values.last().expect("values");
+        for (i, &v) in values.iter().enumerate().rev().step_by(3) {
+            acc = b.binary(if i % 2 == 0 { Op::Min } else { Op::Add }, acc, v);
+        }
+        b.finish(acc, None).compile().unwrap()
+    }
+
+    #[test]
+    fn random_programs_give_the_interpreter_bits() {
+        if !available() {
+            eprintln!("no AVX2 on this CPU: native code is never made, nothing to compare");
+            return;
+        }
+        let mut rng = Rng::new(99);
+        let pts: Vec<Vec3> = (0..64).map(|_| rng.vec3_in(-4.0, 4.0)).collect();
+        let mut most_registers = 0;
+        for n in 0..300 {
+            let len = 4 + rng.below(120) as usize;
+            let tape = random_program(&mut rng, len);
+            most_registers = most_registers.max(tape.registers());
+            check_native(&format!("random program {n} ({len} ops)"), &tape, &pts);
+        }
+        // the allocator had to spill: more tape registers alive than YMM registers
+        assert!(most_registers > 20, "{most_registers}");
+    }
+
+    #[test]
+    fn tapes_compiled_together_keep_their_own_code() {
+        if !available() {
+            eprintln!("no AVX2 on this CPU: native code is never made, nothing to compare");
+            return;
+        }
+        let mut rng = Rng::new(3);
+        let tapes: Vec<Tape> = (0..40).map(|_| random_program(&mut rng, 30)).collect();
+        let mut native = tapes.clone();
+        compile_all(&mut native);
+        let pts: Vec<Vec3> = (0..8).map(|_| rng.vec3_in(-2.0, 2.0)).collect();
+        let mut regs = PacketRegisters::new();
+        let xyz: [[f32; 8]; 3] = std::array::from_fn(|a| std::array::from_fn(|i| pts[i][a]));
+        for (t, n) in tapes.iter().zip(&native) {
+            let got = eval8(SimdLevel::Avx2, n, &xyz[0], &xyz[1], &xyz[2], &mut regs);
+            for (i, p) in pts.iter().enumerate() {
+                let want = t.eval(*p);
+                assert!(got[i].to_bits() == want.to_bits() || (got[i].is_nan() && want.is_nan()));
+            }
+        }
+    }
+}
