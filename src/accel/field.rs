@@ -42,6 +42,10 @@ pub const MAX_DEPTH: u32 = 8;
 /// Most nodes per object (4 bytes each, plus a 40-byte [`Leaf`] per leaf): 88 MiB at most.
 pub const MAX_NODES: usize = 1 << 21;
 
+/// Most bytes of native code per object ([`ObjectField::compile_native`]): 64 MiB, room for
+/// about 6 M instructions at the measured 10 bytes each. Tapes past it are interpreted.
+pub const NATIVE_CODE_BYTES: usize = 64 << 20;
+
 /// Most instructions over an object's distinct specialised tapes (8 bytes each): 128 MiB.
 pub const MAX_INSTRUCTIONS: usize = 1 << 24;
 
@@ -1056,13 +1060,15 @@ impl ObjectField {
         }
     }
 
-    /// Compiles the distance tapes (the octree's and the whole one) to native code where the
-    /// CPU runs it ([`crate::sdf::jit`]): the same values, without the interpreter's dispatch.
+    /// Compiles the distance tapes (the whole one, then the octree's) to native code where
+    /// the CPU runs it ([`crate::sdf::jit`]): the same values, without the interpreter's
+    /// dispatch, within [`NATIVE_CODE_BYTES`] of code per object.
     pub fn compile_native(&mut self) {
+        let mut budget = NATIVE_CODE_BYTES;
+        budget -= crate::sdf::jit::compile_all(std::slice::from_mut(&mut self.whole), budget);
         if let Some(tree) = &mut self.octree {
-            crate::sdf::jit::compile_all(&mut tree.tapes);
+            crate::sdf::jit::compile_all(&mut tree.tapes, budget);
         }
-        crate::sdf::jit::compile_all(std::slice::from_mut(&mut self.whole));
     }
 
     /// The whole tapes only, marched without shortcuts: the reference the octree and the

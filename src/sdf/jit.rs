@@ -11,7 +11,8 @@
 //! the straight-line program (Belady's rule: evict the value used farthest in the future,
 //! which is optimal for a known sequence of uses) spills the others to a scratch area of 256
 //! eight-lane slots, one per tape register. The tape stays the program: native code is a
-//! derived cache of it, made when an object's field is built ([`compile_all`]).
+//! derived cache of it, made when an object's field is built ([`compile_all`]), within a
+//! budget of code bytes per object (`accel::field::NATIVE_CODE_BYTES`).
 //!
 //! Every operation performs exactly the instructions the AVX2 lanes of [`crate::sdf::simd`]
 //! perform (`min`/`max` with the same NaN rule, `vroundps` for `floor`, no fused
@@ -69,17 +70,28 @@ pub fn available() -> bool {
 /// thread, the blocks in parallel.
 const BLOCK_INSTRUCTIONS: usize = 1 << 16;
 
-/// Compiles every tape of `tapes` that has none yet and that native code serves (distance
-/// tapes: no material operations) into native code, on the rayon pool, and attaches it to
-/// each tape ([`Tape::native`]). Does nothing where [`available`] is false. Code takes about
-/// 12 bytes per instruction.
-pub fn compile_all(tapes: &mut [Tape]) {
+/// Most bytes of machine code one tape instruction becomes: a call of the interpreter's lanes
+/// after spilling all 14 allocatable registers (187 bytes), rounded up; an inline operation
+/// takes at most 93 (three operand loads after evictions, one more eviction, `hypot3`'s six
+/// instructions). Measured: about 10 bytes per instruction on the shipped and generated
+/// models (41 MB for the 4.4 M instructions of a 1,000-box union's octree).
+const MAX_CODE_BYTES_PER_INSTRUCTION: usize = 192;
+
+/// Most bytes of one tape's entry and exit code.
+const MAX_CODE_BYTES_PER_TAPE: usize = 64;
+
+/// Compiles the tapes of `tapes` that have no native code yet and that native code serves
+/// (distance tapes: no material operations) into at most `max_bytes` bytes of machine code,
+/// on the rayon pool, and attaches the code to each tape ([`Tape::is_native`]). A tape that
+/// would not fit is left to the interpreter, which gives the same values. Returns the bytes
+/// used. Does nothing where [`available`] is false.
+pub fn compile_all(tapes: &mut [Tape], max_bytes: usize) -> usize {
     #[cfg(target_arch = "x86_64")]
     if available() {
-        x86::compile_all(tapes);
+        return x86::compile_all(tapes, max_bytes);
     }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = tapes;
+    let _ = (tapes, max_bytes);
+    0
 }
 
 impl Native {
@@ -122,13 +134,16 @@ impl Native {
 
 #[cfg(target_arch = "x86_64")]
 mod x86 {
-    use super::{BLOCK_INSTRUCTIONS, Native};
+    use super::{
+        BLOCK_INSTRUCTIONS, MAX_CODE_BYTES_PER_INSTRUCTION, MAX_CODE_BYTES_PER_TAPE, Native,
+    };
     use crate::sdf::simd::apply_avx2;
     use crate::sdf::tape::{Instr, Op, Shape, Tape};
     use dynasmrt::x64::Assembler;
     use dynasmrt::{AssemblyOffset, DynasmApi, dynasm};
     use rayon::prelude::*;
     use std::sync::Arc;
+    use std::sync::atomic::{AtomicUsize, Ordering};
 
     /// The compiled function: `(x, y, z, scratch, out)`, see [`Native::eval8`].
     pub(super) type Entry =
@@ -143,7 +158,7 @@ mod x86 {
     /// "Never read again".
     const NEVER: usize = usize::MAX;
 
-    pub(super) fn compile_all(tapes: &mut [Tape]) {
+    pub(super) fn compile_all(tapes: &mut [Tape], max_bytes: usize) -> usize {
         // Blocks of consecutive tapes of about BLOCK_INSTRUCTIONS each.
         let mut blocks: Vec<&mut [Tape]> = Vec::new();
         let mut rest = tapes;
@@ -158,26 +173,51 @@ mod x86 {
             blocks.push(block);
             rest = tail;
         }
-        blocks.into_par_iter().for_each(compile_block);
+        let used = AtomicUsize::new(0);
+        blocks
+            .into_par_iter()
+            .for_each(|block| compile_block(block, &used, max_bytes));
+        used.into_inner()
     }
 
     fn compilable(tape: &Tape) -> bool {
         tape.native.is_none() && tape.instrs().iter().all(|i| !i.op().is_material())
     }
 
-    fn compile_block(tapes: &mut [Tape]) {
+    /// Compiles one block of tapes into one buffer, while the bytes `used` by every block
+    /// leave room for the next tape's worst case within `max_bytes`.
+    fn compile_block(tapes: &mut [Tape], used: &AtomicUsize, max_bytes: usize) {
         let Ok(mut ops) = Assembler::new() else {
             return; // no executable memory: the tapes stay interpreted
         };
-        let entries: Vec<Option<AssemblyOffset>> = tapes
-            .iter()
-            .map(|t| compilable(t).then(|| emit_tape(&mut ops, t)))
-            .collect();
+        let mut entries: Vec<Option<AssemblyOffset>> = Vec::with_capacity(tapes.len());
+        for tape in tapes.iter() {
+            if !compilable(tape) {
+                entries.push(None);
+                continue;
+            }
+            let worst = MAX_CODE_BYTES_PER_TAPE + MAX_CODE_BYTES_PER_INSTRUCTION * tape.len();
+            let reserved = used.fetch_add(worst, Ordering::Relaxed);
+            if reserved + worst > max_bytes {
+                used.fetch_sub(worst, Ordering::Relaxed);
+                break;
+            }
+            let start = ops.offset().0;
+            entries.push(Some(emit_tape(&mut ops, tape)));
+            let bytes = ops.offset().0 - start;
+            debug_assert!(
+                bytes <= worst,
+                "{bytes} bytes for {} instructions",
+                tape.len()
+            );
+            used.fetch_sub(worst - bytes.min(worst), Ordering::Relaxed);
+        }
         let Ok(code) = ops.finalize() else {
             return;
         };
         let code = Arc::new(code);
         for (tape, entry) in tapes.iter_mut().zip(entries) {
+            // (tapes past a `break` above are left without code)
             if let Some(at) = entry {
                 // SAFETY: `at` is the start of a function emitted by `emit_tape` with the
                 // `Entry` signature and the System V calling convention.
@@ -565,8 +605,13 @@ mod tests {
     /// bit (NaN against NaN).
     fn check_native(name: &str, tape: &Tape, pts: &[Vec3]) {
         let mut native = tape.clone();
-        compile_all(std::slice::from_mut(&mut native));
+        let bytes = compile_all(std::slice::from_mut(&mut native), usize::MAX);
         assert!(native.is_native(), "{name}: not compiled");
+        let worst = MAX_CODE_BYTES_PER_TAPE + MAX_CODE_BYTES_PER_INSTRUCTION * tape.len();
+        assert!(
+            bytes <= worst,
+            "{name}: {bytes} bytes of code, over the bound {worst}"
+        );
         let mut regs = PacketRegisters::new();
         for chunk in pts.chunks(8) {
             let mut xyz = [[0.0f32; 8]; 3];
@@ -748,7 +793,7 @@ mod tests {
     }
 
     #[test]
-    fn tapes_compiled_together_keep_their_own_code() {
+    fn tapes_compiled_together_keep_their_own_code_within_the_budget() {
         if !available() {
             eprintln!("no AVX2 on this CPU: native code is never made, nothing to compare");
             return;
@@ -756,7 +801,16 @@ mod tests {
         let mut rng = Rng::new(3);
         let tapes: Vec<Tape> = (0..40).map(|_| random_program(&mut rng, 30)).collect();
         let mut native = tapes.clone();
-        compile_all(&mut native);
+        // a budget too small for all of them (a tape is compiled while its worst case fits):
+        // the rest stay interpreted, with the same values
+        let budget: usize = tapes[..2]
+            .iter()
+            .map(|t| MAX_CODE_BYTES_PER_TAPE + MAX_CODE_BYTES_PER_INSTRUCTION * t.len())
+            .sum();
+        let used = compile_all(&mut native, budget);
+        assert!(used <= budget, "{used} bytes for a budget of {budget}");
+        let compiled = native.iter().filter(|t| t.is_native()).count();
+        assert!((2..40).contains(&compiled), "{compiled} of 40 compiled");
         let pts: Vec<Vec3> = (0..8).map(|_| rng.vec3_in(-2.0, 2.0)).collect();
         let mut regs = PacketRegisters::new();
         let xyz: [[f32; 8]; 3] = std::array::from_fn(|a| std::array::from_fn(|i| pts[i][a]));
