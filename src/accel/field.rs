@@ -304,6 +304,8 @@ pub struct OctreeStats {
     pub mean_surface_tape: f64,
     /// Bytes held.
     pub bytes: usize,
+    /// Bytes of native code of the tapes ([`ObjectField::compile_native`]).
+    pub native_bytes: usize,
 }
 
 struct LeafBuild {
@@ -645,6 +647,7 @@ impl FieldOctree {
             bytes: self.nodes.len() * std::mem::size_of::<Node>()
                 + self.leaves.len() * std::mem::size_of::<Leaf>()
                 + instructions * 8,
+            native_bytes: crate::sdf::jit::code_bytes(&self.tapes),
         }
     }
 }

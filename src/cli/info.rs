@@ -123,10 +123,12 @@ fn print_fields(scene: &hytrace::scene::Scene, tracer: &SceneTracer) {
         total.tapes += st.tapes;
         total.instructions += st.instructions;
         total.bytes += st.bytes;
+        total.native_bytes += st.native_bytes;
         if i < LISTED_OBJECTS {
             println!(
                 "SDF octree   {}: {} nodes, {} leaves ({} empty, {} full, {} crossed), {} tapes, \
-                 crossed leaves' tapes {:.1} of {whole} instructions on average, {:.1} KiB",
+                 crossed leaves' tapes {:.1} of {whole} instructions on average, {:.1} KiB, \
+                 native code {:.1} KiB",
                 object.name,
                 st.nodes,
                 st.leaves,
@@ -135,7 +137,8 @@ fn print_fields(scene: &hytrace::scene::Scene, tracer: &SceneTracer) {
                 st.leaves - st.empty - st.full,
                 st.tapes,
                 st.mean_surface_tape,
-                st.bytes as f64 / 1024.0
+                st.bytes as f64 / 1024.0,
+                st.native_bytes as f64 / 1024.0
             );
         }
     }
@@ -147,15 +150,18 @@ fn print_fields(scene: &hytrace::scene::Scene, tracer: &SceneTracer) {
     }
     if trees > 0 {
         println!(
-            "SDF octrees  {trees}: {} nodes, {} tapes, {} instructions, {:.2} MiB, built in {:.3} s \
-             (at most {} nodes and {} instructions per object)",
+            "SDF octrees  {trees}: {} nodes, {} tapes, {} instructions, {:.2} MiB, native code \
+             {:.2} MiB, built in {:.3} s (at most {} nodes, {} instructions and {} MiB of native \
+             code per object)",
             total.nodes,
             total.tapes,
             total.instructions,
             total.bytes as f64 / (1024.0 * 1024.0),
+            total.native_bytes as f64 / (1024.0 * 1024.0),
             tracer.field_build_time().as_secs_f64(),
             hytrace::accel::field::MAX_NODES,
-            hytrace::accel::field::MAX_INSTRUCTIONS
+            hytrace::accel::field::MAX_INSTRUCTIONS,
+            hytrace::accel::field::NATIVE_CODE_BYTES >> 20
         );
     }
 }

@@ -94,6 +94,25 @@ pub fn compile_all(tapes: &mut [Tape], max_bytes: usize) -> usize {
     0
 }
 
+/// Bytes of machine code holding the native code of `tapes` (each buffer counted once).
+pub fn code_bytes(tapes: &[Tape]) -> usize {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let mut seen = std::collections::HashSet::new();
+        tapes
+            .iter()
+            .filter_map(|t| t.native.as_ref())
+            .filter(|n| seen.insert(Arc::as_ptr(&n._code)))
+            .map(|n| n._code.len())
+            .sum()
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = tapes;
+        0
+    }
+}
+
 impl Native {
     /// The tape at 8 points: lane i is what the interpreter gives at (x[i], y[i], z[i]), bit
     /// for bit. `scratch` holds the spilled registers.
@@ -137,7 +156,7 @@ mod x86 {
     use super::{
         BLOCK_INSTRUCTIONS, MAX_CODE_BYTES_PER_INSTRUCTION, MAX_CODE_BYTES_PER_TAPE, Native,
     };
-    use crate::sdf::simd::apply_avx2;
+    use crate::sdf::simd::{apply_avx2, sin_cos_avx2};
     use crate::sdf::tape::{Instr, Op, Shape, Tape};
     use dynasmrt::x64::Assembler;
     use dynasmrt::{AssemblyOffset, DynasmApi, dynasm};
@@ -362,6 +381,55 @@ mod x86 {
         dynasm!(ops ; .arch x64 ; vmovups [rbx + off], Ry(y));
     }
 
+    /// An instruction's part in a sin/cos pair.
+    #[derive(Clone, Copy, PartialEq)]
+    pub(super) enum Pairing {
+        None,
+        /// A `sin` (or `cos`) whose call also computes the `cos` (or `sin`) of the same value
+        /// for a later instruction, into the spill slot given (one no tape register uses).
+        First(u8),
+        /// That later instruction: it loads the result from the slot.
+        Second(u8),
+    }
+
+    /// How far ahead a `sin` looks for the `cos` of its operand.
+    const PAIR_WINDOW: usize = 64;
+
+    /// Pairs each `sin` with a later `cos` of the same value (or the other way round): the
+    /// two share one argument reduction (`math::sin_cos`, whose halves `math::sin` and
+    /// `math::cos` are, so the bits are the same). Gyroids, twists and bends evaluate both
+    /// of many arguments.
+    pub(super) fn sin_cos_pairs(tape: &Tape) -> Vec<Pairing> {
+        let instrs = tape.instrs();
+        let mut pairs = vec![Pairing::None; instrs.len()];
+        let mut next_slot = tape.registers();
+        for i in 0..instrs.len() {
+            let first = &instrs[i];
+            let other = match first.op() {
+                Op::Sin => Op::Cos,
+                Op::Cos => Op::Sin,
+                _ => continue,
+            };
+            let a = first.a();
+            if pairs[i] != Pairing::None || first.out() == a || next_slot >= 256 {
+                continue;
+            }
+            for j in i + 1..instrs.len().min(i + 1 + PAIR_WINDOW) {
+                let later = &instrs[j];
+                if later.op() == other && later.a() == a && pairs[j] == Pairing::None {
+                    pairs[i] = Pairing::First(next_slot as u8);
+                    pairs[j] = Pairing::Second(next_slot as u8);
+                    next_slot += 1;
+                    break;
+                }
+                if later.out() == a {
+                    break; // the value is overwritten before any partner
+                }
+            }
+        }
+        pairs
+    }
+
     /// Emits one tape as a function with the [`Entry`] signature; returns its start.
     fn emit_tape(ops: &mut Assembler, tape: &Tape) -> AssemblyOffset {
         let start = ops.offset();
@@ -390,10 +458,33 @@ mod x86 {
                 alloc.at[axis as usize] = Some(y);
             }
         }
+        let pairs = sin_cos_pairs(tape);
         for (i, ins) in tape.instrs().iter().enumerate() {
             let op = ins.op();
             let (regs, count) = operands(ins);
             let out = ins.out();
+            if let Pairing::Second(stash) = pairs[i] {
+                // Computed by the first of the pair: the operand is not read again here.
+                for k in 0..count {
+                    if let Some(y) = alloc.at[regs[k] as usize] {
+                        let held = alloc.held[y as usize].as_mut().expect("held");
+                        held.1 = uses.reads[i][k];
+                        if held.1 == NEVER {
+                            alloc.release(y);
+                        }
+                    }
+                }
+                if let Some(y) = alloc.at[out as usize] {
+                    alloc.release(y);
+                }
+                alloc.spilled[out as usize] = false;
+                let d = alloc.take(ops, &[]);
+                let off = SLOT * stash as i32;
+                dynasm!(ops ; .arch x64 ; vmovups Ry(d), [rbx + off]);
+                alloc.held[d as usize] = Some((out, uses.written[i]));
+                alloc.at[out as usize] = Some(d);
+                continue;
+            }
             if is_call(op) {
                 // The interpreter's lanes read the operands from their slots.
                 for &r in &regs[..count] {
@@ -419,6 +510,26 @@ mod x86 {
                     slot(if count > 1 { regs[1] } else { regs[0] }),
                 );
                 let o = slot(out);
+                if let Pairing::First(stash) = pairs[i] {
+                    // sin and cos of one value in one call: the other result waits in a slot
+                    // no tape register uses, for the second of the pair
+                    let (sin, cos) = if op == Op::Sin {
+                        (o, slot(stash))
+                    } else {
+                        (slot(stash), o)
+                    };
+                    let f = sin_cos_avx2 as *const () as i64;
+                    dynasm!(ops
+                        ; .arch x64
+                        ; lea rdi, [rbx + a]
+                        ; lea rsi, [rbx + sin]
+                        ; lea rdx, [rbx + cos]
+                        ; mov rax, QWORD f
+                        ; call rax
+                    );
+                    alloc.spilled[out as usize] = true;
+                    continue;
+                }
                 let imm = ins.imm_bits() as i32;
                 let f = apply_avx2 as *const () as i64;
                 dynasm!(ops
@@ -591,7 +702,7 @@ mod x86 {
     }
 }
 
-#[cfg(test)]
+#[cfg(all(test, target_arch = "x86_64"))]
 mod tests {
     use super::*;
     use crate::rng::Rng;
@@ -764,6 +875,17 @@ mod tests {
                 _ => unreachable!(),
             };
             values.push(v);
+            // sin and cos of one value, now and then a few instructions apart (native code
+            // computes them in one call)
+            if matches!(op, Op::Sin | Op::Cos) && rng.chance(0.6) {
+                for _ in 0..rng.below(4) {
+                    let x = pick(rng, &values);
+                    let y = pick(rng, &values);
+                    values.push(b.binary(Op::Add, x, y));
+                }
+                let other = if op == Op::Sin { Op::Cos } else { Op::Sin };
+                values.push(b.unary(other, a));
+            }
         }
         // the result reads many values, so that they all stay alive to the end
         let mut acc = *values.last().expect("values");
@@ -790,6 +912,32 @@ mod tests {
         }
         // the allocator had to spill: more tape registers alive than YMM registers
         assert!(most_registers > 20, "{most_registers}");
+    }
+
+    #[test]
+    fn a_gyroid_computes_each_sin_and_cos_pair_in_one_call() {
+        // sin(x)cos(y) + sin(y)cos(z) + sin(z)cos(x): three values, each with its sin and cos
+        let mut b = Builder::without_sharing(32);
+        let [x, y, z] = b.point();
+        let mut terms = Vec::new();
+        for (u, v) in [(x, y), (y, z), (z, x)] {
+            let s = b.unary(Op::Sin, u);
+            let c = b.unary(Op::Cos, v);
+            terms.push(b.binary(Op::Mul, s, c));
+        }
+        let sum = b.binary(Op::Add, terms[0], terms[1]);
+        let g = b.binary(Op::Add, sum, terms[2]);
+        let tape = b.finish(g, None).compile().unwrap();
+        let firsts = x86::sin_cos_pairs(&tape)
+            .iter()
+            .filter(|p| matches!(p, x86::Pairing::First(_)))
+            .count();
+        assert_eq!(firsts, 3);
+        if available() {
+            let mut rng = Rng::new(8);
+            let pts: Vec<Vec3> = (0..256).map(|_| rng.vec3_in(-40.0, 40.0)).collect();
+            check_native("gyroid", &tape, &pts);
+        }
     }
 
     #[test]

@@ -134,7 +134,7 @@ pub fn eval8_interpreted(
 }
 
 #[cfg(target_arch = "x86_64")]
-pub(crate) use x86::apply_avx2;
+pub(crate) use x86::{apply_avx2, sin_cos_avx2};
 
 #[cfg(target_arch = "x86_64")]
 mod x86 {
@@ -210,6 +210,21 @@ mod x86 {
             let (a, b) = (Avx(_mm256_loadu_ps(a)), Avx(_mm256_loadu_ps(b)));
             let r = crate::sdf::tape::apply(op, a, b, a, f32::from_bits(imm));
             _mm256_storeu_ps(out, r.0);
+        }
+    }
+
+    /// `sin` and `cos` of 8 lanes in memory by one argument reduction
+    /// ([`crate::sdf::math::sin_cos`], of which `Op::Sin` and `Op::Cos` are the halves, so the
+    /// bits are theirs): what native code calls for a `sin` and a `cos` of the same value.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2; `a`, `sin` and `cos` point to 8 floats each.
+    #[target_feature(enable = "avx2")]
+    pub(crate) unsafe extern "sysv64" fn sin_cos_avx2(a: *const f32, sin: *mut f32, cos: *mut f32) {
+        unsafe {
+            let (s, c) = crate::sdf::math::sin_cos(Avx(_mm256_loadu_ps(a)));
+            _mm256_storeu_ps(sin, s.0);
+            _mm256_storeu_ps(cos, c.0);
         }
     }
 
