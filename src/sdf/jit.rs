@@ -20,7 +20,8 @@
 //! on spicy inputs, the conformance catalogue and random tapes). The transcendental functions
 //! (`sin`, `cos`, `tan`, `exp`, `ln`, `pow`) are not written again in assembly: the code calls
 //! the interpreter's own 8-lane implementation of the op (`simd::apply_avx2`), so their
-//! polynomials exist once.
+//! polynomials exist once; a `sin` and a `cos` of the same value share one call and one
+//! argument reduction (`simd::sin_cos_avx2`), as gyroids, twists and bends ask for.
 //!
 //! Why dynasmrt: code generation needs an x86-64 assembler at run time, and dynasmrt (also
 //! what fidget uses) gives one with executable buffers; Cranelift would bring a whole compiler
@@ -34,7 +35,7 @@ use std::sync::Arc;
 #[derive(Clone)]
 pub struct Native {
     #[cfg(target_arch = "x86_64")]
-    _code: Arc<dynasmrt::ExecutableBuffer>,
+    code: Arc<dynasmrt::ExecutableBuffer>,
     #[cfg(target_arch = "x86_64")]
     entry: x86::Entry,
     #[cfg(not(target_arch = "x86_64"))]
@@ -102,8 +103,8 @@ pub fn code_bytes(tapes: &[Tape]) -> usize {
         tapes
             .iter()
             .filter_map(|t| t.native.as_ref())
-            .filter(|n| seen.insert(Arc::as_ptr(&n._code)))
-            .map(|n| n._code.len())
+            .filter(|n| seen.insert(Arc::as_ptr(&n.code)))
+            .map(|n| n.code.len())
             .sum()
     }
     #[cfg(not(target_arch = "x86_64"))]
@@ -242,7 +243,7 @@ mod x86 {
                 // `Entry` signature and the System V calling convention.
                 let entry: Entry = unsafe { std::mem::transmute(code.ptr(at)) };
                 tape.native = Some(Native {
-                    _code: code.clone(),
+                    code: code.clone(),
                     entry,
                 });
             }
