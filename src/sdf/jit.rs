@@ -153,6 +153,8 @@ impl Native {
 }
 
 #[cfg(target_arch = "x86_64")]
+// dynasm's macro converts every dynamic register number with `.into()`, even a `u8` to a `u8`
+#[allow(clippy::useless_conversion)]
 mod x86 {
     use super::{
         BLOCK_INSTRUCTIONS, MAX_CODE_BYTES_PER_INSTRUCTION, MAX_CODE_BYTES_PER_TAPE, Native,
@@ -466,11 +468,11 @@ mod x86 {
             let out = ins.out();
             if let Pairing::Second(stash) = pairs[i] {
                 // Computed by the first of the pair: the operand is not read again here.
-                for k in 0..count {
-                    if let Some(y) = alloc.at[regs[k] as usize] {
+                for (&r, &next) in regs[..count].iter().zip(&uses.reads[i]) {
+                    if let Some(y) = alloc.at[r as usize] {
                         let held = alloc.held[y as usize].as_mut().expect("held");
-                        held.1 = uses.reads[i][k];
-                        if held.1 == NEVER {
+                        held.1 = next;
+                        if next == NEVER {
                             alloc.release(y);
                         }
                     }
@@ -495,10 +497,9 @@ mod x86 {
                         alloc.spilled[r as usize] = true;
                     }
                 }
-                for k in 0..count {
-                    if let Some(y) = alloc.at[regs[k] as usize] {
-                        let held = alloc.held[y as usize].as_mut().expect("held");
-                        held.1 = uses.reads[i][k];
+                for (&r, &next) in regs[..count].iter().zip(&uses.reads[i]) {
+                    if let Some(y) = alloc.at[r as usize] {
+                        alloc.held[y as usize].as_mut().expect("held").1 = next;
                     }
                 }
                 if let Some(y) = alloc.at[out as usize] {
@@ -552,14 +553,14 @@ mod x86 {
             }
             // Operands read here for the last time free their registers (the code reads
             // every operand before it writes the destination, which may be one of them).
-            for k in 0..count {
-                if let Some(held) = alloc.held[y[k] as usize].as_mut() {
-                    held.1 = uses.reads[i][k];
+            for (&yk, &next) in y[..count].iter().zip(&uses.reads[i]) {
+                if let Some(held) = alloc.held[yk as usize].as_mut() {
+                    held.1 = next;
                 }
             }
-            for k in 0..count {
-                if uses.reads[i][k] == NEVER {
-                    alloc.release(y[k]);
+            for (&yk, &next) in y[..count].iter().zip(&uses.reads[i]) {
+                if next == NEVER {
+                    alloc.release(yk);
                 }
             }
             if let Some(held) = alloc.at[out as usize] {
