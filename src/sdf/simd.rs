@@ -445,7 +445,7 @@ mod x86 {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::rng::Rng;
     use crate::sdf::conformance::case_tapes;
@@ -502,9 +502,10 @@ mod tests {
         }
     }
 
-    #[test]
-    fn every_op_gives_the_scalar_bits_on_spicy_inputs() {
-        // every operation alone, on values around its edges (fidget's "spicy" inputs)
+    /// Points made of values around every op's edges (fidget's "spicy" inputs): each pair of
+    /// them as (x, y) with a random one as z, then random points, seeded by `seed`. Shared by
+    /// the tests of native code (`sdf::jit`).
+    pub(crate) fn spicy_points(seed: u64) -> Vec<Vec3> {
         let spicy = [
             0.0f32,
             -0.0,
@@ -531,20 +532,22 @@ mod tests {
             89.0,
             3e9,
         ];
-        let mut rng = Rng::new(2);
+        let mut rng = Rng::new(seed);
         let mut pts: Vec<Vec3> = Vec::new();
         for &a in &spicy {
             for &b in &spicy {
-                pts.push(Vec3::new(
-                    a,
-                    b,
-                    spicy[rng.below(spicy.len() as u64) as usize],
-                ));
+                let c = spicy[rng.below(spicy.len() as u64) as usize];
+                pts.push(Vec3::new(a, b, c));
             }
         }
-        for _ in 0..512 {
-            pts.push(rng.vec3_in(-50.0, 50.0));
-        }
+        pts.extend((0..512).map(|_| rng.vec3_in(-50.0, 50.0)));
+        pts
+    }
+
+    #[test]
+    fn every_op_gives_the_scalar_bits_on_spicy_inputs() {
+        // every operation alone, on values around its edges
+        let pts = spicy_points(2);
         for &op in Op::ALL {
             if op.is_material() || op == Op::Input {
                 continue;
