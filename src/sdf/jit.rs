@@ -26,6 +26,9 @@
 //! Why dynasmrt: code generation needs an x86-64 assembler at run time, and dynasmrt (also
 //! what fidget uses) gives one with executable buffers; Cranelift would bring a whole compiler
 //! and its own register allocator for straight-line tapes that a few lines here allocate.
+//! Why not fidget's JIT: it compiles fidget's own tapes, with its own operations, NaN rules
+//! and transcendental functions, so every leaf tape would be converted and the bits would no
+//! longer be the interpreter's and the GPU's (BENCHMARKS.md, "JIT or library").
 
 use crate::sdf::tape::Tape;
 use std::sync::Arc;
