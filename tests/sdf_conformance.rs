@@ -1,13 +1,14 @@
 //! The SDF conformance suite (`hytrace::sdf::conformance`) on every tape evaluator, one test
 //! per (case, evaluator): `scalar::torus` failing names the case and the interpreter. The
 //! evaluators: the scalar interpreter, the 8-lane packet interpreter at every SIMD level the
-//! CPU has, interval arithmetic on degenerate boxes, the WGSL interpreter on the GPU (feature
-//! `gpu`), and fidget's VM and JIT on the converted tapes (feature `fidget`).
+//! CPU has, the tapes compiled to native code (where the CPU has AVX2), interval arithmetic on
+//! degenerate boxes, the WGSL interpreter on the GPU (feature `gpu`), and fidget's VM and JIT
+//! on the converted tapes (feature `fidget`).
 
 #[macro_use]
 mod common;
 
-use hytrace::sdf::conformance::{CpuEvaluator, IntervalEvaluator, SimdEvaluator};
+use hytrace::sdf::conformance::{CpuEvaluator, IntervalEvaluator, NativeEvaluator, SimdEvaluator};
 use hytrace::sdf::simd::SimdLevel;
 
 sdf_conformance!(scalar => CpuEvaluator);
@@ -16,6 +17,10 @@ sdf_conformance!(simd_portable => SimdEvaluator(SimdLevel::Portable));
 sdf_conformance!(simd_sse2 => SimdEvaluator(SimdLevel::Sse2));
 #[cfg(target_arch = "x86_64")]
 sdf_conformance!(simd_avx2 => match avx2() {
+    Some(ev) => ev,
+    None => return,
+});
+sdf_conformance!(native => match native() {
     Some(ev) => ev,
     None => return,
 });
@@ -38,6 +43,20 @@ fn avx2() -> Option<SimdEvaluator> {
     assert!(
         std::env::var("CI").as_deref() != Ok("true"),
         "CI must run the AVX2 evaluator"
+    );
+    None
+}
+
+/// Native code where the CPU makes it (AVX2); elsewhere, as for [`avx2`], a loud skip that
+/// fails under `CI=true`.
+fn native() -> Option<NativeEvaluator> {
+    if hytrace::sdf::jit::available() {
+        return Some(NativeEvaluator);
+    }
+    eprintln!("!!! this CPU makes no native code (no AVX2): native NOT RUN !!!");
+    assert!(
+        std::env::var("CI").as_deref() != Ok("true"),
+        "CI must run the native evaluator"
     );
     None
 }

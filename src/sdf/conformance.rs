@@ -64,6 +64,19 @@ impl Evaluator for IntervalEvaluator {
     }
 }
 
+/// Native code ([`crate::sdf::jit`]) as an [`Evaluator`]: the tape compiled, then run eight
+/// points at a time as the packet interpreter is. Only where [`crate::sdf::jit::available`].
+pub struct NativeEvaluator;
+
+impl Evaluator for NativeEvaluator {
+    fn eval(&self, tape: &Tape, points: &[Vec3]) -> Vec<f32> {
+        let mut native = tape.interpreted();
+        crate::sdf::jit::compile_all(std::slice::from_mut(&mut native), usize::MAX);
+        assert!(native.is_native(), "no native code was made for the tape");
+        SimdEvaluator(crate::sdf::simd::SimdLevel::Avx2).eval(&native, points)
+    }
+}
+
 /// Parses one SDF node written in scene syntax (for tests and examples).
 pub fn parse_node(src: &str) -> SdfNode {
     ron::Options::default()
