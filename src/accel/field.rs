@@ -43,7 +43,8 @@ pub const MAX_DEPTH: u32 = 8;
 pub const MAX_NODES: usize = 1 << 21;
 
 /// Most bytes of native code per object ([`ObjectField::compile_native`]): 64 MiB, room for
-/// about 6 M instructions at the measured 10 bytes each. Tapes past it are interpreted.
+/// about 3 M instructions at the measured 20 bytes each (a 1,000-box union's octree takes 52
+/// MiB). Tapes past it are interpreted.
 pub const NATIVE_CODE_BYTES: usize = 64 << 20;
 
 /// Most instructions over an object's distinct specialised tapes (8 bytes each): 128 MiB.

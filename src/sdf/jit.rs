@@ -77,8 +77,10 @@ const BLOCK_INSTRUCTIONS: usize = 1 << 16;
 /// Most bytes of machine code one tape instruction becomes: a call of the interpreter's lanes
 /// after spilling all 14 allocatable registers (187 bytes), rounded up; an inline operation
 /// takes at most 93 (three operand loads after evictions, one more eviction, `hypot3`'s six
-/// instructions). Measured: about 10 bytes per instruction on the shipped and generated
-/// models (41 MB for the 4.4 M instructions of a 1,000-box union's octree).
+/// instructions). Measured by `hytrace info`: 7.4 MiB for the 400 spheres' octree, 52 MiB for
+/// a 1,000-box union's (4.4 M instructions counting the shading tapes, which are not
+/// compiled): about 20 bytes per compiled instruction, an immediate operand taking three
+/// instructions to broadcast.
 const MAX_CODE_BYTES_PER_INSTRUCTION: usize = 192;
 
 /// Most bytes of one tape's entry and exit code.
