@@ -690,7 +690,11 @@ mod x86 {
         start
     }
 
-    /// YMM `y` = the float with `bits` in every lane.
+    /// YMM `y` = the float with `bits` in every lane. Through `eax`, not from a constant
+    /// after the code: dynasmrt 5 encodes `vbroadcastss ymm, DWORD [mem]` as its 128-bit form
+    /// (4 lanes, the upper 4 zeroed; checked by disassembly), and a pool of 32-byte splats
+    /// read as memory operands would take more bytes than it saves where, as in most leaf
+    /// tapes, each constant is used once.
     fn broadcast(ops: &mut Assembler, y: u8, bits: u32) {
         dynasm!(ops
             ; .arch x64
