@@ -460,6 +460,34 @@ mod tests {
 
     const TOL: f32 = 2e-5;
 
+    #[test]
+    fn native_code_gives_the_interpreter_bits_on_every_case() {
+        // (here rather than in `sdf::jit`, which the catalogue builds on)
+        if !crate::sdf::jit::available() {
+            assert!(
+                std::env::var("CI").as_deref() != Ok("true"),
+                "no AVX2 on this CPU under CI: native code cannot be tested"
+            );
+            eprintln!("SKIPPED: no AVX2 on this CPU, so no native code to compare");
+            return;
+        }
+        let mut rng = crate::rng::Rng::new(17);
+        for (name, tape, c, r) in case_tapes() {
+            let pts: Vec<Vec3> = (0..512)
+                .map(|_| c + rng.vec3_in(-r, r))
+                .chain([Vec3::ZERO, c, Vec3::splat(1e6), Vec3::splat(-0.0)])
+                .collect();
+            let want = CpuEvaluator.eval(&tape, &pts);
+            let got = NativeEvaluator.eval(&tape, &pts);
+            for ((p, w), g) in pts.iter().zip(&want).zip(&got) {
+                assert!(
+                    w.to_bits() == g.to_bits() || (w.is_nan() && g.is_nan()),
+                    "{name} at {p}: native {g} vs interpreter {w}"
+                );
+            }
+        }
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(512))]
 

@@ -31,32 +31,6 @@
 //! longer be the interpreter's and the GPU's (BENCHMARKS.md, "JIT or library").
 
 use crate::sdf::tape::Tape;
-use std::sync::Arc;
-
-/// A tape's native code: an entry point into an executable buffer shared by the tapes
-/// compiled together.
-#[derive(Clone)]
-pub struct Native {
-    #[cfg(target_arch = "x86_64")]
-    code: Arc<dynasmrt::ExecutableBuffer>,
-    #[cfg(target_arch = "x86_64")]
-    entry: x86::Entry,
-    #[cfg(not(target_arch = "x86_64"))]
-    _never: std::convert::Infallible,
-}
-
-impl std::fmt::Debug for Native {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("Native")
-    }
-}
-
-/// Native code is a cache of the tape's program: two tapes are equal when their programs are.
-impl PartialEq for Native {
-    fn eq(&self, _: &Self) -> bool {
-        true
-    }
-}
 
 /// Whether this CPU runs native tapes (AVX2).
 pub fn available() -> bool {
@@ -108,8 +82,8 @@ pub fn code_bytes(tapes: &[Tape]) -> usize {
         tapes
             .iter()
             .filter_map(|t| t.native.as_ref())
-            .filter(|n| seen.insert(Arc::as_ptr(&n.code)))
-            .map(|n| n.code.len())
+            .filter(|n| seen.insert(n.buffer_address()))
+            .map(|n| n.buffer_len())
             .sum()
     }
     #[cfg(not(target_arch = "x86_64"))]
@@ -119,51 +93,12 @@ pub fn code_bytes(tapes: &[Tape]) -> usize {
     }
 }
 
-impl Native {
-    /// The tape at 8 points: lane i is what the interpreter gives at (x[i], y[i], z[i]), bit
-    /// for bit. `scratch` holds the spilled registers.
-    #[inline]
-    pub fn eval8(
-        &self,
-        x: &[f32; 8],
-        y: &[f32; 8],
-        z: &[f32; 8],
-        scratch: &mut [crate::sdf::simd::Lane8],
-    ) -> [f32; 8] {
-        #[cfg(target_arch = "x86_64")]
-        {
-            assert!(scratch.len() >= crate::sdf::tape::MAX_REGISTERS);
-            let mut out = [0.0f32; 8];
-            // SAFETY: the code was made only where AVX2 was detected (`compile_all`); it reads
-            // 8 floats at each of `x`, `y` and `z`, reads and writes the 256 slots of
-            // `scratch` (checked above) and writes 8 floats at `out`; the buffer it lives in
-            // is held by `self`.
-            unsafe {
-                (self.entry)(
-                    x.as_ptr(),
-                    y.as_ptr(),
-                    z.as_ptr(),
-                    scratch.as_mut_ptr().cast(),
-                    out.as_mut_ptr(),
-                )
-            };
-            out
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        {
-            let _ = (x, y, z, scratch);
-            match self._never {}
-        }
-    }
-}
-
 #[cfg(target_arch = "x86_64")]
 // dynasm's macro converts every dynamic register number with `.into()`, even a `u8` to a `u8`
 #[allow(clippy::useless_conversion)]
 mod x86 {
-    use super::{
-        BLOCK_INSTRUCTIONS, MAX_CODE_BYTES_PER_INSTRUCTION, MAX_CODE_BYTES_PER_TAPE, Native,
-    };
+    use super::{BLOCK_INSTRUCTIONS, MAX_CODE_BYTES_PER_INSTRUCTION, MAX_CODE_BYTES_PER_TAPE};
+    use crate::sdf::native::{Entry, Native};
     use crate::sdf::simd::{apply_avx2, sin_cos_avx2};
     use crate::sdf::tape::{Instr, Op, Shape, Tape};
     use dynasmrt::x64::Assembler;
@@ -171,10 +106,6 @@ mod x86 {
     use rayon::prelude::*;
     use std::sync::Arc;
     use std::sync::atomic::{AtomicUsize, Ordering};
-
-    /// The compiled function: `(x, y, z, scratch, out)`, see [`Native::eval8`].
-    pub(super) type Entry =
-        unsafe extern "sysv64" fn(*const f32, *const f32, *const f32, *mut u8, *mut f32);
 
     /// YMM registers that hold tape values; 14 and 15 are the operations' temporaries.
     const ALLOCATABLE: usize = 14;
@@ -249,10 +180,10 @@ mod x86 {
                 // SAFETY: `at` is the start of a function emitted by `emit_tape` with the
                 // `Entry` signature and the System V calling convention.
                 let entry: Entry = unsafe { std::mem::transmute(code.ptr(at)) };
-                tape.native = Some(Native {
-                    code: code.clone(),
-                    entry,
-                });
+                // SAFETY: as above; `emit_tape` reads and writes only the slots of the tape's
+                // registers and stashes, all below 256 (`native::SLOTS`), and the code was made
+                // only where AVX2 was detected (`compile_all`).
+                tape.native = Some(unsafe { Native::new(code.clone(), entry) });
             }
         }
     }
@@ -718,8 +649,8 @@ mod x86 {
 mod tests {
     use super::*;
     use crate::rng::Rng;
-    use crate::sdf::conformance::case_tapes;
-    use crate::sdf::simd::{PacketRegisters, SimdLevel, eval8, eval8_interpreted};
+    use crate::sdf::simd::tests::check_bits;
+    use crate::sdf::simd::{PacketRegisters, SimdLevel, eval8};
     use crate::sdf::ssa::{Builder, V};
     use crate::sdf::tape::{Op, Shape};
     use glam::Vec3;
@@ -735,43 +666,10 @@ mod tests {
             bytes <= worst,
             "{name}: {bytes} bytes of code, over the bound {worst}"
         );
-        let mut regs = PacketRegisters::new();
-        for chunk in pts.chunks(8) {
-            let mut xyz = [[0.0f32; 8]; 3];
-            for (i, p) in chunk.iter().enumerate() {
-                for a in 0..3 {
-                    xyz[a][i] = p[a];
-                }
-            }
-            let got = eval8(
-                SimdLevel::Avx2,
-                &native,
-                &xyz[0],
-                &xyz[1],
-                &xyz[2],
-                &mut regs,
-            );
-            for (i, p) in chunk.iter().enumerate() {
-                let want = tape.eval(*p);
-                assert!(
-                    got[i].to_bits() == want.to_bits() || (got[i].is_nan() && want.is_nan()),
-                    "{name} at {p}: native {} vs interpreter {}",
-                    got[i],
-                    want
-                );
-            }
-            let interpreted = eval8_interpreted(
-                SimdLevel::Avx2,
-                &native,
-                &xyz[0],
-                &xyz[1],
-                &xyz[2],
-                &mut regs,
-            );
-            for (a, b) in interpreted.iter().zip(&got) {
-                assert!(a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()));
-            }
-        }
+        // native code (eval8 at the AVX2 level runs it) and the interpreter on the same
+        // tape, each against the scalar interpreter
+        check_bits(SimdLevel::Avx2, name, &native, pts);
+        check_bits(SimdLevel::Avx2, name, &native.interpreted(), pts);
     }
 
     /// Whether this CPU makes native code (AVX2). Where it does not, the renderer never
@@ -821,21 +719,6 @@ mod tests {
                 let tape = b.finish(v, None).compile().unwrap();
                 check_native(&format!("{} (imm {k})", op.name()), &tape, &pts);
             }
-        }
-    }
-
-    #[test]
-    fn every_catalogue_case_gives_the_interpreter_bits() {
-        if !runs_native() {
-            return;
-        }
-        let mut rng = Rng::new(17);
-        for (name, tape, c, r) in case_tapes() {
-            let pts: Vec<Vec3> = (0..512)
-                .map(|_| c + rng.vec3_in(-r, r))
-                .chain([Vec3::ZERO, c, Vec3::splat(1e6), Vec3::splat(-0.0)])
-                .collect();
-            check_native(&name, &tape, &pts);
         }
     }
 

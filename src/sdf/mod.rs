@@ -12,6 +12,7 @@ pub mod jit;
 pub mod lanes;
 pub mod lower;
 pub mod math;
+pub mod native;
 pub mod node;
 pub mod simd;
 pub mod simplify;

@@ -70,6 +70,15 @@ impl PacketRegisters {
         }
     }
 
+    /// The registers as native code's spill slots ([`crate::sdf::native::Native::eval8`]).
+    fn slots(&mut self) -> &mut [[f32; 8]] {
+        // SAFETY: `Lane8` is `repr(C)` around `[f32; 8]` (its alignment only adds none: 32
+        // bytes, the size), so the buffer is MAX_REGISTERS arrays of 8 floats.
+        unsafe {
+            std::slice::from_raw_parts_mut(self.regs.as_mut_ptr().cast::<[f32; 8]>(), MAX_REGISTERS)
+        }
+    }
+
     /// The registers as an array of another 32-byte-or-smaller, at-most-32-aligned lane type.
     fn as_lanes<L: Lanes>(&mut self) -> &mut [L; MAX_REGISTERS] {
         const {
@@ -97,7 +106,7 @@ pub fn eval8(
     if level == SimdLevel::Avx2
         && let Some(native) = &tape.native
     {
-        return native.eval8(x, y, z, &mut regs.regs[..]);
+        return native.eval8(x, y, z, regs.slots());
     }
     eval8_interpreted(level, tape, x, y, z, regs)
 }

@@ -23,6 +23,9 @@ use glam::Vec3;
 /// Value registers a tape may use: register numbers are bytes.
 pub const MAX_REGISTERS: usize = 256;
 
+// Native code spills each tape register to a slot of its own.
+const _: () = assert!(MAX_REGISTERS == crate::sdf::native::SLOTS);
+
 /// Material registers a tape may use.
 pub const MAX_MATERIAL_REGISTERS: usize = 16;
 
@@ -305,7 +308,7 @@ pub struct Tape {
     pub(crate) registers: usize,
     pub(crate) material_registers: usize,
     /// The tape compiled to native code ([`crate::sdf::jit`]), where it was.
-    pub(crate) native: Option<crate::sdf::jit::Native>,
+    pub(crate) native: Option<crate::sdf::native::Native>,
 }
 
 /// Scratch value registers for [`Tape::eval_in`].
