@@ -296,6 +296,70 @@ fn gpu_backend_screenshot_equals_gpu_render() {
     assert_same_image(&shot, &png);
 }
 
+/// What the window shows of the refined image, below the heads-up band, is what `render`
+/// writes: on the GPU the sums are tone-mapped where the render kernel left them (the shown
+/// frame is never read back; the device may round a code on a boundary the other way), on the
+/// CPU the host's pixels are drawn unchanged.
+#[test]
+fn the_window_shows_what_render_writes_on_either_backend() {
+    let x = Xvfb::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let size = ["--width", "160", "--height", "120", "--spp", "2"];
+    for backend in ["gpu", "cpu"] {
+        let shot = dir.path().join(format!("window-{backend}.png"));
+        let script = dir.path().join(format!("window-{backend}.txt"));
+        std::fs::write(
+            &script,
+            format!("converge\nwindow-shot {}\nquit\n", shot.display()),
+        )
+        .expect("write script");
+        let mut args = size.to_vec();
+        args.extend([
+            "--backend",
+            backend,
+            "--script",
+            script.to_str().expect("utf-8"),
+        ]);
+        let what = format!("hytrace view --backend {backend}");
+        let out = run(x.view(&args), &what);
+        assert_ok(&out, &what);
+        let png = dir.path().join(format!("render-{backend}.png"));
+        render(None, &png, &[&size[..], &["--backend", backend]].concat());
+        let window = image::open(&shot).expect("window shot").to_rgb8();
+        let rendered = image::open(&png).expect("render").to_rgb8();
+        assert_eq!(window.dimensions(), rendered.dimensions());
+        // the band holds at most six lines of 10 rows at this width
+        let below = |img: &image::RgbImage| img.as_raw()[(70 * 160 * 3) as usize..].to_vec();
+        let (a, b) = (below(&window), below(&rendered));
+        let differ = a.iter().zip(&b).filter(|(x, y)| x != y).count();
+        let most = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| x.abs_diff(*y))
+            .max()
+            .unwrap_or(0);
+        if backend == "cpu" {
+            assert_eq!(differ, 0, "the CPU's picture is drawn unchanged");
+        }
+        assert!(
+            most <= 1 && differ * 1000 <= a.len(),
+            "{backend}: {differ} of {} codes differ from render's, by up to {most}",
+            a.len()
+        );
+        // and the band is there: its rows are darker than render's
+        let top = |img: &image::RgbImage| -> u64 {
+            img.as_raw()[..(4 * 160 * 3) as usize]
+                .iter()
+                .map(|&c| c as u64)
+                .sum()
+        };
+        assert!(
+            top(&window) < top(&rendered),
+            "{backend}: the heads-up band darkens the top"
+        );
+    }
+}
+
 /// The screenshot `shot` of a moved camera equals `render` of the showcase from the camera the
 /// viewer printed, at 160×120 and 2 samples on the CPU.
 fn assert_printed_camera_renders_shot(printed: &str, shot: &Path, dir: &Path, what: &str) {

@@ -102,9 +102,10 @@ fn run_viewer(args: ViewArgs) -> Result<()> {
     }
     hytrace::viewer::window::check_display()?;
     // the heads-up line says which backend renders, so `auto` chooses without a word
-    let gpu = match super::render::choose_backend(args.image.backend, true, false)? {
-        Chosen::Cpu => None,
-        Chosen::Gpu(ctx) => Some(*ctx),
+    // (the window opens the GPU's device again, on the adapter that presents to it)
+    let render_on_gpu = match super::render::choose_backend(args.image.backend, true, false)? {
+        Chosen::Cpu => false,
+        Chosen::Gpu(_) => true,
     };
     let (path, camera) = (args.scene.clone(), args.camera.clone());
     let load = Arc::new(move || super::load_any(path.as_deref(), camera.as_deref()));
@@ -144,6 +145,6 @@ fn run_viewer(args: ViewArgs) -> Result<()> {
         script: steps,
         frames: args.frames,
         screenshot_dir: args.screenshot_dir,
-        gpu,
+        render_on_gpu,
     })
 }

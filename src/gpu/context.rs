@@ -10,7 +10,8 @@ pub const MIN_STORAGE_BYTES: usize = 512;
 const _: () = assert!(size_of::<super::records::TriBlockRecord>() <= MIN_STORAGE_BYTES);
 const _: () = assert!(size_of::<super::records::WideNodeRecord>() <= MIN_STORAGE_BYTES);
 
-/// A wgpu device and queue with no window or surface.
+/// A wgpu device and queue (cloning shares them).
+#[derive(Clone)]
 pub struct GpuContext {
     /// The device.
     pub device: wgpu::Device,
@@ -36,10 +37,25 @@ impl GpuContext {
             apply_limit_buckets: false,
         }))
         .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+        Self::with_adapter(&adapter)
+    }
+
+    /// Opens a device for the tracer on `adapter` (one that can also present to a window,
+    /// say) with the adapter's own limits; fails when they are too small for the tracer.
+    pub fn with_adapter(adapter: &wgpu::Adapter) -> Result<Self, GpuError> {
+        Self::open(adapter, true)
+    }
+
+    /// Opens a device on `adapter` to draw pictures with (no tracing, so no limit is checked).
+    pub fn for_drawing(adapter: &wgpu::Adapter) -> Result<Self, GpuError> {
+        Self::open(adapter, false)
+    }
+
+    fn open(adapter: &wgpu::Adapter, for_tracing: bool) -> Result<Self, GpuError> {
         let info = adapter.get_info();
         let limits = adapter.limits();
         let needed = super::shaders::scene_bindings().len() as u32 + 3;
-        if limits.max_storage_buffers_per_shader_stage < needed {
+        if for_tracing && limits.max_storage_buffers_per_shader_stage < needed {
             return Err(GpuError::Unsupported(format!(
                 "adapter `{}` binds at most {} storage buffers per shader stage, the GPU tracer \
                  needs {needed}",

@@ -5,9 +5,11 @@
 //! octrees, BVHs, meshes, materials, textures) as the buffer [`records`] whose WGSL twins
 //! [`layout`] generates, [`shaders`] assembles the WGSL (a generated prelude of shared
 //! constants and structs, then `shaders/*.wgsl`), [`query`] answers ray batches with it,
-//! [`shade`] packs what the shading kernels read and [`render`] builds images pass by pass.
+//! [`shade`] packs what the shading kernels read, [`render`] builds images pass by pass and
+//! [`display`] draws pictures (or the sums of passes, where they are) onto a window's texture.
 
 pub mod context;
+pub mod display;
 pub mod layout;
 pub mod query;
 pub mod records;

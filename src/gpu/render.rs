@@ -362,6 +362,27 @@ impl GpuPasses {
         self.passes
     }
 
+    /// A copy of the sums of the passes so far, made on the device (nothing is read back):
+    /// what a window shows while later passes add to the sums. Only for sums covering the
+    /// whole image.
+    pub fn snapshot(&self, ctx: &GpuContext) -> Result<wgpu::Buffer> {
+        if (self.region.w, self.region.h) != (self.width, self.height) {
+            bail!("the sums cover one tile, not the image");
+        }
+        let copy = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("pixel sums shown"),
+            size: self.sums.size(),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        encoder.copy_buffer_to_buffer(&self.sums, 0, &copy, 0, self.sums.size());
+        ctx.queue.submit([encoder.finish()]);
+        Ok(copy)
+    }
+
     /// Forgets the passes: the next one starts the sums again (when the camera moved).
     pub fn clear(&mut self) {
         self.passes = 0;
@@ -433,15 +454,7 @@ mod tests {
 
     #[test]
     fn render_shader_parses_and_validates_with_naga() {
-        let source = render_shader_source();
-        let module = naga::front::wgsl::parse_str(&source)
-            .unwrap_or_else(|e| panic!("{}", e.emit_to_string(&source)));
-        naga::valid::Validator::new(
-            naga::valid::ValidationFlags::all(),
-            naga::valid::Capabilities::default(),
-        )
-        .validate(&module)
-        .unwrap_or_else(|e| panic!("{}", e.emit_to_string(&source)));
+        let module = crate::gpu::shaders::validate("render", &render_shader_source());
         assert!(
             module
                 .entry_points

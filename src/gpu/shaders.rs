@@ -408,20 +408,24 @@ pub fn all_modules() -> Vec<(&'static str, String)> {
         .collect()
 }
 
+/// Parses and validates a WGSL module with naga (no adapter needed), panicking with the
+/// compiler's message: the check every shader the crate builds passes in the tests.
+#[cfg(test)]
+pub(crate) fn validate(name: &str, src: &str) -> naga::Module {
+    let module = naga::front::wgsl::parse_str(src)
+        .unwrap_or_else(|e| panic!("{name} does not parse:\n{}", e.emit_to_string(src)));
+    naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::default(),
+    )
+    .validate(&module)
+    .unwrap_or_else(|e| panic!("{name} does not validate:\n{}", e.emit_to_string(src)));
+    module
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn validate(name: &str, src: &str) {
-        let module = naga::front::wgsl::parse_str(src)
-            .unwrap_or_else(|e| panic!("{name} does not parse:\n{}", e.emit_to_string(src)));
-        naga::valid::Validator::new(
-            naga::valid::ValidationFlags::all(),
-            naga::valid::Capabilities::default(),
-        )
-        .validate(&module)
-        .unwrap_or_else(|e| panic!("{name} does not validate:\n{}", e.emit_to_string(src)));
-    }
 
     /// Every file of `shaders/` with the prelude and the files it builds on, and every
     /// module the crate compiles, parse and validate with naga (no adapter needed).

@@ -6,17 +6,16 @@ use super::present::Presenter;
 use super::script::Step;
 use super::session::{Action, Controls, Frame, FrameStats, Schedule, Switches};
 use super::watch::FileWatch;
-use super::worker::{Job, Report, Worker};
-use crate::gpu::context::GpuContext;
+use super::worker::{DeviceSums, Job, Report, Worker};
+use crate::gpu::display::{HeadsUp, Shown};
 use crate::render::exr::Aov;
 use crate::render::output::ToneMapping;
-use crate::render::view::picture;
+use crate::render::view::{View, picture};
 use crate::render::write::write_image;
 use crate::render::{Framebuffer, RenderOptions, draw};
 use crate::scene::Scene;
 use crate::scene::file::ToneMap;
-use glam::Vec3;
-use image::{Rgb, RgbImage};
+use image::{Rgb, RgbImage, RgbaImage};
 use std::collections::VecDeque;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -59,8 +58,9 @@ pub struct ViewerConfig {
     pub frames: Option<u64>,
     /// Where `P` writes screenshots (numbered files).
     pub screenshot_dir: PathBuf,
-    /// The GPU that renders the frames (None: the CPU renders them).
-    pub gpu: Option<GpuContext>,
+    /// Render the frames on the GPU that presents the window (the CPU renders them
+    /// otherwise).
+    pub render_on_gpu: bool,
 }
 
 /// What other threads tell the window.
@@ -113,6 +113,22 @@ struct InFlight {
     frame: Frame,
 }
 
+/// A frame as the render thread delivered it.
+struct ShownFrame {
+    /// On the host (every CPU frame; GPU frames read back).
+    image: Option<Box<Framebuffer>>,
+    /// A GPU frame's sums on the presenting device.
+    on_device: Option<DeviceSums>,
+}
+
+/// The window's picture of the last frame.
+struct Composed {
+    /// The host's pixels of the picture (width, height, RGBA), or None to show the GPU's sums.
+    pixels: Option<(u32, u32, Vec<u8>)>,
+    /// The heads-up band: the window's width, the text over transparent pixels.
+    heads_up: RgbaImage,
+}
+
 /// The script's progress.
 struct ScriptRun {
     steps: VecDeque<Step>,
@@ -135,9 +151,10 @@ struct Viewer {
     in_flight: Option<InFlight>,
     ready: bool,
     /// The last frame and whether it is the refined one of the current generation.
-    shown: Option<(Box<Framebuffer>, Frame)>,
-    /// The picture as the window shows it (window size, heads-up line drawn in).
-    composed: Option<RgbImage>,
+    shown: Option<(ShownFrame, Frame)>,
+    /// What the window shows of it: the picture on the host (its view, tone-mapped, 8-bit
+    /// RGBA) unless the GPU's sums are shown where they are, and the heads-up band.
+    composed: Option<Composed>,
     tone_operator: ToneMap,
     max_steps: u32,
     backend: String,
@@ -161,7 +178,7 @@ struct Viewer {
 
 impl Viewer {
     fn new(
-        mut config: ViewerConfig,
+        config: ViewerConfig,
         scene: Scene,
         proxy: EventLoopProxy<Wake>,
     ) -> anyhow::Result<Self> {
@@ -183,8 +200,8 @@ impl Viewer {
         let max_steps = scene.tracer.max_steps;
         let files = watched_files(config.scene_file.as_deref(), &scene);
         let worker_proxy = proxy.clone();
-        let gpu = config.gpu.take();
-        let worker = Worker::start(scene, controls.switches, config.threads, gpu, move |r| {
+        // on the GPU, the render thread gets the presenting device once the window exists
+        let worker = Worker::start(scene, controls.switches, config.threads, None, move |r| {
             let _ = worker_proxy.send_event(Wake::Worker(r));
         })?;
         // frames of generation 1 are the ones wanted first
@@ -261,7 +278,16 @@ impl Viewer {
                 self.ready = false;
                 self.changed();
             }
-            Action::Display => self.compose(),
+            Action::Display => {
+                // a debug view of a GPU frame needs the frame on the host: render it again
+                let view = self.controls.switches.view;
+                if view != View::Shaded
+                    && self.shown.as_ref().is_some_and(|(f, _)| f.image.is_none())
+                {
+                    self.changed();
+                }
+                self.compose();
+            }
             Action::Pick { u, v } => {
                 let (w, h) = self.controls.window;
                 self.worker.send(Job::Pick {
@@ -316,7 +342,7 @@ impl Viewer {
             return None;
         }
         match &self.shown {
-            Some((fb, Frame::Refine { .. })) => Some(fb),
+            Some((f, Frame::Refine { .. })) => f.image.as_deref(),
             _ => None,
         }
     }
@@ -408,6 +434,7 @@ impl Viewer {
                 ..options
             },
             sample,
+            read_back: self.controls.switches.view != View::Shaded,
         });
         self.in_flight = Some(InFlight {
             generation: self.generation,
@@ -443,6 +470,7 @@ impl Viewer {
                 generation,
                 sample,
                 image,
+                on_device,
                 elapsed,
             } => {
                 let Some(done) = self.in_flight.take() else {
@@ -470,7 +498,7 @@ impl Viewer {
                     Frame::Idle => {}
                 }
                 self.last_frame_ms = elapsed.as_secs_f64() * 1e3;
-                self.shown = Some((image, done.frame));
+                self.shown = Some((ShownFrame { image, on_device }, done.frame));
                 // the render thread starts the next frame while this one is composed and
                 // presented
                 self.schedule_frame();
@@ -516,13 +544,20 @@ impl Viewer {
 
     /// Makes the window's picture of the last frame and asks for it to be drawn.
     fn compose(&mut self) {
-        let Some((fb, _)) = &self.shown else { return };
-        let (w, h) = self.controls.window;
-        let small = picture(fb, self.controls.switches.view, self.tone(), self.max_steps);
-        let mut img = if (small.width(), small.height()) == (w, h) {
-            small
-        } else {
-            upscale_nearest(&small, w, h)
+        let Some((frame, _)) = &self.shown else {
+            return;
+        };
+        let (w, _) = self.controls.window;
+        let view = self.controls.switches.view;
+        // the shaded view of a GPU frame is tone-mapped where the render kernel left it
+        let pixels = match (&frame.image, &frame.on_device) {
+            (_, Some(_)) if view == View::Shaded => None,
+            (Some(fb), _) => {
+                let img = picture(fb, view, self.tone(), self.max_steps);
+                Some((img.width(), img.height(), rgb_to_rgba(&img)))
+            }
+            // a GPU frame not read back, its debug view on the way: shaded meanwhile
+            (None, _) => None,
         };
         let columns = (w / 8).max(8) as usize - 1;
         let mut lines: Vec<(String, [u8; 3])> = wrap(&self.heads_up(), columns)
@@ -544,26 +579,38 @@ impl Viewer {
             }
         }
         let band = lines.len() as u32 * draw::LINE + 4;
-        darken(&mut img, band);
-        for (i, (text, colour)) in lines.iter().enumerate() {
-            let text: String = text
+        // the text on black, then black made transparent (no text colour is black)
+        let mut text = RgbImage::new(w, band);
+        for (i, (line, colour)) in lines.iter().enumerate() {
+            let line: String = line
                 .chars()
                 .map(|c| if c.is_ascii() { c } else { '?' })
                 .collect();
-            draw::text(&mut img, 4, 2 + i as u32 * draw::LINE, &text, *colour);
+            draw::text(&mut text, 4, 2 + i as u32 * draw::LINE, &line, *colour);
         }
-        self.composed = Some(img);
+        let heads_up = RgbaImage::from_fn(w, band, |x, y| {
+            let Rgb([r, g, b]) = *text.get_pixel(x, y);
+            image::Rgba([r, g, b, if r | g | b == 0 { 0 } else { 255 }])
+        });
+        self.composed = Some(Composed { pixels, heads_up });
         if let Some(w) = &self.window {
             w.request_redraw();
         }
     }
 
     fn present(&mut self, event_loop: &ActiveEventLoop) {
-        let (Some(p), Some(img)) = (&mut self.presenter, &self.composed) else {
+        let tone = self.tone();
+        let Some(presenter) = self.presenter.as_mut() else {
             return;
         };
-        let rgba = rgb_to_rgba(img);
-        if let Err(e) = p.present(&rgba, img.width(), img.height()) {
+        // (fields borrowed apart: the presenter mutably, the frame and picture shared)
+        let Some((shown, composed)) = shown_picture(&self.composed, &self.shown, tone) else {
+            return;
+        };
+        let heads_up = HeadsUp {
+            text: &composed.heads_up,
+        };
+        if let Err(e) = presenter.present(&shown, &heads_up) {
             self.fail(event_loop, anyhow::anyhow!("cannot present the frame: {e}"));
         }
     }
@@ -668,15 +715,34 @@ impl Viewer {
                     }
                     None => false,
                 },
-                Step::WindowShot(path) => match &self.composed {
-                    Some(img) => {
-                        if let Err(e) = crate::render::output::save_png(img, &path) {
-                            return self.fail(event_loop, e);
+                Step::WindowShot(path) => {
+                    let (size, tone) = (self.controls.window, self.tone());
+                    let shot = match (
+                        self.presenter.as_mut(),
+                        shown_picture(&self.composed, &self.shown, tone),
+                    ) {
+                        (Some(p), Some((shown, composed))) => Some(p.capture(
+                            size,
+                            &shown,
+                            &HeadsUp {
+                                text: &composed.heads_up,
+                            },
+                        )),
+                        _ => None,
+                    };
+                    match shot {
+                        Some(Ok(img)) => {
+                            if let Err(e) = crate::render::output::save_png(&img, &path) {
+                                return self.fail(event_loop, e);
+                            }
+                            true
                         }
-                        true
+                        Some(Err(e)) => {
+                            return self.fail(event_loop, anyhow::anyhow!("window shot: {e}"));
+                        }
+                        None => false,
                     }
-                    None => false,
-                },
+                }
                 Step::Quit => {
                     self.quit = true;
                     true
@@ -709,8 +775,18 @@ impl ApplicationHandler<Wake> for Viewer {
             Ok(w) => Arc::new(w),
             Err(e) => return self.fail(event_loop, anyhow::anyhow!("cannot open a window: {e}")),
         };
-        match Presenter::new(window.clone(), event_loop.owned_display_handle()) {
-            Ok(p) => self.presenter = Some(p),
+        match Presenter::new(
+            window.clone(),
+            event_loop.owned_display_handle(),
+            self.config.render_on_gpu,
+        ) {
+            Ok((p, gpu)) => {
+                self.presenter = Some(p);
+                if let Some(ctx) = gpu {
+                    self.worker.send(Job::UseGpu(Box::new(ctx)));
+                    self.ready = false;
+                }
+            }
             Err(e) => return self.fail(event_loop, anyhow::anyhow!("{e}")),
         }
         let size = window.inner_size();
@@ -846,27 +922,30 @@ fn watch(files: &[PathBuf], proxy: &EventLoopProxy<Wake>) -> anyhow::Result<Opti
     .map_err(|e| anyhow::anyhow!(e))
 }
 
-/// `img` scaled to `w`×`h` by repeating pixels (a preview is shown blocky, not blurred, so it
-/// reads as a preview).
-fn upscale_nearest(img: &RgbImage, w: u32, h: u32) -> RgbImage {
-    let (sw, sh) = (img.width().max(1), img.height().max(1));
-    RgbImage::from_fn(w, h, |x, y| {
-        *img.get_pixel(
-            ((x as u64 * sw as u64) / w as u64) as u32,
-            ((y as u64 * sh as u64) / h as u64) as u32,
-        )
-    })
-}
-
-/// Darkens the top `rows` rows so the heads-up text reads on any picture.
-fn darken(img: &mut RgbImage, rows: u32) {
-    for y in 0..rows.min(img.height()) {
-        for x in 0..img.width() {
-            let p = img.get_pixel_mut(x, y);
-            let c = Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32) * 0.35;
-            *p = Rgb([c.x as u8, c.y as u8, c.z as u8]);
-        }
-    }
+/// The picture of a frame and the window's heads-up band, as the display draws them.
+fn shown_picture<'a>(
+    composed: &'a Option<Composed>,
+    shown: &'a Option<(ShownFrame, Frame)>,
+    tone: ToneMapping,
+) -> Option<(Shown<'a>, &'a Composed)> {
+    let composed = composed.as_ref()?;
+    let (frame, _) = shown.as_ref()?;
+    let picture = match (&composed.pixels, &frame.on_device) {
+        (Some((width, height, rgba)), _) => Shown::Pixels {
+            rgba,
+            width: *width,
+            height: *height,
+        },
+        (None, Some(sums)) => Shown::Sums {
+            buffer: &sums.buffer,
+            passes: sums.passes,
+            width: sums.width,
+            height: sums.height,
+            tone,
+        },
+        (None, None) => return None,
+    };
+    Some((picture, composed))
 }
 
 fn rgb_to_rgba(img: &RgbImage) -> Vec<u8> {

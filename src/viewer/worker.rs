@@ -30,7 +30,13 @@ pub enum Job {
         options: RenderOptions,
         /// Which sample.
         sample: u32,
+        /// Whether the window needs the frame on the host (a debug view, say). A CPU frame is
+        /// there anyway; a GPU frame otherwise stays on the device but for the last sample
+        /// of a refinement, which screenshots write.
+        read_back: bool,
     },
+    /// Render on this GPU from now on (the device that presents the window).
+    UseGpu(Box<GpuContext>),
     /// Find the first surface along the camera ray through (u, v) of an image of `aspect`.
     Pick {
         /// The camera.
@@ -56,8 +62,10 @@ pub enum Report {
         generation: u64,
         /// Which sample was added.
         sample: u32,
-        /// The image.
-        image: Box<Framebuffer>,
+        /// The image on the host: every CPU frame, and GPU frames read back.
+        image: Option<Box<Framebuffer>>,
+        /// A GPU frame's sums where the render kernel left them.
+        on_device: Option<DeviceSums>,
         /// Time the frame took to render.
         elapsed: Duration,
     },
@@ -74,6 +82,19 @@ pub enum Report {
         /// Which backend renders.
         backend: String,
     },
+}
+
+/// The sums of a GPU frame, on the device that presents the window: a copy made for the
+/// window, which later passes do not touch.
+pub struct DeviceSums {
+    /// One `RenderPixel` per pixel, row-major.
+    pub buffer: wgpu::Buffer,
+    /// Samples summed.
+    pub passes: u32,
+    /// Width.
+    pub width: u32,
+    /// Height.
+    pub height: u32,
 }
 
 /// The window's handle on the render thread.
@@ -104,14 +125,15 @@ impl Worker {
         let thread = std::thread::Builder::new()
             .name("hytrace render".into())
             .spawn(move || {
-                // the kernel compiles once; scenes and switches only upload buffers
-                let mut gpu = gpu.map(|ctx| GpuFrames {
-                    renderer: GpuRenderer::new(&ctx),
-                    ctx,
-                    prepared: None,
-                    passes: None,
-                });
-                serve(scene, switches, &pool, gpu.as_mut(), &inbox, &want, &report)
+                serve(
+                    scene,
+                    switches,
+                    &pool,
+                    gpu.map(GpuFrames::new),
+                    &inbox,
+                    &want,
+                    &report,
+                )
             })?;
         Ok(Worker {
             jobs,
@@ -147,6 +169,7 @@ impl Drop for Worker {
 /// Why the inner loop of [`serve`] ended.
 enum Next {
     Switches(Switches),
+    Gpu(Box<GpuContext>),
     Scene(Box<Scene>, Switches),
     Stop,
 }
@@ -161,6 +184,16 @@ struct GpuFrames {
 }
 
 impl GpuFrames {
+    /// Frames on `ctx`: the kernel compiles once; scenes and switches only upload buffers.
+    fn new(ctx: GpuContext) -> GpuFrames {
+        GpuFrames {
+            renderer: GpuRenderer::new(&ctx),
+            ctx,
+            prepared: None,
+            passes: None,
+        }
+    }
+
     /// The adapter, for the heads-up line.
     fn describe(&self) -> String {
         format!("GPU {}", self.ctx.adapter_name())
@@ -189,12 +222,24 @@ impl GpuFrames {
             .render_pass(&self.ctx, prepared, camera, options, sample, passes)
     }
 
-    /// The mean of the passes added so far, read back from the device.
-    fn mean(&self) -> anyhow::Result<Framebuffer> {
-        match &self.passes {
-            Some(p) => Ok(p.read(&self.ctx)?.mean()),
-            None => anyhow::bail!("no pass was rendered"),
-        }
+    /// The passes added so far: a copy of their sums on the device, and their mean read
+    /// back when `read_back` asks.
+    fn frame(&self, read_back: bool) -> anyhow::Result<(Option<Framebuffer>, DeviceSums)> {
+        let Some(p) = &self.passes else {
+            anyhow::bail!("no pass was rendered");
+        };
+        let on_device = DeviceSums {
+            buffer: p.snapshot(&self.ctx)?,
+            passes: p.passes(),
+            width: p.width(),
+            height: p.height(),
+        };
+        let image = if read_back {
+            Some(p.read(&self.ctx)?.mean())
+        } else {
+            None
+        };
+        Ok((image, on_device))
     }
 }
 
@@ -203,7 +248,7 @@ fn serve(
     mut scene: Scene,
     mut switches: Switches,
     pool: &rayon::ThreadPool,
-    mut gpu: Option<&mut GpuFrames>,
+    mut gpu: Option<GpuFrames>,
     inbox: &Receiver<Job>,
     wanted: &AtomicU64,
     report: &dyn Fn(Report),
@@ -222,7 +267,7 @@ fn serve(
         // the CPU tracer serves picks on either backend
         let mut backend = "CPU".to_string();
         let mut on_gpu = None;
-        if let Some(g) = gpu.as_deref_mut() {
+        if let Some(g) = gpu.as_mut() {
             g.passes = None;
             g.prepared = None;
             match g.renderer.prepare_with(&g.ctx, &tracer) {
@@ -248,6 +293,10 @@ fn serve(
         match next {
             Next::Switches(s) => {
                 switches = s;
+                parts = Some(tracer.into_parts());
+            }
+            Next::Gpu(ctx) => {
+                gpu = Some(GpuFrames::new(*ctx));
                 parts = Some(tracer.into_parts());
             }
             Next::Scene(s, sw) => {
@@ -279,6 +328,7 @@ fn frames(
         };
         match job {
             Job::Switches(s) => return Next::Switches(s),
+            Job::UseGpu(ctx) => return Next::Gpu(ctx),
             Job::Scene(s, sw) => return Next::Scene(s, sw),
             Job::Pick {
                 camera,
@@ -295,6 +345,7 @@ fn frames(
                 camera,
                 options,
                 sample,
+                read_back,
             } => {
                 let start = Instant::now();
                 let continues = sums.as_ref().is_some_and(|(g, o, added, _)| {
@@ -327,9 +378,15 @@ fn frames(
                         *added += 1;
                     }
                 }
+                let last = sample + 1 >= options.samples;
                 let image = match (outcome, gpu.as_deref_mut()) {
-                    (Ok(true), Some(g)) => g.mean(),
-                    (Ok(true), None) => Ok(acc.as_ref().expect("a CPU pass made the sums").mean()),
+                    (Ok(true), Some(g)) => g
+                        .frame(read_back || last)
+                        .map(|(image, sums)| (image, Some(sums))),
+                    (Ok(true), None) => Ok((
+                        Some(acc.as_ref().expect("a CPU pass made the sums").mean()),
+                        None,
+                    )),
                     (Ok(false), _) => {
                         sums = None;
                         report(Report::Abandoned);
@@ -338,10 +395,11 @@ fn frames(
                     (Err(e), _) => Err(e),
                 };
                 match image {
-                    Ok(image) => report(Report::Frame {
+                    Ok((image, on_device)) => report(Report::Frame {
                         generation,
                         sample,
-                        image: Box::new(image),
+                        image: image.map(Box::new),
+                        on_device,
                         elapsed: start.elapsed(),
                     }),
                     Err(e) => {
