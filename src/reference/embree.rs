@@ -291,8 +291,7 @@ impl UserGeometry for CertifiedShape {
     }
 
     fn intersect(&self, ray: &RTCRay) -> Option<(f32, Vec3)> {
-        let o = DVec3::new(ray.org_x as f64, ray.org_y as f64, ray.org_z as f64);
-        let d = DVec3::new(ray.dir_x as f64, ray.dir_y as f64, ray.dir_z as f64);
+        let (o, d) = origin_direction(ray);
         // Only the stretch inside the searched box (Kay & Kajiya's slabs): outside it the
         // object has no surface.
         let (mut a, mut b) = (ray.tnear as f64, ray.tfar as f64);
@@ -335,6 +334,14 @@ impl UserGeometry for CertifiedShape {
     }
 }
 
+/// An Embree ray's origin and direction in f64.
+fn origin_direction(ray: &RTCRay) -> (DVec3, DVec3) {
+    (
+        DVec3::new(ray.org_x as f64, ray.org_y as f64, ray.org_z as f64),
+        DVec3::new(ray.dir_x as f64, ray.dir_y as f64, ray.dir_z as f64),
+    )
+}
+
 /// What the callbacks of a user geometry ask of its user data.
 trait UserGeometry {
     /// World bounds reported to Embree.
@@ -350,8 +357,7 @@ impl UserGeometry for UserShape {
     }
 
     fn intersect(&self, ray: &RTCRay) -> Option<(f32, Vec3)> {
-        let ro = DVec3::new(ray.org_x as f64, ray.org_y as f64, ray.org_z as f64);
-        let rd = DVec3::new(ray.dir_x as f64, ray.dir_y as f64, ray.dir_z as f64);
+        let (ro, rd) = origin_direction(ray);
         let (tnear, tfar) = (ray.tnear as f64, ray.tfar as f64);
         let ro_o = self.to_object.transform_point3(ro);
         let rd_o = self.to_object.transform_vector3(rd);
