@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Writes assets/scenes/composite.ron: the composite SDFs the certified referee is measured on
+"""Writes assets/validate/composite.ron: the composite SDFs the certified referee is measured on
 (BENCHMARKS.md). Seeded, so the file is the same on every run."""
 import math
 import random
@@ -25,7 +25,7 @@ print(f"""// Composite SDFs without a closed form, for the certified referee (ge
 // scripts/composite_scene.py): a 400-member union of spheres of radius 0.06 minus a box, a
 // 60-link smooth-union chain, a box twisted at 9 radians per unit, a bent rounded box and
 // nested onions cut open.
-// Validate: hytrace validate assets/scenes/composite.ron --width 200 --height 150 --random 3000
+// Validate: hytrace validate assets/validate/composite.ron --width 200 --height 150 --random 3000
 Scene(
     image: (width: 400, height: 300),
     camera: Perspective(position: (0, 2.2, 6.5), look_at: (0, 0.2, 0), fov: 45),

@@ -166,7 +166,7 @@ fn every_object_certified(r: &Report) {
 /// composite object certified, with the composite thresholds.
 #[test]
 fn our_tracer_passes_on_composite_objects() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/scenes/composite.ron");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/validate/composite.ron");
     let scene = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
     let r = validate_with_embree(&scene, &options(80, 60, 600)).unwrap();
     println!("{}", r.markdown());

@@ -109,7 +109,7 @@ pub fn first_crossing(
     search: &Search,
     regs: &mut Registers,
 ) -> Root {
-    if !(t0 <= t1) {
+    if t0.is_nan() || t1.is_nan() || t0 > t1 {
         return Root::None { touched: 0 };
     }
     let start = at(program, o, d, t0, regs);
@@ -163,7 +163,7 @@ pub fn stays_above(
     search: &Search,
     regs: &mut Registers,
 ) -> Option<bool> {
-    if !(t0 <= t1) {
+    if t0.is_nan() || t1.is_nan() || t0 > t1 {
         return Some(true);
     }
     let mut arena = Arena {

@@ -23,7 +23,15 @@
 //!   stops at `max_distance` (as the CPU tracer's rays do) sees the same plane as the tracer.
 //! * **Every other SDF object** (CSG, smooth operators, rounding, onion, non-uniform `Scale`,
 //!   domain operators, twist/bend, implicits, and the primitives without a closed-form
-//!   intersector: RoundBox, Octahedron, HexPrism, …) is meshed from its distance tape by
+//!   intersector: RoundBox, Octahedron, HexPrism, …) is by default a user geometry too, whose
+//!   callbacks find the first root of its distance tape along the ray by certified interval
+//!   bisection in f64 ([`certified`], over [`interval64`]'s outward-rounded enclosures): the
+//!   root is enclosed within δ ([`certified_search`]: ε₀/64), the search is confined to the
+//!   object's bounds (an unbounded object's cut by the planes' clip box), the normal is the
+//!   tape's gradient, and a search that runs out of interval evaluations answers "no hit" and
+//!   is counted ([`EmbreeScene::uncertified`]) — [`SdfCheck::Certified`].
+//! * With [`ReferenceOptions::meshed`] (`validate --meshed`) such
+//!   objects are meshed instead, from their distance tape by
 //!   [`mesher`] (marching cubes, vertices refined onto the surface) into a world-space triangle
 //!   geometry, in a scene of its own of MEDIUM build quality instanced with the identity; its
 //!   [`SdfCheck::Meshed`] states the resolution and the tolerance: every mesh point lies within
@@ -306,7 +314,7 @@ impl UserGeometry for CertifiedShape {
                 b = b.min(t0.max(t1));
             }
         }
-        if !(a <= b) {
+        if a.is_nan() || b.is_nan() || a > b {
             return None;
         }
         let root = INTERVAL_REGISTERS.with(|r| {

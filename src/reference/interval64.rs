@@ -63,6 +63,9 @@ fn lib_up(v: f64) -> f64 {
     up(v + v.abs() * LIBM_REL_ERROR + f64::MIN_POSITIVE)
 }
 
+// The names are the tape's operations' (and `Domain`'s, which these implement for the
+// evaluator); `std::ops` would hide the outward rounding behind `+`.
+#[allow(clippy::should_implement_trait)]
 impl Interval {
     /// The whole real line (what an undefined or unbounded result encloses to).
     pub const ENTIRE: Interval = Interval {
