@@ -7,6 +7,7 @@
 
 use hytrace::geom::Ray;
 use hytrace::reference::embree::ReferenceOptions;
+use hytrace::reference::interval64::{Interval, Program, registers};
 use hytrace::reference::validate::{
     Kind, Options, Report, SdfCheck, validate_against_embree, validate_with_embree,
 };
@@ -339,5 +340,57 @@ proptest! {
             "{:?}",
             r.objects[0].check
         );
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+
+    /// The referee's f64 evaluator on whole lowered trees (fused smooth minima, folded
+    /// blends and pruning included): over random boxes its enclosure holds the tracer's f32
+    /// value at every sampled point, up to that value's own rounding, and so does the
+    /// program pruned to the box.
+    #[test]
+    fn enclosures_of_random_trees_hold_the_tape_s_values(
+        shape in tree(3),
+        boxes in prop::collection::vec(
+            ((-0.6f32..0.6, -0.6f32..0.6, -0.6f32..0.6), 0.001f32..0.4, 0u64..1000),
+            8,
+        ),
+    ) {
+        let src = format!(
+            "Scene(camera: Perspective(position: (0, 0, 3), look_at: (0, 0, 0), fov: 45),
+                   objects: [(shape: {shape})])"
+        );
+        let scene = Scene::from_source(&src, Path::new("random-tree.ron"));
+        prop_assume!(scene.is_ok());
+        let scene = scene.unwrap();
+        let tape = &scene.objects[0].lowered.distance;
+        let program = Program::new(tape);
+        let mut r = registers();
+        let mut regs = Registers::new();
+        for ((x, y, z), half, seed) in boxes {
+            let b = |c: f32| Interval::new((c - half) as f64, (c + half) as f64);
+            let (enclosure, pruned) = program.prune(b(x), b(y), b(z), &mut r);
+            let mut rng = hytrace::rng::Rng::new(seed);
+            for _ in 0..40 {
+                let p = glam::Vec3::new(x, y, z) + rng.vec3_in(-half, half);
+                let v = tape.eval_in(p, &mut regs) as f64;
+                // the f32 tape rounds (and approximates sin, cos, exp, ln) on its own
+                let slack = 1e-4 * (1.0 + v.abs());
+                prop_assert!(
+                    enclosure.lo - slack <= v && v <= enclosure.hi + slack,
+                    "{src}: f({p}) = {v} outside {enclosure:?}"
+                );
+                if let Some(cut) = &pruned {
+                    let pt = |c: f32| Interval::point(c as f64);
+                    let e = cut.eval(pt(p.x), pt(p.y), pt(p.z), &mut r);
+                    prop_assert!(
+                        e.lo - slack <= v && v <= e.hi + slack,
+                        "{src}: pruned f({p}) = {e:?}, tape {v}"
+                    );
+                }
+            }
+        }
     }
 }
