@@ -29,6 +29,15 @@ const RANDOM_RAYS: usize = 2000;
 /// A disagreement is excused only where the ray grazes the surface: |n·d| below this.
 const GRAZING: f32 = 0.05;
 
+/// The referee with SDF objects without a closed form meshed (`validate --meshed`), as the
+/// mesh tests below check it.
+fn meshed() -> ReferenceOptions {
+    ReferenceOptions {
+        meshed: true,
+        ..ReferenceOptions::default()
+    }
+}
+
 fn scene(objects: &str) -> Scene {
     let src = format!(
         "Scene(
@@ -576,7 +585,7 @@ fn composite_objects_are_meshed() {
          (shape: Subtraction(base: Box(half_extents: (1, 1, 1)), cut: Sphere(radius: 1.2))),
          (shape: Octahedron(size: 1), translate: (3, 0, 0))",
     );
-    let embree = EmbreeScene::build(&scene).unwrap();
+    let embree = EmbreeScene::build_with(&scene, &meshed()).unwrap();
     assert!(embree.skipped().is_empty(), "{:?}", embree.skipped());
     assert_eq!(embree.checks[0], SdfCheck::Analytic);
     for i in [1, 2] {
@@ -628,7 +637,7 @@ fn shipped_scenes_build_with_meshes() {
             Err(e) => panic!("{e}"),
         };
         let start = std::time::Instant::now();
-        let embree = EmbreeScene::build(&scene).unwrap_or_else(|e| panic!("{e}"));
+        let embree = EmbreeScene::build_with(&scene, &meshed()).unwrap_or_else(|e| panic!("{e}"));
         let took = start.elapsed();
         total += took;
         assert!(embree.skipped().is_empty(), "{:?}", embree.skipped());
@@ -752,7 +761,7 @@ fn meshed_sphere_matches_its_closed_form() {
     for resolution in [32, 64, 128, 256] {
         let options = ReferenceOptions {
             mesh_resolution: resolution,
-            ..ReferenceOptions::default()
+            ..meshed()
         };
         let embree = EmbreeScene::build_with(&scene, &options).unwrap();
         let SdfCheck::Meshed { tolerance, .. } = embree.checks[0] else {
@@ -844,7 +853,8 @@ const MESH_DT_OVER: f64 = 0.001;
 /// `dt_over` of the rays both hit over the |Δt| tolerance, at most 0.1 % unexcused hit/miss
 /// disagreements).
 fn referee_meshed(name: &str, scene: &Scene, seed: u64, min_agree: f64, dt_over: f64) -> Report {
-    let embree = EmbreeScene::build(scene).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let embree =
+        EmbreeScene::build_with(scene, &meshed()).unwrap_or_else(|e| panic!("{name}: {e}"));
     assert!(
         embree.skipped().is_empty(),
         "{name}: {:?}",
@@ -901,7 +911,7 @@ fn offset_mesh_is_rejected() {
                  Transform(rotate: (90, 0, 0), shape: Cylinder(half_height: 1.2, radius: 0.4))]))";
     let object = |shape: &str| format!("(shape: {shape}, rotate: (10, -25, 5))");
     let true_scene = scene(&object(shape));
-    let embree = EmbreeScene::build(&true_scene).unwrap();
+    let embree = EmbreeScene::build_with(&true_scene, &meshed()).unwrap();
     let SdfCheck::Meshed { tolerance, .. } = embree.checks[0] else {
         panic!("{:?}", embree.checks[0]);
     };
@@ -915,7 +925,7 @@ fn offset_mesh_is_rejected() {
         "Round(radius: {}, shape: {shape})",
         3.0 * tolerance
     )));
-    let embree_offset = EmbreeScene::build(&offset).unwrap();
+    let embree_offset = EmbreeScene::build_with(&offset, &meshed()).unwrap();
     let r = compare(&true_scene, &tracer, &embree_offset, 900);
     r.print("subtraction, mesh offset 3τ");
     let err = r

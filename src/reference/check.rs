@@ -1,5 +1,6 @@
-//! How the referee represents each SDF object: by a closed-form intersection, by a mesh of
-//! its field (with the mesh's stated tolerance), or not at all, and why.
+//! How the referee represents each SDF object: by a closed-form intersection, by the certified
+//! root search of its tape, by a mesh of its field (with the mesh's stated tolerance), or not
+//! at all, and why.
 
 use serde::Serialize;
 use std::fmt::Write;
@@ -11,6 +12,16 @@ use std::fmt::Write;
 pub enum SdfCheck {
     /// A closed-form ray intersection (Embree user geometry).
     Analytic,
+    /// The field's first root along each ray, found by certified interval bisection of its
+    /// tape in f64 (Embree user geometry): every crossing reported lies within `delta` of
+    /// the true one, and a search that would need more than `max_boxes` interval evaluations
+    /// is counted as uncertified, never answered by a guess.
+    Certified {
+        /// Width of the stretch a root is enclosed in (world units).
+        delta: f64,
+        /// Most interval evaluations per ray and object.
+        max_boxes: u32,
+    },
     /// A triangle mesh extracted from the field by our mesher.
     Meshed {
         /// Grid cells along the longest side of the meshed box.
@@ -39,6 +50,10 @@ impl SdfCheck {
     pub fn describe(&self) -> String {
         match self {
             SdfCheck::Analytic => "analytic (closed-form intersection)".into(),
+            SdfCheck::Certified { delta, max_boxes } => format!(
+                "certified: first root of the tape by f64 interval bisection, enclosed within \
+                 δ = {delta:.1e} (at most {max_boxes} interval evaluations per ray)"
+            ),
             SdfCheck::Meshed {
                 resolution,
                 cell,

@@ -23,7 +23,15 @@
 //!   stops at `max_distance` (as the CPU tracer's rays do) sees the same plane as the tracer.
 //! * **Every other SDF object** (CSG, smooth operators, rounding, onion, non-uniform `Scale`,
 //!   domain operators, twist/bend, implicits, and the primitives without a closed-form
-//!   intersector: RoundBox, Octahedron, HexPrism, …) is meshed from its distance tape by
+//!   intersector: RoundBox, Octahedron, HexPrism, …) is by default a user geometry too, whose
+//!   callbacks find the first root of its distance tape along the ray by certified interval
+//!   bisection in f64 ([`certified`], over [`interval64`]'s outward-rounded enclosures): the
+//!   root is enclosed within δ ([`certified_search`]: ε₀/64), the search is confined to the
+//!   object's bounds (an unbounded object's cut by the planes' clip box), the normal is the
+//!   tape's gradient, and a search that runs out of interval evaluations answers "no hit" and
+//!   is counted ([`EmbreeScene::uncertified`]) — [`SdfCheck::Certified`].
+//! * With [`ReferenceOptions::meshed`] (`validate --meshed`) such
+//!   objects are meshed instead, from their distance tape by
 //!   [`mesher`] (marching cubes, vertices refined onto the surface) into a world-space triangle
 //!   geometry, in a scene of its own of MEDIUM build quality instanced with the identity; its
 //!   [`SdfCheck::Meshed`] states the resolution and the tolerance: every mesh point lies within
@@ -38,11 +46,14 @@
 //!   with the reason.
 
 use super::analytic::{self, AnalyticHit};
+use super::certified::{self, Root, Search};
+use super::interval64::{self, Program, Registers as IntervalRegisters};
 use super::mesher::{self, MeshOptions, SdfMesh};
 use crate::geom::{Aabb, Ray};
 use crate::scene::Scene;
 use crate::sdf::SdfNode;
 use crate::sdf::lower::transform_of;
+use crate::sdf::tape::Tape;
 use crate::trace::query::{ObjectId, QueryHit, RayQuery};
 use embree4_sys::{
     RTC_INVALID_GEOMETRY_ID, RTCBounds, RTCBoundsFunctionArguments, RTCBufferType, RTCBuildQuality,
@@ -52,8 +63,10 @@ use embree4_sys::{
 };
 use glam::{Affine3A, DAffine3, DMat3, DVec3, Mat3A, Vec3};
 use rayon::prelude::*;
+use std::cell::RefCell;
 use std::ffi::c_void;
 use std::ptr;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// An Embree device, released on drop.
 struct Device(RTCDevice);
@@ -258,11 +271,101 @@ struct UserShape {
     clip: bool,
 }
 
-impl UserShape {
-    /// The hit of a world-space Embree ray, as (t, unit world normal).
+/// The user data of an SDF object without a closed form: its tape, intersected by the
+/// certified first-root search ([`certified::first_crossing`]).
+struct CertifiedShape {
+    /// The tape's value instructions for interval evaluation.
+    program: Program,
+    /// The tape itself, for the normal at a hit.
+    tape: Tape,
+    search: Search,
+    /// The searched box (world, f64) and its f32 form for Embree.
+    lo: DVec3,
+    hi: DVec3,
+    bounds: RTCBounds,
+    /// Searches that ran out of boxes.
+    uncertified: AtomicU64,
+}
+
+thread_local! {
+    /// Interval registers of the certified search on this thread (Embree calls back on the
+    /// thread that traces).
+    static INTERVAL_REGISTERS: RefCell<Box<IntervalRegisters>> = RefCell::new(interval64::registers());
+}
+
+impl UserGeometry for CertifiedShape {
+    fn bounds(&self) -> RTCBounds {
+        self.bounds
+    }
+
     fn intersect(&self, ray: &RTCRay) -> Option<(f32, Vec3)> {
-        let ro = DVec3::new(ray.org_x as f64, ray.org_y as f64, ray.org_z as f64);
-        let rd = DVec3::new(ray.dir_x as f64, ray.dir_y as f64, ray.dir_z as f64);
+        let (o, d) = origin_direction(ray);
+        // Only the stretch inside the searched box (Kay & Kajiya's slabs): outside it the
+        // object has no surface.
+        let (mut a, mut b) = (ray.tnear as f64, ray.tfar as f64);
+        for k in 0..3 {
+            if d[k] == 0.0 {
+                if o[k] < self.lo[k] || o[k] > self.hi[k] {
+                    return None;
+                }
+            } else {
+                let (t0, t1) = ((self.lo[k] - o[k]) / d[k], (self.hi[k] - o[k]) / d[k]);
+                a = a.max(t0.min(t1));
+                b = b.min(t0.max(t1));
+            }
+        }
+        if a.is_nan() || b.is_nan() || a > b {
+            return None;
+        }
+        let root = INTERVAL_REGISTERS.with(|r| {
+            certified::first_crossing(&self.program, o, d, a, b, &self.search, &mut r.borrow_mut())
+        });
+        let c = match root {
+            Root::Crossing(c) => c,
+            Root::None { .. } => return None,
+            Root::Uncertified => {
+                self.uncertified.fetch_add(1, Ordering::Relaxed);
+                return None;
+            }
+        };
+        let t = (0.5 * (c.lo + c.hi)) as f32;
+        // f64 → f32 rounding must not carry t out of Embree's interval.
+        if !(t >= ray.tnear && t <= ray.tfar) {
+            return None;
+        }
+        let p = (o + 0.5 * (c.lo + c.hi) * d).as_vec3();
+        // The field's gradient (central differences over a step well above f32 rounding at p)
+        // is the surface normal: its direction only sets the |n·d| of the tolerances.
+        let h = 1e-4 * (1.0 + p.abs().max_element());
+        let n = self.tape.gradient(p, h).normalize_or_zero();
+        Some((t, n))
+    }
+}
+
+/// An Embree ray's origin and direction in f64.
+fn origin_direction(ray: &RTCRay) -> (DVec3, DVec3) {
+    (
+        DVec3::new(ray.org_x as f64, ray.org_y as f64, ray.org_z as f64),
+        DVec3::new(ray.dir_x as f64, ray.dir_y as f64, ray.dir_z as f64),
+    )
+}
+
+/// What the callbacks of a user geometry ask of its user data.
+trait UserGeometry {
+    /// World bounds reported to Embree.
+    fn bounds(&self) -> RTCBounds;
+    /// The hit of a world-space Embree ray within its (tnear, tfar), as (t, unit world
+    /// normal).
+    fn intersect(&self, ray: &RTCRay) -> Option<(f32, Vec3)>;
+}
+
+impl UserGeometry for UserShape {
+    fn bounds(&self) -> RTCBounds {
+        self.bounds
+    }
+
+    fn intersect(&self, ray: &RTCRay) -> Option<(f32, Vec3)> {
+        let (ro, rd) = origin_direction(ray);
         let (tnear, tfar) = (ray.tnear as f64, ray.tfar as f64);
         let ro_o = self.to_object.transform_point3(ro);
         let rd_o = self.to_object.transform_vector3(rd);
@@ -290,13 +393,13 @@ impl UserShape {
     }
 }
 
-unsafe extern "C" fn user_bounds(args: *const RTCBoundsFunctionArguments) {
-    // SAFETY: Embree passes valid arguments; the user pointer is the `UserShape` we set, alive
-    // as long as the scene.
+unsafe extern "C" fn user_bounds<S: UserGeometry>(args: *const RTCBoundsFunctionArguments) {
+    // SAFETY: Embree passes valid arguments; the user pointer is the `S` we set, alive as long
+    // as the scene.
     unsafe {
         let args = &*args;
-        let shape = &*(args.geometryUserPtr as *const UserShape);
-        *args.bounds_o = shape.bounds;
+        let shape = &*(args.geometryUserPtr as *const S);
+        *args.bounds_o = shape.bounds();
     }
 }
 
@@ -320,7 +423,7 @@ struct RayHit {
 const _: () = assert!(size_of::<RTCHit>() == 32 && size_of::<RTCRayHit>() == 80);
 const _: () = assert!(std::mem::offset_of!(RayHit, inst_prim_id) == 80);
 
-unsafe extern "C" fn user_intersect(args: *const RTCIntersectFunctionNArguments) {
+unsafe extern "C" fn user_intersect<S: UserGeometry>(args: *const RTCIntersectFunctionNArguments) {
     // SAFETY: as for `user_bounds`; we only trace with rtcIntersect1, so N == 1 and `rayhit`
     // points at one RTCRayHit (checked, not assumed).
     unsafe {
@@ -328,7 +431,7 @@ unsafe extern "C" fn user_intersect(args: *const RTCIntersectFunctionNArguments)
         if args.N != 1 || *args.valid == 0 {
             return;
         }
-        let shape = &*(args.geometryUserPtr as *const UserShape);
+        let shape = &*(args.geometryUserPtr as *const S);
         let rayhit = &mut *(args.rayhit as *mut RTCRayHit);
         if let Some((t, n)) = shape.intersect(&rayhit.ray) {
             rayhit.ray.tfar = t;
@@ -348,14 +451,14 @@ unsafe extern "C" fn user_intersect(args: *const RTCIntersectFunctionNArguments)
     }
 }
 
-unsafe extern "C" fn user_occluded(args: *const RTCOccludedFunctionNArguments) {
+unsafe extern "C" fn user_occluded<S: UserGeometry>(args: *const RTCOccludedFunctionNArguments) {
     // SAFETY: as for `user_intersect`, with one RTCRay.
     unsafe {
         let args = &*args;
         if args.N != 1 || *args.valid == 0 {
             return;
         }
-        let shape = &*(args.geometryUserPtr as *const UserShape);
+        let shape = &*(args.geometryUserPtr as *const S);
         let ray = &mut *(args.ray as *mut RTCRay);
         if shape.intersect(ray).is_some() {
             // Embree's mark for an occluded ray.
@@ -490,6 +593,23 @@ fn triangle_geometry(
     Ok(g)
 }
 
+/// A committed user geometry of one primitive whose callbacks are `S`'s; the caller keeps
+/// `shape` (boxed) alive as long as the scene.
+fn user_geometry<S: UserGeometry>(device: &Device, shape: &S) -> Result<Geometry, String> {
+    let g = Geometry::new(device, RTCGeometryType::USER)?;
+    let user = shape as *const S as *mut c_void;
+    // SAFETY: the geometry is fresh; the user data outlives the scene (the caller's promise).
+    unsafe {
+        embree4_sys::rtcSetGeometryUserPrimitiveCount(g.0, 1);
+        embree4_sys::rtcSetGeometryUserData(g.0, user);
+        embree4_sys::rtcSetGeometryBoundsFunction(g.0, Some(user_bounds::<S>), ptr::null_mut());
+        embree4_sys::rtcSetGeometryIntersectFunction(g.0, Some(user_intersect::<S>));
+        embree4_sys::rtcSetGeometryOccludedFunction(g.0, Some(user_occluded::<S>));
+    }
+    g.commit();
+    Ok(g)
+}
+
 /// A committed instance of the committed scene `scene` under the object → world map `m`. The
 /// scene must outlive every scene the instance is attached to.
 fn instance(device: &Device, scene: &SceneHandle, m: &Affine3A) -> Result<Geometry, String> {
@@ -535,6 +655,8 @@ pub struct EmbreeScene {
     // Boxed so that each address Embree holds stays put while the Vec grows.
     #[allow(clippy::vec_box)]
     _shapes: Vec<Box<UserShape>>,
+    #[allow(clippy::vec_box)]
+    certified: Vec<Box<CertifiedShape>>,
     device: Device,
     /// Top-level geometry ID → what it is.
     ids: Vec<Option<ObjectId>>,
@@ -574,6 +696,12 @@ pub struct ReferenceOptions {
     /// SDF object, every mesh instance, the camera and the finite axes of partly unbounded
     /// objects, grown by a tenth of their diagonal (at least one unit) on every side.
     pub mesh_clip: Option<Aabb>,
+    /// Whether SDF objects without a closed form are meshed (the cross-check of `validate
+    /// --meshed`) instead of intersected by the certified root search.
+    pub meshed: bool,
+    /// The certified search's δ and work bound; `None`: [`certified_search`] of the scene's
+    /// tracer settings.
+    pub search: Option<Search>,
 }
 
 impl Default for ReferenceOptions {
@@ -582,9 +710,26 @@ impl Default for ReferenceOptions {
             mesh_resolution: DEFAULT_MESH_RESOLUTION,
             mesh_max_triangles: DEFAULT_MESH_MAX_TRIANGLES,
             mesh_clip: None,
+            meshed: false,
+            search: None,
         }
     }
 }
+
+/// The certified search for a scene traced with `settings`: roots enclosed within δ = ε₀/64
+/// (ε₀ the tracer's hit threshold at t = 0, so δ is far below every |Δt| tolerance, which
+/// starts at 10·ε), at most [`MAX_BOXES`] interval evaluations per ray and object.
+pub fn certified_search(settings: &crate::scene::TracerSettings) -> Search {
+    Search {
+        delta: settings.epsilon as f64 / 64.0,
+        max_boxes: MAX_BOXES,
+    }
+}
+
+/// The work bound of [`certified_search`]: a bisection to δ takes about log₂(length/δ) ≈ 30
+/// levels with a few boxes alive per level near a surface; the bound leaves room for
+/// stretches where the enclosure is loose (a smooth blend of many members).
+pub const MAX_BOXES: u32 = 20_000;
 
 /// Default [`ReferenceOptions::mesh_resolution`].
 pub const DEFAULT_MESH_RESOLUTION: u32 = 128;
@@ -594,6 +739,15 @@ pub const DEFAULT_MESH_MAX_TRIANGLES: usize = 1_000_000;
 pub use super::check::SdfCheck;
 
 impl EmbreeScene {
+    /// Certified searches that ran out of boxes so far (each counted once per query; their
+    /// rays were answered "no hit" by that object, which a comparison must not trust).
+    pub fn uncertified(&self) -> u64 {
+        self.certified
+            .iter()
+            .map(|c| c.uncertified.load(Ordering::Relaxed))
+            .sum()
+    }
+
     /// The box the mesh of SDF object `object` covers, if it was meshed.
     pub fn mesh_region(&self, object: usize) -> Option<MeshRegion> {
         self.mesh_regions.get(object).copied().flatten()
@@ -698,6 +852,7 @@ impl EmbreeScene {
 
         // SDF objects.
         let mut shapes = Vec::new();
+        let mut certified = Vec::new();
         let mut checks = Vec::with_capacity(scene.objects.len());
         let mut sdf_face_normals = vec![Vec::new(); scene.objects.len()];
         let mut mesh_regions = vec![None; scene.objects.len()];
@@ -707,7 +862,7 @@ impl EmbreeScene {
             .objects
             .par_iter()
             .map(|object| {
-                analytic_form(&object.node).is_err().then(|| {
+                (options.meshed && analytic_form(&object.node).is_err()).then(|| {
                     mesher::mesh_sdf(
                         &object.lowered.distance,
                         &object.bounds(),
@@ -720,6 +875,42 @@ impl EmbreeScene {
         for (i, object) in scene.objects.iter().enumerate() {
             let (m, primitive) = match analytic_form(&object.node) {
                 Ok(x) => x,
+                Err(_) if !options.meshed => {
+                    let bounds = object.bounds();
+                    // An unbounded object is searched inside the planes' clip box: every
+                    // ray the tracer casts ends inside it.
+                    let b = if bounds.is_finite() {
+                        bounds
+                    } else {
+                        bounds.intersection(&clip)
+                    };
+                    let search = options
+                        .search
+                        .unwrap_or_else(|| certified_search(&scene.tracer));
+                    checks.push(SdfCheck::Certified {
+                        delta: search.delta,
+                        max_boxes: search.max_boxes,
+                    });
+                    if b.is_empty() || !b.is_finite() {
+                        // no surface inside the box any ray can reach
+                        continue;
+                    }
+                    // Pad for rounding of the f32 bounds, as for the closed forms.
+                    let b = b.expand(1e-4 * b.diagonal() + 1e-6);
+                    let shape = Box::new(CertifiedShape {
+                        program: Program::new(&object.lowered.distance),
+                        tape: object.lowered.distance.interpreted(),
+                        search,
+                        lo: b.min.as_dvec3(),
+                        hi: b.max.as_dvec3(),
+                        bounds: rtc_bounds(b.min, b.max),
+                        uncertified: AtomicU64::new(0),
+                    });
+                    let g = user_geometry(&device, &*shape)?;
+                    record(top.attach(&g), ObjectId::Sdf(i));
+                    certified.push(shape);
+                    continue;
+                }
                 Err(_) => {
                     let meshed = meshes[i]
                         .take()
@@ -785,17 +976,7 @@ impl EmbreeScene {
                 bounds,
                 clip: clips,
             });
-            let g = Geometry::new(&device, RTCGeometryType::USER)?;
-            let user = &*shape as *const UserShape as *mut c_void;
-            // SAFETY: the user data is boxed and kept in `shapes` for the scene's lifetime.
-            unsafe {
-                embree4_sys::rtcSetGeometryUserPrimitiveCount(g.0, 1);
-                embree4_sys::rtcSetGeometryUserData(g.0, user);
-                embree4_sys::rtcSetGeometryBoundsFunction(g.0, Some(user_bounds), ptr::null_mut());
-                embree4_sys::rtcSetGeometryIntersectFunction(g.0, Some(user_intersect));
-                embree4_sys::rtcSetGeometryOccludedFunction(g.0, Some(user_occluded));
-            }
-            g.commit();
+            let g = user_geometry(&device, &*shape)?;
             record(top.attach(&g), ObjectId::Sdf(i));
             shapes.push(shape);
             checks.push(SdfCheck::Analytic);
@@ -806,6 +987,7 @@ impl EmbreeScene {
             top,
             _mesh_scenes: mesh_scenes,
             _shapes: shapes,
+            certified,
             device,
             ids,
             face_normals,

@@ -12,7 +12,7 @@ use serde::Serialize;
 
 /// Least hit/miss agreement on mesh rays.
 pub const MESH_AGREEMENT: f64 = 0.9999;
-/// Least hit/miss agreement on analytic-SDF rays.
+/// Least hit/miss agreement on analytic-SDF and certified-SDF rays.
 pub const SDF_AGREEMENT: f64 = 0.999;
 /// Least agreement of shadow rays.
 pub const SHADOW_AGREEMENT: f64 = 0.999;
@@ -166,6 +166,9 @@ pub struct Report {
     /// the box its mesh covers (shrunk by the mesher's tolerance), and the referee has no
     /// surface before that hit.
     pub excluded_outside_mesh: usize,
+    /// Certified root searches that ran out of interval evaluations (their queries were
+    /// answered "no hit" by that object, which is not a certified answer).
+    pub uncertified_searches: u64,
     /// Per kind, the kinds that occurred (every kind in [`Kind::ALL`] order, rows with no ray
     /// left out).
     pub kinds: Vec<KindRow>,
@@ -185,6 +188,22 @@ impl Report {
     /// Whether every threshold holds and every object was checked.
     pub fn passed(&self) -> bool {
         self.failures.is_empty()
+    }
+
+    /// Records `n` certified root searches that ran out of interval evaluations during the
+    /// validation. Each may have answered a query wrongly, so they fail the validation when
+    /// they exceed the share of disagreements [`SDF_AGREEMENT`] allows among the certified
+    /// and shadow rays.
+    pub fn note_uncertified(&mut self, n: u64) {
+        self.uncertified_searches = n;
+        let rays = self.kind(Kind::CertifiedSdf).rays + self.shadow.rays;
+        if n as f64 > (1.0 - SDF_AGREEMENT) * rays as f64 {
+            self.failures.push(format!(
+                "certified SDFs: {n} root searches ran out of interval evaluations, more than \
+                 {:.1}% of the {rays} certified-SDF and shadow rays",
+                100.0 * (1.0 - SDF_AGREEMENT)
+            ));
+        }
     }
 
     /// The figures of one kind (zeros when no ray met it).
@@ -209,8 +228,8 @@ pub(super) fn report(
     rays: &[Classified],
     shadows: &[(usize, ShadowOutcome)],
 ) -> Report {
-    let mut stats: [KindStats; 4] = Default::default();
-    let mut dts: [Vec<f32>; 4] = Default::default();
+    let mut stats: [KindStats; 5] = Default::default();
+    let mut dts: [Vec<f32>; 5] = Default::default();
     let mut both_miss = 0;
     let mut excluded_outside_mesh = 0;
     let mut pixels = vec![PixelClass::Miss; (options.width * options.height) as usize];
@@ -334,6 +353,7 @@ pub(super) fn report(
         mesh_triangles: scene.meshes.triangle_count(),
         both_miss,
         excluded_outside_mesh,
+        uncertified_searches: 0,
         kinds,
         shadow,
         failures,
@@ -404,7 +424,7 @@ fn percent(part: usize, whole: usize) -> f64 {
 /// Every threshold that fails, in words.
 fn failures(
     objects: &[ObjectEntry],
-    stats: &[KindStats; 4],
+    stats: &[KindStats; 5],
     shadow: &ShadowStats,
     mesh_tol: f32,
 ) -> Vec<String> {
@@ -450,6 +470,12 @@ fn failures(
             "max(10·ε(t), 2·ε(t)/|n·d|)",
         ),
         (
+            Kind::CertifiedSdf,
+            "certified SDFs",
+            "the ε band (field within ε(t) at our near miss, or a crossing at most ε(t)/2 deep)",
+            "max(10·ε(t), (2·ε(t) + δ)/|n·d|)",
+        ),
+        (
             Kind::MeshedSdf,
             "meshed SDFs",
             "the mesher's tolerance band",
@@ -458,7 +484,7 @@ fn failures(
     ] {
         let k = &stats[kind.index()];
         // Meshed SDFs have no agreement threshold: their disagreements all lie in the band.
-        if kind == Kind::AnalyticSdf && k.rays > 0 && k.agreement_percent < 100.0 * SDF_AGREEMENT {
+        if kind != Kind::MeshedSdf && k.rays > 0 && k.agreement_percent < 100.0 * SDF_AGREEMENT {
             out.push(format!(
                 "{name}: hit/miss agreement {:.4}% < {:.1}% ({})",
                 k.agreement_percent,

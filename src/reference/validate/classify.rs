@@ -5,6 +5,8 @@ use super::SdfCheck;
 use super::probes::{Probe, ShadowProbe};
 use crate::accel::field::FieldCursor;
 use crate::geom::{Aabb, Ray};
+use crate::reference::certified::{self, Search};
+use crate::reference::interval64::{self, Program};
 use crate::scene::Scene;
 use crate::sdf::tape::Registers;
 use crate::trace::epsilon_at;
@@ -47,6 +49,8 @@ pub enum Kind {
     Mesh,
     /// An SDF object the referee intersects in closed form.
     AnalyticSdf,
+    /// An SDF object the referee intersects by the certified root search of its tape.
+    CertifiedSdf,
     /// An SDF object the referee intersects as an extracted mesh.
     MeshedSdf,
     /// An SDF object the referee skipped (only our side can hit it).
@@ -55,9 +59,10 @@ pub enum Kind {
 
 impl Kind {
     /// Every kind, in table order.
-    pub const ALL: [Kind; 4] = [
+    pub const ALL: [Kind; 5] = [
         Kind::Mesh,
         Kind::AnalyticSdf,
+        Kind::CertifiedSdf,
         Kind::MeshedSdf,
         Kind::UncheckedSdf,
     ];
@@ -67,6 +72,7 @@ impl Kind {
         match self {
             Kind::Mesh => "mesh",
             Kind::AnalyticSdf => "analytic SDF",
+            Kind::CertifiedSdf => "certified SDF",
             Kind::MeshedSdf => "meshed SDF",
             Kind::UncheckedSdf => "unchecked SDF",
         }
@@ -116,6 +122,8 @@ pub(super) struct Classifier<'a, A: ?Sized, B: ?Sized> {
     checks: &'a [SdfCheck],
     /// The mesh |Δt| tolerance.
     mesh_tol: f32,
+    /// Per SDF object checked by the certified search: its program and search bounds.
+    certified: Vec<Option<(Program, Search)>>,
 }
 
 impl<'a, A, B> Classifier<'a, A, B>
@@ -131,12 +139,24 @@ where
         checks: &'a [SdfCheck],
         mesh_tol: f32,
     ) -> Self {
+        let certified = checks
+            .iter()
+            .zip(&scene.objects)
+            .map(|(c, o)| match *c {
+                SdfCheck::Certified { delta, max_boxes } => Some((
+                    Program::new(&o.lowered.distance),
+                    Search { delta, max_boxes },
+                )),
+                _ => None,
+            })
+            .collect();
         Classifier {
             scene,
             ours,
             referee,
             checks,
             mesh_tol,
+            certified,
         }
     }
 
@@ -146,10 +166,67 @@ where
             ObjectId::MeshInstance(_) => Kind::Mesh,
             ObjectId::Sdf(i) => match self.checks.get(i) {
                 Some(SdfCheck::Analytic) => Kind::AnalyticSdf,
+                Some(SdfCheck::Certified { .. }) => Kind::CertifiedSdf,
                 Some(SdfCheck::Meshed { .. }) => Kind::MeshedSdf,
                 _ => Kind::UncheckedSdf,
             },
         }
+    }
+
+    /// δ of a certified object (the width its roots are enclosed in), 0 for any other.
+    fn delta(&self, object: ObjectId) -> f32 {
+        match object {
+            ObjectId::Sdf(i) => match self.checks.get(i) {
+                Some(SdfCheck::Certified { delta, .. }) => *delta as f32,
+                _ => 0.0,
+            },
+            ObjectId::MeshInstance(_) => 0.0,
+        }
+    }
+
+    /// The certified program of `hit`'s object, if it is checked by the certified search.
+    fn certified_of(&self, object: ObjectId) -> Option<&(Program, Search)> {
+        match object {
+            ObjectId::Sdf(i) => self.certified.get(i)?.as_ref(),
+            ObjectId::MeshInstance(_) => None,
+        }
+    }
+
+    /// Our hit `x` on a certified object that the referee did not cross there: a near miss,
+    /// excused when the ray passes within ε(t) of the surface at our hit — the certified
+    /// enclosure of the field at our hit point lies at or below ε(t) (Hart's stopping rule:
+    /// a sphere tracer may stop wherever f < ε(t)). Never excused by a grazing angle alone.
+    fn certified_near_miss(&self, x: &QueryHit, ray: &Ray) -> bool {
+        let Some((program, _)) = self.certified_of(x.object) else {
+            return false;
+        };
+        let e = epsilon_at(&self.scene.tracer, x.t) as f64;
+        let (o, d) = (ray.origin.as_dvec3(), ray.direction.as_dvec3());
+        let f = certified::at(program, o, d, x.t as f64, &mut interval64::registers());
+        f.hi <= e
+    }
+
+    /// The referee's crossing `y` of a certified object, which our tracer did not report
+    /// before `end`: a sliver, excused when the ray never goes deeper than ε(t)/2 into the
+    /// solid on [y.t − δ, end] (the certified minimum of f there is ≥ −ε(t)/2). The field is
+    /// 1-Lipschitz, so a chord with a point deeper than ε/2 is longer than ε — more of the
+    /// ray than a sphere tracer's confirmation may step over (`crate::trace::crossing`).
+    fn certified_sliver(&self, y: &QueryHit, ray: &Ray, end: f32) -> bool {
+        let Some((program, search)) = self.certified_of(y.object) else {
+            return false;
+        };
+        let e = epsilon_at(&self.scene.tracer, y.t) as f64;
+        let (o, d) = (ray.origin.as_dvec3(), ray.direction.as_dvec3());
+        let span = ((y.t as f64 - search.delta).max(0.0), end as f64);
+        certified::stays_above(
+            program,
+            o,
+            d,
+            span,
+            -0.5 * e,
+            search,
+            &mut interval64::registers(),
+        ) == Some(true)
     }
 
     /// τ of a meshed object, 0 for any other.
@@ -199,6 +276,7 @@ where
         match self.kind_of(hit.object) {
             Kind::Mesh => self.mesh_tol,
             Kind::AnalyticSdf => sdf_dt_tolerance(settings, hit.t, cos, 0.0),
+            Kind::CertifiedSdf => sdf_dt_tolerance(settings, hit.t, cos, self.delta(hit.object)),
             Kind::MeshedSdf => {
                 sdf_dt_tolerance(settings, hit.t, cos, self.meshed_tolerance(hit.object))
             }
@@ -211,7 +289,7 @@ where
         let e = epsilon_at(&self.scene.tracer, hit.t);
         match self.kind_of(hit.object) {
             Kind::Mesh => 0.0,
-            Kind::AnalyticSdf | Kind::UncheckedSdf => 3.0 * e,
+            Kind::AnalyticSdf | Kind::CertifiedSdf | Kind::UncheckedSdf => 3.0 * e,
             Kind::MeshedSdf => self.meshed_tolerance(hit.object) + 3.0 * e,
         }
     }
@@ -325,6 +403,11 @@ where
         let kind = self.kind_of(x.object);
         if kind == Kind::UncheckedSdf {
             Outcome::Unchecked
+        } else if kind == Kind::CertifiedSdf {
+            Outcome::Disagree {
+                kind,
+                in_band: self.certified_near_miss(x, ray),
+            }
         } else {
             Outcome::Disagree {
                 kind,
@@ -337,6 +420,13 @@ where
     /// A hit only the referee has (before ours, if any): in the band when the ray grazes the
     /// surface or our tracer has a surface within its band.
     fn only_referee(&self, y: &QueryHit, ray: &Ray) -> Outcome {
+        if self.kind_of(y.object) == Kind::CertifiedSdf {
+            let end = self.scene.tracer.max_distance;
+            return Outcome::Disagree {
+                kind: Kind::CertifiedSdf,
+                in_band: self.certified_sliver(y, ray, end),
+            };
+        }
         Outcome::Disagree {
             kind: self.kind_of(y.object),
             in_band: grazing(y, ray) || self.near(self.ours, y, ray),
@@ -397,6 +487,29 @@ where
             self.tolerance(y, ray)
         };
         let dt = (x.t - y.t).abs();
+        let certified = |h: &QueryHit| self.kind_of(h.object) == Kind::CertifiedSdf;
+        if dt > tol && (certified(x) || certified(y)) {
+            // The nearer hit is one side's alone: excused only by the certified field (a near
+            // miss of ours, a sliver the referee crossed); on one object, an unexcused
+            // difference is a |Δt| over tolerance, on two a hit/miss disagreement.
+            let (kind, in_band) = if x.t < y.t {
+                (self.kind_of(x.object), self.certified_near_miss(x, ray))
+            } else {
+                (self.kind_of(y.object), self.certified_sliver(y, ray, x.t))
+            };
+            return if in_band {
+                Outcome::Disagree {
+                    kind,
+                    in_band: true,
+                }
+            } else if x.object == y.object {
+                Outcome::Agree { kind, dt, tol }
+            } else if x.t < y.t {
+                self.only_ours(x, ray)
+            } else {
+                self.only_referee(y, ray)
+            };
+        }
         if dt > tol && x.t < y.t && (self.near(self.referee, x, ray) || self.sliver(x, ray)) {
             // Our hit lies within the band of the referee's surface, which the ray passes by:
             // a sphere tracer's near miss at a silhouette (it stops wherever the ray comes
@@ -467,10 +580,22 @@ where
                         _ => false,
                     })
             };
+        // A disagreement on a certified blocker the ray passes within ε(t) of is a grazing
+        // one: still counted against the agreement, and told apart in the report.
+        let certified_band = !agree
+            && if ours_occluded {
+                self.ours
+                    .closest_hit(ray, 0.0, len)
+                    .is_some_and(|x| self.certified_near_miss(&x, ray))
+            } else {
+                self.referee
+                    .closest_hit(ray, 0.0, len)
+                    .is_some_and(|y| self.certified_sliver(&y, ray, len))
+            };
         ShadowOutcome {
             kind,
             agree,
-            grazing: shadow.cos < GRAZING,
+            grazing: shadow.cos < GRAZING || certified_band,
             outside_mesh,
             within_mesh_tolerance,
         }

@@ -15,6 +15,7 @@
 //! |---|---|---|---|
 //! | mesh | ≥ 99.99 % | 1e-4·D | counted (band: grazing) |
 //! | analytic SDF | ≥ 99.9 % | max(10·ε(t), 2·ε(t)/\|n·d\|) | only inside the ε band |
+//! | certified SDF | ≥ 99.9 % | max(10·ε(t), (2·ε(t) + δ)/\|n·d\|) | only a certified near miss or sliver |
 //! | meshed SDF | — | max(10·ε(t), (τ + 2·ε(t))/\|n·d\|) | only inside the τ band |
 //! | shadow rays | ≥ 99.9 % | — | counted (band: grazing) |
 //!
@@ -38,6 +39,16 @@
 //! within that band, is such a silhouette disagreement too (the mesh stands proud of a
 //! surface the ray passes). Every SDF object must be checked by the referee: an object it
 //! skipped is a failure, as are all thresholds above.
+//!
+//! **Certified SDFs** (every SDF object without a closed form, unless `--meshed`): the referee's
+//! root is certified within δ ([`super::certified`]), so no mesh cell enters any tolerance. A
+//! disagreement is excused only by the certified field itself: our hit where the referee saw no
+//! crossing is a near miss when the enclosure of f at our hit point is ≤ ε(t) (the ray passes
+//! within ε(t) of the surface there, where Hart's rule may stop); a crossing the referee found
+//! and we did not is a sliver when f stays ≥ −ε(t)/2 from it to our hit (or the ray's end), i.e.
+//! the chord is at most ε(t) long — what a sphere tracer's confirmation may step over. Grazing
+//! angles alone excuse nothing. Searches that ran out of interval evaluations are counted and
+//! fail the validation beyond 0.1 % of the certified and shadow rays.
 //!
 //! **Clipped unbounded objects.** The referee meshes an unbounded object (infinite repetition)
 //! only inside a box; a ray whose hit by our tracer lies outside that box (shrunk by the
@@ -138,10 +149,26 @@ pub fn validate_with_embree_options(
     options: &Options,
     reference: &super::embree::ReferenceOptions,
 ) -> Result<Report, String> {
+    let tracer = crate::trace::SceneTracer::new(scene);
+    validate_against_embree(scene, &tracer, options, reference)
+}
+
+/// Validates `ours` against Embree 4 on `scene`, the referee built with `reference`: what
+/// [`validate_with_embree_options`] does for our tracer, for any backend (a GPU readback, or
+/// a deliberately broken tracer in the tests), with the certified searches that ran out of
+/// interval evaluations added to the report.
+#[cfg(feature = "embree")]
+pub fn validate_against_embree<A: RayQuery + Sync + ?Sized>(
+    scene: &Scene,
+    ours: &A,
+    options: &Options,
+    reference: &super::embree::ReferenceOptions,
+) -> Result<Report, String> {
     let embree = super::embree::EmbreeScene::build_with(scene, reference)?;
     let checks = embree.checks.clone();
-    let tracer = crate::trace::SceneTracer::new(scene);
-    validate(scene, &tracer, &embree, &checks, options)
+    let mut report = validate(scene, ours, &embree, &checks, options)?;
+    report.note_uncertified(embree.uncertified());
+    Ok(report)
 }
 
 #[cfg(test)]

@@ -289,6 +289,13 @@ impl Report {
             let _ = writeln!(s, "| {} |", kind_cells(row).join(" | "));
         }
         let _ = writeln!(s, "| (both miss) | {} | | | | | | | | | |", self.both_miss);
+        if self.uncertified_searches > 0 {
+            let _ = writeln!(
+                s,
+                "| (uncertified root searches: out of interval evaluations) | {} | | | | | | | | | |",
+                self.uncertified_searches
+            );
+        }
         if self.excluded_outside_mesh > 0 {
             let _ = writeln!(
                 s,
