@@ -43,11 +43,11 @@ crate::gpu_struct! {
     }
 }
 
-/// `DisplaySettings::operator` of [`ToneMap::Clamp`].
+/// `DisplaySettings::tone_operator` of [`ToneMap::Clamp`].
 pub const DISPLAY_TONE_CLAMP: u32 = 0;
-/// `DisplaySettings::operator` of [`ToneMap::Reinhard`].
+/// `DisplaySettings::tone_operator` of [`ToneMap::Reinhard`].
 pub const DISPLAY_TONE_REINHARD: u32 = 1;
-/// `DisplaySettings::operator` of [`ToneMap::Aces`].
+/// `DisplaySettings::tone_operator` of [`ToneMap::Aces`].
 pub const DISPLAY_TONE_ACES: u32 = 2;
 
 /// The display shader's source: the shared declarations generated from Rust, then the file.
@@ -107,8 +107,10 @@ pub struct Display {
     layout: wgpu::BindGroupLayout,
     target_format: wgpu::TextureFormat,
     settings: wgpu::Buffer,
-    /// Stands in for the binding a picture does not use.
+    /// Stand in for the bindings a picture does not use: sums, and a 1×1 texture for the
+    /// host's pixels or the band's text.
     empty_sums: wgpu::Buffer,
+    blank: wgpu::Texture,
     /// The last pixels texture, reused while its size stays.
     pixels: Option<(wgpu::Texture, u32, u32)>,
 }
@@ -180,7 +182,14 @@ impl Display {
             multiview_mask: None,
             cache: None,
         });
+        let blank = rgba8_texture(
+            device,
+            "blank",
+            (1, 1),
+            wgpu::TextureUsages::TEXTURE_BINDING,
+        );
         Display {
+            blank,
             device: ctx.device.clone(),
             queue: ctx.queue.clone(),
             pipeline,
@@ -239,7 +248,12 @@ impl Display {
                         rgba.len()
                     )));
                 }
-                (0, None)
+                // pixels are tone-mapped already: the shader reads no tone map for them
+                let unused = ToneMapping {
+                    exposure: 0.0,
+                    operator: ToneMap::Clamp,
+                };
+                (0, unused)
             }
             Shown::Sums {
                 buffer,
@@ -254,13 +268,9 @@ impl Display {
                         buffer.size()
                     )));
                 }
-                (*passes, Some(*tone))
+                (*passes, *tone)
             }
         };
-        let tone = tone.unwrap_or(ToneMapping {
-            exposure: 0.0,
-            operator: ToneMap::Clamp,
-        });
         let text = heads_up.text;
         let band_rows = if text.width() == window_width {
             text.height().min(window_height)
@@ -287,13 +297,13 @@ impl Display {
             .write_buffer(&self.settings, 0, bytemuck::bytes_of(&settings));
         let picture = match shown {
             Shown::Pixels { rgba, .. } => self.pixels_texture(rgba, width, height),
-            Shown::Sums { .. } => self.texture("no picture", &[0; 4], 1, 1),
+            Shown::Sums { .. } => self.blank.clone(),
         };
         let text_texture = if band_rows > 0 {
             let rows = &text.as_raw()[..(window_width * band_rows * 4) as usize];
             self.texture("heads-up text", rows, window_width, band_rows)
         } else {
-            self.texture("no heads-up text", &[0; 4], 1, 1)
+            self.blank.clone()
         };
         let sums = match shown {
             Shown::Sums { buffer, .. } => *buffer,

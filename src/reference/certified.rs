@@ -18,6 +18,7 @@
 //! [`Root::Uncertified`], never guessed.
 
 use super::interval64::{Interval, Program, Registers};
+use crate::sdf::interval::Domain;
 use glam::DVec3;
 
 /// How a certified search is bounded.

@@ -97,154 +97,6 @@ impl Interval {
         Interval::new(self.lo.min(o.lo), self.hi.max(o.hi))
     }
 
-    /// −a (exact).
-    pub fn neg(self) -> Interval {
-        Interval::new(-self.hi, -self.lo)
-    }
-
-    /// |a| (exact).
-    pub fn abs(self) -> Interval {
-        if self.lo >= 0.0 {
-            self
-        } else if self.hi <= 0.0 {
-            self.neg()
-        } else {
-            Interval::new(0.0, (-self.lo).max(self.hi))
-        }
-    }
-
-    /// a + b, rounded outward.
-    pub fn add(self, b: Interval) -> Interval {
-        Interval::new(down(self.lo + b.lo), up(self.hi + b.hi))
-    }
-
-    /// a − b, rounded outward.
-    pub fn sub(self, b: Interval) -> Interval {
-        Interval::new(down(self.lo - b.hi), up(self.hi - b.lo))
-    }
-
-    /// a · b, rounded outward (0 · ∞ counts as 0, as in IEEE 1788: a bound that is infinite
-    /// stands for arbitrarily large finite values).
-    pub fn mul(self, b: Interval) -> Interval {
-        let p = |x: f64, y: f64| {
-            let v = x * y;
-            if v.is_nan() { 0.0 } else { v }
-        };
-        let c = [
-            p(self.lo, b.lo),
-            p(self.lo, b.hi),
-            p(self.hi, b.lo),
-            p(self.hi, b.hi),
-        ];
-        let lo = c.iter().copied().fold(f64::INFINITY, f64::min);
-        let hi = c.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        Interval::new(down(lo), up(hi))
-    }
-
-    /// a², rounded outward (tighter than a · a when a holds 0).
-    pub fn square(self) -> Interval {
-        let m = self.abs();
-        Interval::new(down(m.lo * m.lo).max(0.0), up(m.hi * m.hi))
-    }
-
-    /// a / b, rounded outward; the whole line when b holds 0.
-    pub fn div(self, b: Interval) -> Interval {
-        if b.contains(0.0) {
-            return Interval::ENTIRE;
-        }
-        let c = [
-            self.lo / b.lo,
-            self.lo / b.hi,
-            self.hi / b.lo,
-            self.hi / b.hi,
-        ];
-        if c.iter().any(|v| v.is_nan()) {
-            return Interval::ENTIRE;
-        }
-        let lo = c.iter().copied().fold(f64::INFINITY, f64::min);
-        let hi = c.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        Interval::new(down(lo), up(hi))
-    }
-
-    /// min(a, b) (exact).
-    pub fn min(self, b: Interval) -> Interval {
-        Interval::new(self.lo.min(b.lo), self.hi.min(b.hi))
-    }
-
-    /// max(a, b) (exact).
-    pub fn max(self, b: Interval) -> Interval {
-        Interval::new(self.lo.max(b.lo), self.hi.max(b.hi))
-    }
-
-    /// √a, rounded outward, over the part of a where it is defined; the whole line if none.
-    pub fn sqrt(self) -> Interval {
-        if self.hi < 0.0 {
-            return Interval::ENTIRE;
-        }
-        // Where part of the box lies below 0, √ is undefined there (NaN in the tracer's f32):
-        // the enclosure covers the points where it is defined (a lower bound below 0 is often
-        // only the overestimate of an argument that is ≥ 0, a sum of squares say).
-        Interval::new(down(self.lo.max(0.0).sqrt()).max(0.0), up(self.hi.sqrt()))
-    }
-
-    /// ⌊a⌋ (exact).
-    pub fn floor(self) -> Interval {
-        Interval::new(self.lo.floor(), self.hi.floor())
-    }
-
-    /// eᵃ: increasing, widened by the library's error.
-    pub fn exp(self) -> Interval {
-        Interval::new(lib_down(self.lo.exp()).max(0.0), lib_up(self.hi.exp()))
-    }
-
-    /// ln a: increasing on (0, ∞), ln 0 = −∞; over the part of a where it is defined (as for
-    /// [`Self::sqrt`]), the whole line if none.
-    pub fn ln(self) -> Interval {
-        if self.hi < 0.0 {
-            return Interval::ENTIRE;
-        }
-        let lo = if self.lo <= 0.0 {
-            f64::NEG_INFINITY
-        } else {
-            lib_down(self.lo.ln())
-        };
-        Interval::new(lo, lib_up(self.hi.ln()))
-    }
-
-    /// aᵇ for a ≥ 0 (the tape's `Pow`): monotonic in a for each fixed b and in b for each
-    /// fixed a, so its extremes over the box are at the corners. Over the part of a where it
-    /// is defined (a ≥ 0, as for [`Self::sqrt`]), the whole line if none.
-    pub fn pow(self, b: Interval) -> Interval {
-        if self.hi < 0.0 {
-            return Interval::ENTIRE;
-        }
-        let a0 = self.lo.max(0.0);
-        let c = [
-            a0.powf(b.lo),
-            a0.powf(b.hi),
-            self.hi.powf(b.lo),
-            self.hi.powf(b.hi),
-        ];
-        if c.iter().any(|v| v.is_nan()) {
-            return Interval::ENTIRE;
-        }
-        let lo = c.iter().copied().fold(f64::INFINITY, f64::min);
-        let hi = c.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        Interval::new(lib_down(lo).max(0.0), lib_up(hi))
-    }
-
-    /// sin a: the values at the ends, and ±1 where a peak or trough of sin may lie inside
-    /// (found with a margin, so a rounding of the period can only add a bound, never lose
-    /// one).
-    pub fn sin(self) -> Interval {
-        self.periodic(f64::sin, std::f64::consts::FRAC_PI_2)
-    }
-
-    /// cos a: as [`Self::sin`], with the peaks at 2kπ.
-    pub fn cos(self) -> Interval {
-        self.periodic(f64::cos, 0.0)
-    }
-
     /// A 2π-periodic function with a maximum 1 at `peak` + 2kπ and minimum −1 at `peak` + π
     /// + 2kπ, monotonic between.
     fn periodic(self, f: fn(f64) -> f64, peak: f64) -> Interval {
@@ -277,28 +129,6 @@ impl Interval {
             lo = -1.0;
         }
         Interval::new(lo.max(-1.0), hi.min(1.0))
-    }
-
-    /// tan a: increasing between its poles π/2 + kπ; the whole line where a pole may lie
-    /// inside (found with a margin, as for [`Self::sin`]).
-    pub fn tan(self) -> Interval {
-        use std::f64::consts::{FRAC_PI_2, PI};
-        if !(self.lo.is_finite() && self.hi.is_finite())
-            || self.hi - self.lo >= PI
-            || self.lo.abs().max(self.hi.abs()) > 1.0e12
-        {
-            return Interval::ENTIRE;
-        }
-        let margin = 1e-9 * (1.0 + self.lo.abs().max(self.hi.abs()));
-        let k = ((self.lo - FRAC_PI_2) / PI).floor();
-        let pole = (0..3).any(|j| {
-            let x = FRAC_PI_2 + (k + j as f64) * PI;
-            x >= self.lo - margin && x <= self.hi + margin
-        });
-        if pole {
-            return Interval::ENTIRE;
-        }
-        Interval::new(lib_down(self.lo.tan()), lib_up(self.hi.tan()))
     }
 }
 
@@ -735,65 +565,167 @@ pub fn apply(op: Op, a: Interval, b: Interval, c: Interval, imm: f32) -> Interva
     apply_domain(op, a, b, c, imm)
 }
 
-/// The tape's operations on f64 intervals, for [`apply_domain`]: each is the inherent method
-/// of the same name.
+/// The tape's operations on f64 intervals, each rounded outward (for [`apply_domain`], and
+/// called directly by the search with [`Domain`] in scope).
 impl Domain for Interval {
     fn constant(x: f32) -> Self {
         Interval::point(x as f64)
     }
-    fn add(self, o: Self) -> Self {
-        Interval::add(self, o)
+    /// a + b, rounded outward.
+    fn add(self, b: Interval) -> Interval {
+        Interval::new(down(self.lo + b.lo), up(self.hi + b.hi))
     }
-    fn sub(self, o: Self) -> Self {
-        Interval::sub(self, o)
+    /// a − b, rounded outward.
+    fn sub(self, b: Interval) -> Interval {
+        Interval::new(down(self.lo - b.hi), up(self.hi - b.lo))
     }
-    fn mul(self, o: Self) -> Self {
-        Interval::mul(self, o)
+    /// a · b, rounded outward (0 · ∞ counts as 0, as in IEEE 1788: a bound that is infinite
+    /// stands for arbitrarily large finite values).
+    fn mul(self, b: Interval) -> Interval {
+        let p = |x: f64, y: f64| {
+            let v = x * y;
+            if v.is_nan() { 0.0 } else { v }
+        };
+        let c = [
+            p(self.lo, b.lo),
+            p(self.lo, b.hi),
+            p(self.hi, b.lo),
+            p(self.hi, b.hi),
+        ];
+        let lo = c.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = c.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        Interval::new(down(lo), up(hi))
     }
     fn scale(self, k: f32) -> Self {
         Interval::mul(self, Interval::point(k as f64))
     }
-    fn sqr(self) -> Self {
-        self.square()
+    /// a², rounded outward (tighter than a · a when a holds 0).
+    fn sqr(self) -> Interval {
+        let m = self.abs();
+        Interval::new(down(m.lo * m.lo).max(0.0), up(m.hi * m.hi))
     }
-    fn div(self, o: Self) -> Self {
-        Interval::div(self, o)
+    /// a / b, rounded outward; the whole line when b holds 0.
+    fn div(self, b: Interval) -> Interval {
+        if b.contains(0.0) {
+            return Interval::ENTIRE;
+        }
+        let c = [
+            self.lo / b.lo,
+            self.lo / b.hi,
+            self.hi / b.lo,
+            self.hi / b.hi,
+        ];
+        if c.iter().any(|v| v.is_nan()) {
+            return Interval::ENTIRE;
+        }
+        let lo = c.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = c.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        Interval::new(down(lo), up(hi))
     }
-    fn min(self, o: Self) -> Self {
-        Interval::min(self, o)
+    /// min(a, b) (exact).
+    fn min(self, b: Interval) -> Interval {
+        Interval::new(self.lo.min(b.lo), self.hi.min(b.hi))
     }
-    fn max(self, o: Self) -> Self {
-        Interval::max(self, o)
+    /// max(a, b) (exact).
+    fn max(self, b: Interval) -> Interval {
+        Interval::new(self.lo.max(b.lo), self.hi.max(b.hi))
     }
-    fn pow(self, e: Self) -> Self {
-        Interval::pow(self, e)
+    /// aᵇ for a ≥ 0 (the tape's `Pow`): monotonic in a for each fixed b and in b for each
+    /// fixed a, so its extremes over the box are at the corners. Over the part of a where it
+    /// is defined (a ≥ 0, as for [`Self::sqrt`]), the whole line if none.
+    fn pow(self, b: Interval) -> Interval {
+        if self.hi < 0.0 {
+            return Interval::ENTIRE;
+        }
+        let a0 = self.lo.max(0.0);
+        let c = [
+            a0.powf(b.lo),
+            a0.powf(b.hi),
+            self.hi.powf(b.lo),
+            self.hi.powf(b.hi),
+        ];
+        if c.iter().any(|v| v.is_nan()) {
+            return Interval::ENTIRE;
+        }
+        let lo = c.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = c.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        Interval::new(lib_down(lo).max(0.0), lib_up(hi))
     }
-    fn neg(self) -> Self {
-        Interval::neg(self)
+    /// −a (exact).
+    fn neg(self) -> Interval {
+        Interval::new(-self.hi, -self.lo)
     }
-    fn abs(self) -> Self {
-        Interval::abs(self)
+    /// |a| (exact).
+    fn abs(self) -> Interval {
+        if self.lo >= 0.0 {
+            self
+        } else if self.hi <= 0.0 {
+            self.neg()
+        } else {
+            Interval::new(0.0, (-self.lo).max(self.hi))
+        }
     }
-    fn sqrt(self) -> Self {
-        Interval::sqrt(self)
+    /// √a, rounded outward, over the part of a where it is defined; the whole line if none.
+    fn sqrt(self) -> Interval {
+        if self.hi < 0.0 {
+            return Interval::ENTIRE;
+        }
+        // Where part of the box lies below 0, √ is undefined there (NaN in the tracer's f32):
+        // the enclosure covers the points where it is defined (a lower bound below 0 is often
+        // only the overestimate of an argument that is ≥ 0, a sum of squares say).
+        Interval::new(down(self.lo.max(0.0).sqrt()).max(0.0), up(self.hi.sqrt()))
     }
-    fn sin(self) -> Self {
-        Interval::sin(self)
+    /// sin a: the values at the ends, and ±1 where a peak or trough of sin may lie inside
+    /// (found with a margin, so a rounding of the period can only add a bound, never lose
+    /// one).
+    fn sin(self) -> Interval {
+        self.periodic(f64::sin, std::f64::consts::FRAC_PI_2)
     }
-    fn cos(self) -> Self {
-        Interval::cos(self)
+    /// cos a: as [`Self::sin`], with the peaks at 2kπ.
+    fn cos(self) -> Interval {
+        self.periodic(f64::cos, 0.0)
     }
-    fn tan(self) -> Self {
-        Interval::tan(self)
+    /// tan a: increasing between its poles π/2 + kπ; the whole line where a pole may lie
+    /// inside (found with a margin, as for [`Self::sin`]).
+    fn tan(self) -> Interval {
+        use std::f64::consts::{FRAC_PI_2, PI};
+        if !(self.lo.is_finite() && self.hi.is_finite())
+            || self.hi - self.lo >= PI
+            || self.lo.abs().max(self.hi.abs()) > 1.0e12
+        {
+            return Interval::ENTIRE;
+        }
+        let margin = 1e-9 * (1.0 + self.lo.abs().max(self.hi.abs()));
+        let k = ((self.lo - FRAC_PI_2) / PI).floor();
+        let pole = (0..3).any(|j| {
+            let x = FRAC_PI_2 + (k + j as f64) * PI;
+            x >= self.lo - margin && x <= self.hi + margin
+        });
+        if pole {
+            return Interval::ENTIRE;
+        }
+        Interval::new(lib_down(self.lo.tan()), lib_up(self.hi.tan()))
     }
-    fn exp(self) -> Self {
-        Interval::exp(self)
+    /// eᵃ: increasing, widened by the library's error.
+    fn exp(self) -> Interval {
+        Interval::new(lib_down(self.lo.exp()).max(0.0), lib_up(self.hi.exp()))
     }
-    fn ln(self) -> Self {
-        Interval::ln(self)
+    /// ln a: increasing on (0, ∞), ln 0 = −∞; over the part of a where it is defined (as for
+    /// [`Self::sqrt`]), the whole line if none.
+    fn ln(self) -> Interval {
+        if self.hi < 0.0 {
+            return Interval::ENTIRE;
+        }
+        let lo = if self.lo <= 0.0 {
+            f64::NEG_INFINITY
+        } else {
+            lib_down(self.lo.ln())
+        };
+        Interval::new(lo, lib_up(self.hi.ln()))
     }
-    fn floor(self) -> Self {
-        Interval::floor(self)
+    /// ⌊a⌋ (exact).
+    fn floor(self) -> Interval {
+        Interval::new(self.lo.floor(), self.hi.floor())
     }
     fn select(c: Self, a: Self, b: Self) -> Self {
         if c.lo > 0.0 {
@@ -815,9 +747,7 @@ impl Domain for Interval {
 /// Σ xᵢ², rounded outward and never below 0 (a sum of squares is not negative, whatever the
 /// outward rounding of a zero sum says).
 fn sum_of_squares(xs: &[Interval]) -> Interval {
-    let s = xs
-        .iter()
-        .fold(Interval::point(0.0), |s, x| s.add(x.square()));
+    let s = xs.iter().fold(Interval::point(0.0), |s, x| s.add(x.sqr()));
     Interval::new(s.lo.max(0.0), s.hi)
 }
 
