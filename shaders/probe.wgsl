@@ -4,14 +4,6 @@
 // Group 1 (probe_rays, probe_results, chunk) is declared by the generated code of KernelSource::io
 // (src/gpu/shaders.rs).
 
-fn material_lanes(m: Material) -> array<vec4<f32>, 3> {
-    var l: array<vec4<f32>, 3>;
-    l[0] = vec4<f32>(m.color, m.diffuse);
-    l[1] = vec4<f32>(m.specular, m.shininess);
-    l[2] = vec4<f32>(m.reflectivity, m.transparency, m.ior, 0.0);
-    return l;
-}
-
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn probe_main(@builtin(global_invocation_id) id: vec3<u32>) {
     if id.x >= chunk.count {
@@ -28,7 +20,7 @@ fn probe_main(@builtin(global_invocation_id) id: vec3<u32>) {
         r.exit = vec4<f32>(-1.0, 0.0, 0.0, 0.0);
         if hit.kind != HIT_MISS {
             let p = ray.origin + ray.direction * hit.t;
-            r.material = material_lanes(scene_material(hit, p));
+            r.material = lanes_from_material(scene_material(hit, p));
             let inside = p + ray.direction * (4.0 * epsilon_at(hit.t));
             r.exit = scene_exit(hit, inside, ray.direction, ray.tmax);
         }

@@ -144,7 +144,11 @@ fn trace_camera_ray(origin: vec3<f32>, direction: vec3<f32>) -> CameraSample {
             continue;
         }
         let p = item.origin + hit.t * d;
-        let m = scene_material(hit, p);
+        var m = scene_material(hit, p);
+        if m.opacity < 1.0 {
+            // a partly covered surface is thin: no refraction (integrator::surfaced)
+            m.transparency = 0.0;
+        }
         // Shade the side the ray arrives on (rays can start inside a solid).
         let n = select(hit.normal, -hit.normal, dot(hit.normal, d) > 0.0);
         if primary {
@@ -165,16 +169,21 @@ fn trace_camera_ray(origin: vec3<f32>, direction: vec3<f32>) -> CameraSample {
             f_t = optics_schlick(cos_i, 1.0, m.ior);
         }
         let opaque = 1.0 - m.transparency;
-        let local_weight = opaque * (1.0 - f_r);
+        let coverage = clamp(m.opacity, 0.0, 1.0);
+        let local_weight = coverage * opaque * (1.0 - f_r);
+        let offset = surface_offset(hit.t, p);
+        if m.opacity < 1.0 {
+            // the uncovered fraction of a BLEND surface goes on straight through
+            spawn(item, max_bounces, p - n * offset, d, item.weight * (1.0 - max(m.opacity, 0.0)), 0u, no_hit, 1.0);
+        }
         if local_weight > 0.0 {
             sample.radiance += item.weight * local_weight * shade_local(p, n, -d, hit.t, m);
         }
-        let offset = surface_offset(hit.t, p);
-        let reflect_weight = opaque * f_r + m.transparency * f_t;
+        let reflect_weight = coverage * (opaque * f_r + m.transparency * f_t);
         if reflect_weight > 0.0 {
             spawn(item, max_bounces, p + n * offset, optics_reflect(d, n), item.weight * reflect_weight, 0u, no_hit, 1.0);
         }
-        let transmit_weight = m.transparency * (1.0 - f_t);
+        let transmit_weight = coverage * m.transparency * (1.0 - f_t);
         if transmit_weight > 0.0 {
             let t = optics_refract(d, n, 1.0 / m.ior);
             if t.w != 0.0 {

@@ -1,6 +1,7 @@
-// Shading on the GPU: the WGSL mirror of src/shade/mod.rs (Lambert + Phong under point,
-// directional and ambient lights, hard and soft shadows, ambient occlusion, the surface
-// offset) and src/shade/optics.rs (reflection, refraction, Schlick's Fresnel approximation).
+// Shading on the GPU: the WGSL mirror of src/shade/mod.rs (Lambert + Phong and glTF's
+// metallic-roughness model under point, spot, directional and ambient lights, hard and soft
+// shadows, ambient occlusion, the surface offset), src/shade/brdf.rs (the metallic-roughness
+// BRDF) and src/shade/optics.rs (reflection, refraction, Schlick's Fresnel approximation).
 //
 // Needs, from the generated preludes: Material, ShadeLight, ShadeSettings and the LIGHT_*
 // constants (src/gpu/shaders.rs, src/gpu/shade.rs); from shaders/sdf.wgsl and scene.wgsl:
@@ -91,12 +92,73 @@ fn ambient_occlusion(p: vec3<f32>, n: vec3<f32>) -> f32 {
     return clamp(1.0 - shade_settings.ao_strength * occlusion / step, 0.0, 1.0);
 }
 
+/// scene::range_window: KHR_lights_punctual's clamp(1 − (d/range)⁴, 0, 1); range 0 = none.
+fn range_window(dist: f32, range: f32) -> f32 {
+    if range <= 0.0 {
+        return 1.0;
+    }
+    let q = dist / range;
+    let q2 = q * q;
+    return clamp(1.0 - q2 * q2, 0.0, 1.0);
+}
+
+/// scene::spot_falloff: the specification's smooth cone falloff, squared.
+fn spot_falloff(cos_axis: f32, cos_inner: f32, cos_outer: f32) -> f32 {
+    let scale = 1.0 / max(cos_inner - cos_outer, 1e-3);
+    let s = clamp((cos_axis - cos_outer) * scale, 0.0, 1.0);
+    return s * s;
+}
+
+/// brdf::MetallicRoughness::f0: mix(0.04, base, metallic).
+fn brdf_f0(m: Material) -> vec3<f32> {
+    return mix(vec3<f32>(0.04), m.color, m.metallic);
+}
+
+/// brdf::MetallicRoughness::ambient_albedo: (1 − f₀)·c_diff + f₀.
+fn brdf_ambient_albedo(m: Material) -> vec3<f32> {
+    let f0 = brdf_f0(m);
+    return (vec3<f32>(1.0) - f0) * (m.color * (1.0 - m.metallic)) + f0;
+}
+
+/// brdf::MetallicRoughness::reflected: π·f(l, v)·(n·l) of glTF's metallic-roughness BRDF
+/// (GGX distribution, Smith's separable visibility, Schlick's Fresnel).
+fn brdf_reflected(m: Material, n: vec3<f32>, v: vec3<f32>, l: vec3<f32>) -> vec3<f32> {
+    let PI = 3.14159265358979323846;
+    let n_l = dot(n, l);
+    let n_v = dot(n, v);
+    if n_l <= 0.0 || n_v <= 0.0 {
+        return vec3<f32>(0.0);
+    }
+    let hv = l + v;
+    let hl = dot(hv, hv);
+    var h = vec3<f32>(0.0);
+    if hl > 0.0 {
+        h = hv * (1.0 / sqrt(hl));
+    }
+    let n_h = max(dot(n, h), 0.0);
+    let v_h = abs(dot(v, h));
+    let alpha = max(m.roughness * m.roughness, 1e-3);
+    let a2 = alpha * alpha;
+    let d_denominator = n_h * n_h * (a2 - 1.0) + 1.0;
+    let distribution = a2 / (PI * d_denominator * d_denominator);
+    let smith_l = n_l + sqrt(a2 + (1.0 - a2) * n_l * n_l);
+    let smith_v = n_v + sqrt(a2 + (1.0 - a2) * n_v * n_v);
+    let visibility = 1.0 / (smith_l * smith_v);
+    let f0 = brdf_f0(m);
+    let fresnel = f0 + (vec3<f32>(1.0) - f0) * pow5(1.0 - v_h);
+    let diffuse = (vec3<f32>(1.0) - fresnel) * (m.color * (1.0 - m.metallic)) / PI;
+    let specular = fresnel * (distribution * visibility);
+    return PI * (diffuse + specular) * n_l;
+}
+
 /// Local (direct) radiance leaving p toward the eye (shade::shade): p on a surface found at
 /// ray distance t, with unit normal n facing the viewer and unit direction to_eye.
 fn shade_local(p: vec3<f32>, n: vec3<f32>, to_eye: vec3<f32>, t: f32, m: Material) -> vec3<f32> {
     let offset = surface_offset(t, p);
     let origin = p + n * offset;
-    var out = vec3<f32>(0.0);
+    let pbr = clamp(m.pbr, 0.0, 1.0);
+    let ambient_reflectance = mix(m.color * m.diffuse, brdf_ambient_albedo(m), pbr) * m.occlusion;
+    var out = m.emissive;
     for (var i = 0u; i < shade_settings.light_count; i += 1u) {
         let light = shade_lights[i];
         var l: vec3<f32>;
@@ -107,16 +169,23 @@ fn shade_local(p: vec3<f32>, n: vec3<f32>, to_eye: vec3<f32>, t: f32, m: Materia
             if shade_settings.ao_steps > 0u {
                 ao = ambient_occlusion(p, n);
             }
-            out += m.color * m.diffuse * light.radiance * ao;
+            out += ambient_reflectance * light.radiance * ao;
             continue;
-        } else if light.kind == LIGHT_POINT {
+        } else if light.kind == LIGHT_POINT || light.kind == LIGHT_SPOT {
             let to_light = light.vector - p;
             dist = sqrt(dot(to_light, to_light));
             if dist <= 0.0 {
                 continue;
             }
             l = to_light / dist;
-            irradiance = light.radiance / (dist * dist);
+            var falloff = range_window(dist, light.range);
+            if light.kind == LIGHT_SPOT {
+                falloff = spot_falloff(-dot(l, light.axis), light.cos_inner, light.cos_outer) * falloff;
+            }
+            if falloff <= 0.0 {
+                continue;
+            }
+            irradiance = light.radiance * (falloff / (dist * dist));
         } else {
             // directional: `vector` is the direction the light travels
             l = -light.vector;
@@ -134,10 +203,17 @@ fn shade_local(p: vec3<f32>, n: vec3<f32>, to_eye: vec3<f32>, t: f32, m: Materia
         if visibility <= 0.0 {
             continue;
         }
-        let diffuse = m.color * m.diffuse * ndl;
-        let r = (2.0 * ndl) * n - l;
-        let spec = m.specular * pow_nonnegative(max(dot(r, to_eye), 0.0), m.shininess);
-        out += visibility * irradiance * (diffuse + spec);
+        var reflected = vec3<f32>(0.0);
+        if pbr < 1.0 {
+            let diffuse = m.color * m.diffuse * ndl;
+            let r = (2.0 * ndl) * n - l;
+            let spec = m.specular * pow_nonnegative(max(dot(r, to_eye), 0.0), m.shininess);
+            reflected += (1.0 - pbr) * (diffuse + spec);
+        }
+        if pbr > 0.0 {
+            reflected += pbr * brdf_reflected(m, n, to_eye, l);
+        }
+        out += visibility * irradiance * reflected;
     }
     return out;
 }

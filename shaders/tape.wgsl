@@ -6,7 +6,7 @@
 // the generated sizes; registers 0–2 hold the sample point on entry.
 
 var<private> regs: array<f32, MAX_REGISTERS>;
-var<private> mat_regs: array<array<vec4<f32>, 3>, MAX_MATERIAL_REGISTERS>;
+var<private> mat_regs: array<MaterialLanes, MAX_MATERIAL_REGISTERS>;
 
 // Runs the tape at p; with `materials_on`, also the material ops (MatLoad, MatMix) over the
 // scene's material table.
@@ -76,8 +76,8 @@ fn tape_run(tape: TapeRef, p: vec3<f32>, materials_on: bool) {
                     let ma = mat_regs[((ins.code >> INSTR_A_SHIFT) & 0xffu) % MAX_MATERIAL_REGISTERS];
                     let mb = mat_regs[((ins.code >> INSTR_B_SHIFT) & 0xffu) % MAX_MATERIAL_REGISTERS];
                     let h = regs[ins.imm & 0xffu];
-                    var mixed: array<vec4<f32>, 3>;
-                    for (var j = 0u; j < 3u; j = j + 1u) {
+                    var mixed: MaterialLanes;
+                    for (var j = 0u; j < MATERIAL_VECS; j = j + 1u) {
                         mixed[j] = ma[j] + (mb[j] - ma[j]) * h;
                     }
                     mat_regs[out % MAX_MATERIAL_REGISTERS] = mixed;
@@ -99,13 +99,13 @@ fn tape_eval(tape: TapeRef, p: vec3<f32>) -> f32 {
 
 // Tape::eval_material's material: the blended material lanes at p (the table's first
 // material when the tape has no material result).
-fn tape_material(tape: TapeRef, p: vec3<f32>) -> array<vec4<f32>, 3> {
+fn tape_material(tape: TapeRef, p: vec3<f32>) -> MaterialLanes {
     tape_run(tape, p, true);
     if tape.material == NONE {
         if globals.material_count > 0u {
             return materials[0].lanes;
         }
-        return array<vec4<f32>, 3>(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
+        return MaterialLanes();
     }
     return mat_regs[tape.material % MAX_MATERIAL_REGISTERS];
 }

@@ -192,11 +192,14 @@ gpu_struct! {
     }
 }
 
+// The material records carry the tape's material lanes as vec4s.
+const _: () = assert!(crate::sdf::tape::MATERIAL_FLOATS == 5 * 4);
+
 gpu_struct! {
-    /// A scene material: the 12 lanes of `MaterialVec` and its base-colour texture.
-    pub struct MaterialRecord(64) {
+    /// A scene material: the lanes of `MaterialVec` and its base-colour texture.
+    pub struct MaterialRecord(96) {
         /// The lanes, four per vector.
-        pub lanes: [[f32; 4]; 3],
+        pub lanes: [[f32; 4]; 5],
         /// Base-colour texture index, or [`NONE`].
         pub texture: u32,
         /// Unused.
@@ -348,9 +351,9 @@ gpu_struct! {
 gpu_struct! {
     /// The answers of the probe kernel (`shaders/probe.wgsl`) for one ray: the scene queries
     /// that shading uses, for checking them against the CPU.
-    pub struct ProbeResult(80) {
-        /// `scene_material` at the closest hit (zero on a miss).
-        pub material: [[f32; 4]; 3],
+    pub struct ProbeResult(112) {
+        /// `scene_material` at the closest hit, as material lanes (zero on a miss).
+        pub material: [[f32; 4]; 5],
         /// `scene_exit` from just inside the hit, along the ray: (t, normal), t < 0 for none.
         pub exit: [f32; 4],
         /// `scene_visibility` along the ray with `SHADOW_SOFT`.

@@ -273,11 +273,7 @@ impl SceneData {
                 .and_then(|mm| mm.base_color_texture)
                 .map_or(NONE, |t| t as u32);
             data.materials.push(MaterialRecord {
-                lanes: [
-                    [v[0], v[1], v[2], v[3]],
-                    [v[4], v[5], v[6], v[7]],
-                    [v[8], v[9], v[10], v[11]],
-                ],
+                lanes: std::array::from_fn(|i| std::array::from_fn(|j| v[4 * i + j])),
                 texture,
                 ..Default::default()
             });

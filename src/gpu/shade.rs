@@ -61,12 +61,14 @@ crate::gpu_struct! {
 }
 
 crate::gpu_struct! {
-    /// One light: `vector` is the position of a point light and the travel direction of a
-    /// directional one; `shadow` and `shadow_k` are the `scene_visibility` arguments.
-    pub struct ShadeLight (48) {
-        /// Position (point) or unit travel direction (directional).
+    /// One light: `vector` is the position of a point or spot light and the travel direction
+    /// of a directional one; `shadow` and `shadow_k` are the `scene_visibility` arguments; a
+    /// spot light's cone is `axis`, `cos_inner` and `cos_outer`; `range` is the light's range
+    /// (0: none, since WGSL has no infinity to compare with).
+    pub struct ShadeLight (64) {
+        /// Position (point, spot) or unit travel direction (directional).
         pub vector: [f32; 3],
-        /// [`LIGHT_POINT`], [`LIGHT_DIRECTIONAL`] or [`LIGHT_AMBIENT`].
+        /// [`LIGHT_POINT`], [`LIGHT_SPOT`], [`LIGHT_DIRECTIONAL`] or [`LIGHT_AMBIENT`].
         pub kind: u32,
         /// Colour × intensity.
         pub radiance: [f32; 3],
@@ -74,12 +76,16 @@ crate::gpu_struct! {
         pub shadow: u32,
         /// Soft-shadow sharpness k.
         pub shadow_k: f32,
+        /// Cosine of a spot light's inner cone angle.
+        pub cos_inner: f32,
+        /// Cosine of a spot light's outer cone angle.
+        pub cos_outer: f32,
+        /// Range of a point or spot light (0: unlimited).
+        pub range: f32,
+        /// Unit direction of a spot light's axis.
+        pub axis: [f32; 3],
         /// Unused.
         pub _pad0: u32,
-        /// Unused.
-        pub _pad1: u32,
-        /// Unused.
-        pub _pad2: u32,
     }
 }
 
@@ -143,6 +149,8 @@ pub const LIGHT_POINT: u32 = 0;
 pub const LIGHT_DIRECTIONAL: u32 = 1;
 /// `ShadeLight::kind` of an ambient light.
 pub const LIGHT_AMBIENT: u32 = 2;
+/// `ShadeLight::kind` of a spot light.
+pub const LIGHT_SPOT: u32 = 3;
 /// Capacity of the render kernel's path stack: max_bounces + 1 entries at most are pending
 /// (see `shade::integrator`), and one more keeps the bound obvious.
 pub const RENDER_STACK: u32 = MAX_BOUNCES + 2;
@@ -203,6 +211,7 @@ pub fn wgsl_prelude() -> String {
         ("LIGHT_POINT", LIGHT_POINT),
         ("LIGHT_DIRECTIONAL", LIGHT_DIRECTIONAL),
         ("LIGHT_AMBIENT", LIGHT_AMBIENT),
+        ("LIGHT_SPOT", LIGHT_SPOT),
         ("MAX_BOUNCES", MAX_BOUNCES),
         ("RENDER_STACK", RENDER_STACK),
     ] {
@@ -250,19 +259,44 @@ impl ShadeSettings {
 impl ShadeLight {
     /// Packs a light.
     pub fn new(light: &Light) -> Self {
-        let (kind, vector, radiance, shadow) = match *light {
+        let finite_or_zero = |r: f32| if r.is_finite() { r } else { 0.0 };
+        match *light {
             Light::Point {
                 position,
                 radiance,
+                range,
                 shadow,
-            } => (LIGHT_POINT, position, radiance, shadow),
+            } => ShadeLight {
+                range: finite_or_zero(range),
+                ..ShadeLight::packed(LIGHT_POINT, position, radiance, shadow)
+            },
+            Light::Spot {
+                position,
+                direction,
+                radiance,
+                cos_inner,
+                cos_outer,
+                range,
+                shadow,
+            } => ShadeLight {
+                cos_inner,
+                cos_outer,
+                range: finite_or_zero(range),
+                axis: direction.to_array(),
+                ..ShadeLight::packed(LIGHT_SPOT, position, radiance, shadow)
+            },
             Light::Directional {
                 direction,
                 radiance,
                 shadow,
-            } => (LIGHT_DIRECTIONAL, direction, radiance, shadow),
-            Light::Ambient { radiance } => (LIGHT_AMBIENT, Vec3::ZERO, radiance, Shadow::None),
-        };
+            } => ShadeLight::packed(LIGHT_DIRECTIONAL, direction, radiance, shadow),
+            Light::Ambient { radiance } => {
+                ShadeLight::packed(LIGHT_AMBIENT, Vec3::ZERO, radiance, Shadow::None)
+            }
+        }
+    }
+
+    fn packed(kind: u32, vector: Vec3, radiance: Vec3, shadow: Shadow) -> Self {
         let (shadow, shadow_k) = shadow_code(shadow);
         ShadeLight {
             vector: vector.to_array(),

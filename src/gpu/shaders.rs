@@ -10,7 +10,6 @@ use crate::scene::material::MaterialParams;
 use crate::scene::mesh::Wrap;
 use crate::sdf::simplify::Verdict;
 use crate::sdf::tape;
-use glam::Vec3;
 
 /// The tape interpreter (`Tape::eval_in`, `Tape::eval_material`).
 pub const TAPE_WGSL: &str = include_str!("../../shaders/tape.wgsl");
@@ -254,19 +253,12 @@ pub fn scene_bindings() -> Bindings {
     ]
 }
 
-/// The WGSL `Material` struct (the fields of [`MaterialParams`]) and `material_from_lanes`,
-/// which reads it from the 12 lanes of a `MaterialVec`. Which lane holds which field is found
-/// by packing a probe material with [`MaterialParams::to_vec`], so the packing is defined once.
+/// The WGSL `Material` struct (the fields of [`MaterialParams`]), the lanes' type
+/// `MaterialLanes` (`MATERIAL_FLOATS` floats as vec4s) and `material_from_lanes`, which reads a
+/// `Material` from them. Which lane holds which field is found by packing a probe material
+/// with [`MaterialParams::to_vec`], so the packing is defined once.
 fn material_wgsl() -> String {
-    let probe = MaterialParams {
-        color: Vec3::new(1.0, 2.0, 3.0),
-        diffuse: 4.0,
-        specular: Vec3::new(5.0, 6.0, 7.0),
-        shininess: 8.0,
-        reflectivity: 9.0,
-        transparency: 10.0,
-        ior: 11.0,
-    };
+    let probe = MaterialParams::numbered();
     let lanes = probe.to_vec();
     let lane = |marker: f32| -> String {
         let i = lanes
@@ -275,7 +267,7 @@ fn material_wgsl() -> String {
             .expect("every field of MaterialParams has a lane");
         format!("l[{}][{}]", i / 4, i % 4)
     };
-    let fields: [(&str, &[f32]); 7] = [
+    let fields: [(&str, &[f32]); 13] = [
         ("color", &[1.0, 2.0, 3.0]),
         ("diffuse", &[4.0]),
         ("specular", &[5.0, 6.0, 7.0]),
@@ -283,8 +275,18 @@ fn material_wgsl() -> String {
         ("reflectivity", &[9.0]),
         ("transparency", &[10.0]),
         ("ior", &[11.0]),
+        ("pbr", &[12.0]),
+        ("metallic", &[13.0]),
+        ("roughness", &[14.0]),
+        ("emissive", &[15.0, 16.0, 17.0]),
+        ("occlusion", &[18.0]),
+        ("opacity", &[19.0]),
     ];
-    let mut s = String::from("struct Material {\n");
+    let vecs = tape::MATERIAL_FLOATS.div_ceil(4);
+    let mut s = format!(
+        "const MATERIAL_VECS: u32 = {vecs}u;\nalias MaterialLanes = array<vec4<f32>, {vecs}>;\n\n"
+    );
+    s += "struct Material {\n";
     for (name, markers) in &fields {
         let ty = if markers.len() == 3 {
             "vec3<f32>"
@@ -293,8 +295,7 @@ fn material_wgsl() -> String {
         };
         s += &format!("    {name}: {ty},\n");
     }
-    s +=
-        "}\n\nfn material_from_lanes(l: array<vec4<f32>, 3>) -> Material {\n    return Material(\n";
+    s += "}\n\nfn material_from_lanes(l: MaterialLanes) -> Material {\n    return Material(\n";
     for (name, markers) in &fields {
         let parts: Vec<String> = markers.iter().map(|&m| lane(m)).collect();
         if parts.len() == 3 {
@@ -303,7 +304,20 @@ fn material_wgsl() -> String {
             s += &format!("        {}, // {name}\n", parts[0]);
         }
     }
-    s += "    );\n}\n";
+    s += "    );\n}\n\n";
+    // the inverse, for the probe kernel's read-back
+    s += "fn lanes_from_material(m: Material) -> MaterialLanes {\n    var l: MaterialLanes;\n";
+    for (name, markers) in &fields {
+        for (k, &m) in markers.iter().enumerate() {
+            let component = if markers.len() == 3 {
+                format!("m.{name}.{}", ["x", "y", "z"][k])
+            } else {
+                format!("m.{name}")
+            };
+            s += &format!("    {} = {component};\n", lane(m));
+        }
+    }
+    s += "    return l;\n}\n";
     s
 }
 
@@ -476,5 +490,7 @@ mod tests {
             "{m}"
         );
         assert!(m.contains("l[2][2], // ior"), "{m}");
+        assert!(m.contains("l[4][2], // opacity"), "{m}");
+        assert!(m.contains("l[3][2] = m.emissive.x;"), "{m}");
     }
 }

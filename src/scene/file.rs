@@ -72,7 +72,40 @@ pub struct AmbientOcclusionDesc {
 /// The `materials` map in file order; a name defined twice is an error (a map would silently
 /// keep the last one).
 #[derive(Debug, Clone, Default)]
-pub struct Materials(pub Vec<(String, MaterialDesc)>);
+pub struct Materials(pub Vec<(String, MaterialEntry)>);
+
+/// One entry of the `materials` map: Lambert + Phong unless it is written `Pbr(...)`.
+#[derive(Debug, Clone)]
+pub enum MaterialEntry {
+    /// `(color: ..., ...)` or `Phong(color: ..., ...)`.
+    Phong(MaterialDesc),
+    /// `Pbr(base_color: ..., metallic: ..., roughness: ...)`.
+    Pbr(PbrDesc),
+}
+
+impl MaterialEntry {
+    /// The entry parsed from its RON text: `Pbr(...)` is the metallic-roughness model, anything
+    /// else the Phong material (named `Phong` or unnamed).
+    ///
+    /// Why not a serde enum: RON writes an enum variant with its name, and the unnamed
+    /// `(color: ...)` form every scene already uses must stay valid; serde's untagged enums
+    /// would accept both but replace every field's error by "did not match any variant". So the
+    /// value is captured as raw text, and its leading name picks the type to parse it as, which
+    /// keeps RON's own message for a wrong field or value.
+    fn parse(raw: &ron::value::RawValue) -> Result<MaterialEntry, ron::error::SpannedError> {
+        let text = raw.trim().get_ron();
+        let options = ron::Options::default()
+            .with_default_extension(ron::extensions::Extensions::IMPLICIT_SOME);
+        let named_pbr = text
+            .strip_prefix("Pbr")
+            .is_some_and(|rest| !rest.starts_with(|c: char| c.is_alphanumeric() || c == '_'));
+        if named_pbr {
+            options.from_str(text).map(MaterialEntry::Pbr)
+        } else {
+            options.from_str(text).map(MaterialEntry::Phong)
+        }
+    }
+}
 
 impl<'de> Deserialize<'de> for Materials {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
@@ -94,7 +127,14 @@ impl<'de> Deserialize<'de> for Materials {
                             "material \"{name}\" is defined twice"
                         )));
                     }
-                    out.push((name, map.next_value::<MaterialDesc>()?));
+                    let raw = map.next_value::<Box<ron::value::RawValue>>()?;
+                    let entry = MaterialEntry::parse(&raw).map_err(|e| {
+                        serde::de::Error::custom(format!(
+                            "material \"{name}\", line {} column {} of its value: {}",
+                            e.span.start.line, e.span.start.col, e.code
+                        ))
+                    })?;
+                    out.push((name, entry));
                 }
                 Ok(Materials(out))
             }
@@ -190,6 +230,37 @@ pub enum LightDesc {
         color: Color,
         /// Intensity (radiant intensity multiplier).
         intensity: NonNegative,
+        /// Distance at which the light fades to nothing (KHR_lights_punctual's range window;
+        /// default: no cut-off).
+        #[serde(default)]
+        range: Option<Positive>,
+        /// Shadow kind (default `Hard`).
+        #[serde(default)]
+        shadow: ShadowDesc,
+    },
+    /// Spot light: a point light limited to a cone, with KHR_lights_punctual's smooth falloff
+    /// between the inner and the outer cone angle.
+    Spot {
+        /// Position.
+        position: FiniteVec3,
+        /// Direction of the cone's axis (the way the light travels).
+        direction: Direction,
+        /// Colour (default white).
+        #[serde(default)]
+        color: Color,
+        /// Intensity on the axis (as for a point light).
+        intensity: NonNegative,
+        /// Angle from the axis, in degrees, inside which the light is at full intensity
+        /// (default 0).
+        #[serde(default)]
+        inner_angle: Option<NonNegative>,
+        /// Angle from the axis, in degrees, beyond which there is no light (default 45; at
+        /// most 90, and more than `inner_angle`).
+        #[serde(default)]
+        outer_angle: Option<Positive>,
+        /// Distance at which the light fades to nothing (default: no cut-off).
+        #[serde(default)]
+        range: Option<Positive>,
         /// Shadow kind (default `Hard`).
         #[serde(default)]
         shadow: ShadowDesc,
@@ -242,7 +313,7 @@ pub enum ShadowDesc {
 
 /// A material: Lambert diffuse + Phong specular, plus reflection and refraction parameters.
 #[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[serde(deny_unknown_fields, default, rename = "Phong")]
 pub struct MaterialDesc {
     /// Base (albedo) colour, linear RGB.
     pub color: Color,
@@ -258,6 +329,8 @@ pub struct MaterialDesc {
     pub transparency: Unit,
     /// Index of refraction.
     pub ior: Positive,
+    /// Emitted radiance, linear RGB (default black).
+    pub emissive: Color,
 }
 
 impl Default for MaterialDesc {
@@ -270,6 +343,42 @@ impl Default for MaterialDesc {
             reflectivity: Unit(0.0),
             transparency: Unit(0.0),
             ior: Positive(1.5),
+            emissive: Color(glam::Vec3::ZERO),
+        }
+    }
+}
+
+/// A material in glTF 2.0's metallic-roughness model (its Appendix B: GGX distribution, Smith
+/// visibility, Schlick Fresnel, the metal/dielectric mix), written `Pbr(...)`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default, rename = "Pbr")]
+pub struct PbrDesc {
+    /// Base colour, linear RGB: the diffuse albedo of a dielectric, the reflectance of a metal.
+    pub base_color: Color,
+    /// 0 dielectric, 1 metal.
+    pub metallic: Unit,
+    /// Perceptual roughness (GGX α = roughness²).
+    pub roughness: Unit,
+    /// Mirror reflectance the path follows (default metallic·(1 − roughness)²).
+    pub reflectivity: Option<Unit>,
+    /// Fraction of light transmitted (0 = opaque).
+    pub transparency: Unit,
+    /// Index of refraction of the transmitted part.
+    pub ior: Positive,
+    /// Emitted radiance, linear RGB (default black).
+    pub emissive: Color,
+}
+
+impl Default for PbrDesc {
+    fn default() -> Self {
+        PbrDesc {
+            base_color: Color(glam::Vec3::splat(0.8)),
+            metallic: Unit(0.0),
+            roughness: Unit(0.5),
+            reflectivity: None,
+            transparency: Unit(0.0),
+            ior: Positive(1.5),
+            emissive: Color(glam::Vec3::ZERO),
         }
     }
 }

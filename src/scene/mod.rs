@@ -19,7 +19,7 @@ use crate::sdf::lower::Step;
 use crate::sdf::{self, LoweredSdf, SdfNode};
 use camera::{Camera, Projection};
 pub use file::Stepper;
-use file::{CameraDesc, LightDesc, NormalMethod, SceneFile, ShadowDesc, ToneMap};
+use file::{CameraDesc, LightDesc, MaterialEntry, NormalMethod, SceneFile, ShadowDesc, ToneMap};
 use glam::Vec3;
 pub use meshes::{SceneMeshes, UnsetVariable, resolve_mesh_path};
 use std::ffi::OsString;
@@ -116,6 +116,26 @@ pub enum Light {
         position: Vec3,
         /// Colour × intensity.
         radiance: Vec3,
+        /// Distance beyond which the light is cut off (infinite: no cut-off); see
+        /// [`range_window`].
+        range: f32,
+        /// Shadow kind.
+        shadow: Shadow,
+    },
+    /// Cone of light from `position` around `direction` (KHR_lights_punctual's spot light).
+    Spot {
+        /// Position.
+        position: Vec3,
+        /// Unit direction of the cone's axis (the way the light travels).
+        direction: Vec3,
+        /// Colour × intensity (on the axis).
+        radiance: Vec3,
+        /// Cosine of the inner cone angle: full intensity inside it.
+        cos_inner: f32,
+        /// Cosine of the outer cone angle: no light outside it.
+        cos_outer: f32,
+        /// Distance beyond which the light is cut off (infinite: no cut-off).
+        range: f32,
         /// Shadow kind.
         shadow: Shadow,
     },
@@ -133,6 +153,27 @@ pub enum Light {
         /// Colour × intensity.
         radiance: Vec3,
     },
+}
+
+/// KHR_lights_punctual's recommended range window: clamp(1 − (d/range)⁴, 0, 1), which brings
+/// a light to zero at `range` smoothly (1 for an infinite range).
+#[inline]
+pub fn range_window(distance: f32, range: f32) -> f32 {
+    if range.is_finite() {
+        (1.0 - (distance / range).powi(4)).clamp(0.0, 1.0)
+    } else {
+        1.0
+    }
+}
+
+/// KHR_lights_punctual's spot-light falloff at cosine `cos_axis` between the cone's axis and
+/// the direction from the light: s = clamp((cos_axis − cos_outer) / max(cos_inner − cos_outer,
+/// 10⁻³), 0, 1), squared (the specification's smooth falloff).
+#[inline]
+pub fn spot_falloff(cos_axis: f32, cos_inner: f32, cos_outer: f32) -> f32 {
+    let scale = 1.0 / (cos_inner - cos_outer).max(1e-3);
+    let s = ((cos_axis - cos_outer) * scale).clamp(0.0, 1.0);
+    s * s
 }
 
 /// How a light's visibility is estimated.
@@ -427,6 +468,27 @@ impl Scene {
         }
         .map_err(|m| at(top(&["camera"]), m))?;
 
+        let light_spans = locate::list_elements(source, "lights");
+        for (i, l) in file.lights.iter().enumerate() {
+            if let LightDesc::Spot {
+                inner_angle,
+                outer_angle,
+                ..
+            } = l
+            {
+                let inner = inner_angle.map_or(0.0, |a| a.0);
+                let outer = outer_angle.map_or(45.0, |a| a.0);
+                if outer > 90.0 || inner >= outer {
+                    return Err(at(
+                        light_spans.get(i).map_or(top(&["lights"]), |s| s.0),
+                        format!(
+                            "spot light: inner_angle {inner}° and outer_angle {outer}° must \
+                             satisfy 0 ≤ inner_angle < outer_angle ≤ 90"
+                        ),
+                    ));
+                }
+            }
+        }
         let lights = file
             .lights
             .iter()
@@ -435,10 +497,30 @@ impl Scene {
                     position,
                     color,
                     intensity,
+                    range,
                     shadow,
                 } => Light::Point {
                     position: position.0,
                     radiance: color.0 * intensity.0,
+                    range: range.map_or(f32::INFINITY, |r| r.0),
+                    shadow: (*shadow).into(),
+                },
+                LightDesc::Spot {
+                    position,
+                    direction,
+                    color,
+                    intensity,
+                    inner_angle,
+                    outer_angle,
+                    range,
+                    shadow,
+                } => Light::Spot {
+                    position: position.0,
+                    direction: direction.0,
+                    radiance: color.0 * intensity.0,
+                    cos_inner: inner_angle.map_or(0.0, |a| a.0).to_radians().cos(),
+                    cos_outer: outer_angle.map_or(45.0, |a| a.0).to_radians().cos(),
+                    range: range.map_or(f32::INFINITY, |r| r.0),
                     shadow: (*shadow).into(),
                 },
                 LightDesc::Directional {
@@ -460,7 +542,10 @@ impl Scene {
         let mut materials = vec![MaterialParams::default_grey()];
         let mut material_names = vec!["(default)".to_string()];
         for (name, m) in &file.materials.0 {
-            materials.push(MaterialParams::from(m));
+            materials.push(match m {
+                MaterialEntry::Phong(d) => MaterialParams::from(d),
+                MaterialEntry::Pbr(d) => MaterialParams::from(d),
+            });
             material_names.push(name.clone());
         }
         let index_of = |name: &str| {

@@ -59,16 +59,33 @@ impl Scene {
             .lights
             .iter()
             .map(|l| {
+                // KHR_lights_punctual's units are photometric: I candela at distance d give
+                // I/d² lux, a directional light gives its lux. One lux is the renderer's unit
+                // of irradiance, so the file's lights keep their ratios; the exposure below
+                // brings them to the display's range.
                 let radiance = l.color * l.intensity;
+                let range = l.range.unwrap_or(f32::INFINITY);
                 match l.kind {
-                    // spot cones are not modelled: a spot light shines as a point light
-                    LightKind::Point { position } | LightKind::Spot { position, .. } => {
-                        Light::Point {
-                            position,
-                            radiance,
-                            shadow: Shadow::Hard,
-                        }
-                    }
+                    LightKind::Point { position } => Light::Point {
+                        position,
+                        radiance,
+                        range,
+                        shadow: Shadow::Hard,
+                    },
+                    LightKind::Spot {
+                        position,
+                        direction,
+                        inner_cone_angle,
+                        outer_cone_angle,
+                    } => Light::Spot {
+                        position,
+                        direction,
+                        radiance,
+                        cos_inner: inner_cone_angle.cos(),
+                        cos_outer: outer_cone_angle.cos(),
+                        range,
+                        shadow: Shadow::Hard,
+                    },
                     LightKind::Directional { direction } => Light::Directional {
                         direction,
                         radiance,
@@ -77,6 +94,7 @@ impl Scene {
                 }
             })
             .collect();
+        let exposure = metered_exposure(&lights, centre, radius);
         if lights.is_empty() {
             lights = vec![
                 Light::Ambient {
@@ -105,7 +123,7 @@ impl Scene {
                 height: 600,
                 samples: 1,
                 background: Vec3::new(0.16, 0.18, 0.22),
-                exposure: 0.0,
+                exposure,
                 tonemap: ToneMap::Aces,
             },
             camera,
@@ -129,6 +147,36 @@ impl Scene {
             },
             meshes,
         })
+    }
+}
+
+/// The exposure, in stops, of a model rendered with its own lights: a camera meter's choice,
+/// which makes the irradiance the lights bring to the centre of the model's bounds display as
+/// 1 (a point or spot light counted at a distance of at least the bounds' radius, on its
+/// cone's axis, so a light inside the model does not blind the meter). 0 when the file has no
+/// lights (the renderer's own key and fill lights are made for exposure 0) or they bring
+/// nothing; clamped to ±24 stops.
+fn metered_exposure(lights: &[Light], centre: Vec3, radius: f32) -> f32 {
+    let metered: f32 = lights
+        .iter()
+        .map(|l| match *l {
+            Light::Point {
+                position, radiance, ..
+            }
+            | Light::Spot {
+                position, radiance, ..
+            } => {
+                let d = (position - centre).length().max(radius);
+                radiance.max_element() / (d * d)
+            }
+            Light::Directional { radiance, .. } => radiance.max_element(),
+            Light::Ambient { radiance } => radiance.max_element(),
+        })
+        .sum();
+    if metered > 0.0 && metered.is_finite() {
+        (-metered.log2()).clamp(-24.0, 24.0)
+    } else {
+        0.0
     }
 }
 

@@ -30,7 +30,7 @@ const _: () = assert!(MAX_REGISTERS == crate::sdf::native::SLOTS);
 pub const MAX_MATERIAL_REGISTERS: usize = 16;
 
 /// Number of floats in one blended material (see [`crate::scene::material::MaterialParams`]).
-pub const MATERIAL_FLOATS: usize = 12;
+pub const MATERIAL_FLOATS: usize = 20;
 
 /// A blended material as the tape carries it: see [`crate::scene::material::MaterialParams`] for lanes.
 pub type MaterialVec = [f32; MATERIAL_FLOATS];

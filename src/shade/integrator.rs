@@ -6,8 +6,13 @@
 //! reflection included):
 //!
 //! ```text
-//! L = (1 − τ)·[(1 − F_r)·L_local + F_r·L_reflected] + τ·[F_t·L_reflected + (1 − F_t)·albedo·L_transmitted]
+//! L = α·{(1 − τ)·[(1 − F_r)·L_local + F_r·L_reflected] + τ·[F_t·L_reflected + (1 − F_t)·albedo·L_transmitted]}
+//!   + (1 − α)·L_behind
 //! ```
+//!
+//! where α is the coverage of a glTF `BLEND` surface (1 for every other surface; a partly
+//! covered surface is thin and does not refract, τ = 0) and L_behind the radiance of the ray
+//! continued straight through it, which counts as a bounce.
 //!
 //! A refracted ray marches inside the object it entered (the others are ignored inside it)
 //! with |f| and a step scale below 1 until it leaves, and splits again there into the
@@ -77,7 +82,8 @@ pub struct Surfaced {
     pub f_r: f32,
     /// Schlick reflectance of a dielectric's surface (0 where it is opaque).
     pub f_t: f32,
-    /// The weight of local shading: (1 − τ)(1 − F_r).
+    /// The weight of local shading: α(1 − τ)(1 − F_r), with α the coverage (glTF BLEND's
+    /// alpha, 1 elsewhere); the remaining 1 − α continues straight through the surface.
     pub local_weight: f32,
 }
 
@@ -89,7 +95,12 @@ pub fn surfaced<T: ShadingTracer + ?Sized>(
     hit: &Hit,
 ) -> Surfaced {
     let p = ray.at(hit.t);
-    let m = tracer.material_at(hit, p, materials);
+    let mut m = tracer.material_at(hit, p, materials);
+    if m.opacity < 1.0 {
+        // A partly covered surface is thin: what is not covered passes straight through, and
+        // the covered part does not refract (its coverage replaces transmission).
+        m.transparency = 0.0;
+    }
     let d = ray.direction;
     // Shade the side the ray arrives on (rays can start inside a solid).
     let n = if hit.normal.dot(d) > 0.0 {
@@ -119,7 +130,7 @@ pub fn surfaced<T: ShadingTracer + ?Sized>(
         cos_i,
         f_r,
         f_t,
-        local_weight: (1.0 - m.transparency) * (1.0 - f_r),
+        local_weight: m.opacity.clamp(0.0, 1.0) * (1.0 - m.transparency) * (1.0 - f_r),
     }
 }
 
@@ -229,6 +240,18 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
         }
         let (f_r, f_t, local_weight) = (surf.f_r, surf.f_t, surf.local_weight);
         let opaque = 1.0 - m.transparency;
+        let coverage = m.opacity.clamp(0.0, 1.0);
+        let offset = surface_offset(tracer, hit.t, p);
+        if m.opacity < 1.0 {
+            // A partly covered (glTF BLEND) surface: the uncovered fraction goes on straight
+            // through, as if the surface were not there (see `Surfaced::local_weight`).
+            spawn(
+                &mut stack,
+                Ray::new(p - n * offset, d),
+                item.weight * (1.0 - m.opacity.max(0.0)),
+                None,
+            );
+        }
         if local_weight > 0.0 {
             let local = match visibility {
                 Some(v) => shade_with(tracer, &surf.point, |light, _| v[light]),
@@ -236,8 +259,7 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
             };
             sample.radiance += item.weight * local_weight * local;
         }
-        let offset = surface_offset(tracer, hit.t, p);
-        let reflect_weight = opaque * f_r + m.transparency * f_t;
+        let reflect_weight = coverage * (opaque * f_r + m.transparency * f_t);
         if reflect_weight > 0.0 {
             spawn(
                 &mut stack,
@@ -246,7 +268,7 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
                 None,
             );
         }
-        let transmit_weight = m.transparency * (1.0 - f_t);
+        let transmit_weight = coverage * m.transparency * (1.0 - f_t);
         if transmit_weight > 0.0 {
             if let Some(t) = refract(d, n, 1.0 / m.ior) {
                 spawn(

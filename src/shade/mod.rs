@@ -1,24 +1,34 @@
 //! Shading: the radiance leaving a surface point toward the eye, from materials and lights.
 //!
-//! The local model (documented in `docs/scene-format.md`), in linear RGB:
+//! The local model (documented in `docs/scene-format.md`), in linear RGB, for a material that
+//! is a fraction w (`pbr`) metallic-roughness and 1 − w Lambert + Phong:
 //!
 //! ```text
-//! L_local = Σ_ambient albedo·kd·A·ao + Σ_lights V·E·(albedo·kd·max(n·l, 0) + ks·max(r·v, 0)^s)
+//! L_local = emission
+//!         + Σ_ambient mix(albedo·kd, a_pbr, w)·occlusion·A·ao
+//!         + Σ_lights V·E·[(1 − w)·(albedo·kd·max(n·l, 0) + ks·max(r·v, 0)^s) + w·π·f(l, v)·(n·l)]
 //! ```
 //!
-//! (light terms only where n·l > 0), with E = radiance/d² for a point light at distance d and
-//! E = radiance for a directional light, V ∈ [0, 1] the light's visibility (hard or soft
-//! shadow), ao ∈ [0, 1] the ambient occlusion, r the mirror reflection of l about n (Phong
-//! 1975) and v the direction to the eye. [`integrator`] adds reflection and refraction.
+//! (light terms only where n·l > 0), with E = radiance/d² for a point or spot light at
+//! distance d (times the spot's cone falloff and the light's range window) and E = radiance
+//! for a directional light, V ∈ [0, 1] the light's visibility (hard or soft shadow), ao ∈
+//! [0, 1] the ambient occlusion, r the mirror reflection of l about n (Phong 1975), v the
+//! direction to the eye, f glTF's metallic-roughness BRDF and a_pbr its albedo at normal
+//! incidence ([`brdf`]). [`integrator`] adds reflection, refraction and the light passing
+//! through partly covered (glTF `BLEND`) surfaces.
 
+pub mod brdf;
 pub mod integrator;
 pub mod optics;
 
 use crate::geom::Ray;
 use crate::scene::material::MaterialParams;
-use crate::scene::{AmbientOcclusion, Light, Scene, Shadow, TracerSettings};
+use crate::scene::{
+    AmbientOcclusion, Light, Scene, Shadow, TracerSettings, range_window, spot_falloff,
+};
 use crate::sdf::tape::MaterialVec;
 use crate::trace::{Hit, SceneTracer, ShadowQuery, Surface, epsilon_at};
+use brdf::MetallicRoughness;
 use glam::Vec3;
 
 /// The queries shading asks of a backend: closest hits (camera, reflected and refracted rays),
@@ -140,19 +150,42 @@ pub fn shadow_query(scene: &Scene, sp: &SurfacePoint, light: usize) -> Option<Sh
     })
 }
 
-/// Direction to a point or directional light from p, its distance, the irradiance it brings
-/// and its shadow kind; `None` for ambient lights and a point light at p.
-fn light_at(light: &Light, p: Vec3) -> Option<(Vec3, f32, Vec3, Shadow)> {
+/// Direction to a light from p, its distance, the irradiance it brings (with a spot light's
+/// cone and a light's range window applied) and its shadow kind; `None` for ambient lights, a
+/// light at p, and points outside a spot light's cone or beyond a light's range.
+pub fn light_at(light: &Light, p: Vec3) -> Option<(Vec3, f32, Vec3, Shadow)> {
     match *light {
         Light::Ambient { .. } => None,
         Light::Point {
             position,
             radiance,
+            range,
             shadow,
         } => {
             let d = position - p;
             let dist = d.length();
-            (dist > 0.0).then(|| (d / dist, dist, radiance / (dist * dist), shadow))
+            let window = range_window(dist, range);
+            (dist > 0.0 && window > 0.0)
+                .then(|| (d / dist, dist, radiance * (window / (dist * dist)), shadow))
+        }
+        Light::Spot {
+            position,
+            direction,
+            radiance,
+            cos_inner,
+            cos_outer,
+            range,
+            shadow,
+        } => {
+            let d = position - p;
+            let dist = d.length();
+            if dist <= 0.0 {
+                return None;
+            }
+            let l = d / dist;
+            let falloff =
+                spot_falloff(-l.dot(direction), cos_inner, cos_outer) * range_window(dist, range);
+            (falloff > 0.0).then(|| (l, dist, radiance * (falloff / (dist * dist)), shadow))
         }
         Light::Directional {
             direction,
@@ -172,14 +205,23 @@ pub fn shade_with<T: ShadingTracer + ?Sized>(
     let scene = tracer.scene();
     let m = &sp.material;
     let n = sp.normal;
-    let mut out = Vec3::ZERO;
+    let pbr = m.pbr.clamp(0.0, 1.0);
+    let brdf = MetallicRoughness {
+        base_color: m.color,
+        metallic: m.metallic,
+        roughness: m.roughness,
+    };
+    // The ambient light each model reflects: Lambert's albedo·kd, or the metallic-roughness
+    // albedo at normal incidence (see `brdf`); the material's own occlusion darkens both.
+    let ambient_reflectance = (m.color * m.diffuse).lerp(brdf.ambient_albedo(), pbr) * m.occlusion;
+    let mut out = m.emissive;
     for (i, light) in scene.lights.iter().enumerate() {
         if let Light::Ambient { radiance } = *light {
             let ao = scene
                 .shading
                 .ambient_occlusion
                 .map_or(1.0, |a| ambient_occlusion(tracer, sp.position, n, &a));
-            out += m.color * m.diffuse * radiance * ao;
+            out += ambient_reflectance * radiance * ao;
             continue;
         }
         let Some((l, _, irradiance, _)) = light_at(light, sp.position) else {
@@ -196,10 +238,17 @@ pub fn shade_with<T: ShadingTracer + ?Sized>(
         if visibility <= 0.0 {
             continue;
         }
-        let diffuse = m.color * m.diffuse * ndl;
-        let r = (2.0 * ndl) * n - l;
-        let spec = m.specular * r.dot(sp.to_eye).max(0.0).powf(m.shininess);
-        out += visibility * irradiance * (diffuse + spec);
+        let mut reflected = Vec3::ZERO;
+        if pbr < 1.0 {
+            let diffuse = m.color * m.diffuse * ndl;
+            let r = (2.0 * ndl) * n - l;
+            let spec = m.specular * r.dot(sp.to_eye).max(0.0).powf(m.shininess);
+            reflected += (1.0 - pbr) * (diffuse + spec);
+        }
+        if pbr > 0.0 {
+            reflected += pbr * brdf.reflected(n, sp.to_eye, l);
+        }
+        out += visibility * irradiance * reflected;
     }
     out
 }

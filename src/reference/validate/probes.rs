@@ -3,7 +3,7 @@
 
 use crate::geom::{Aabb, Ray};
 use crate::rng::Rng;
-use crate::scene::{Light, Scene};
+use crate::scene::Scene;
 use crate::sdf::tape::Registers;
 use crate::shade::offset_from_surface;
 use crate::trace::epsilon_at;
@@ -151,17 +151,13 @@ pub(super) fn shadow_probes<'a>(
     let offset = offset_from_surface(settings, hit.t, p) + 2.0 * mesh_tolerance;
     let origin = p + n * offset;
     scene.lights.iter().filter_map(move |light| {
-        let (l, len) = match *light {
-            Light::Ambient { .. } => return None,
-            Light::Point { position, .. } => {
-                let d = position - p;
-                let dist = d.length();
-                if dist <= 0.0 {
-                    return None;
-                }
-                (d / dist, dist - offset)
-            }
-            Light::Directional { direction, .. } => (-direction, tmax),
+        // the lights shading asks about: not ambient ones, nor points outside a spot's cone
+        // or beyond a light's range
+        let (l, dist, _, _) = crate::shade::light_at(light, p)?;
+        let len = if dist.is_finite() {
+            dist - offset
+        } else {
+            tmax
         };
         let cos = n.dot(l);
         if cos <= 0.0 || len <= 0.0 {

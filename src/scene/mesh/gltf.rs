@@ -574,10 +574,36 @@ impl Cx<'_> {
                 Checked::Valid(LightType::Directional) => {
                     LightKind::Directional { direction: minus_z }
                 }
-                Checked::Valid(LightType::Spot) => LightKind::Spot {
-                    position,
-                    direction: minus_z,
-                },
+                Checked::Valid(LightType::Spot) => {
+                    // the specification's defaults and limits: 0 ≤ inner < outer ≤ π/2
+                    let (inner, outer) = light
+                        .spot
+                        .as_ref()
+                        .map_or((0.0, std::f32::consts::FRAC_PI_4), |s| {
+                            (s.inner_cone_angle, s.outer_cone_angle)
+                        });
+                    let valid = inner.is_finite()
+                        && outer.is_finite()
+                        && inner >= 0.0
+                        && inner < outer
+                        && outer <= std::f32::consts::FRAC_PI_2 + 1e-6;
+                    let (inner, outer) = if valid {
+                        (inner, outer.min(std::f32::consts::FRAC_PI_2))
+                    } else {
+                        self.warn(format!(
+                            "extensions.KHR_lights_punctual.lights[{l}].spot: cone angles \
+                             {inner} and {outer} do not satisfy 0 ≤ inner < outer ≤ π/2; \
+                             the defaults 0 and π/4 are used"
+                        ));
+                        (0.0, std::f32::consts::FRAC_PI_4)
+                    };
+                    LightKind::Spot {
+                        position,
+                        direction: minus_z,
+                        inner_cone_angle: inner,
+                        outer_cone_angle: outer,
+                    }
+                }
                 Checked::Invalid => {
                     self.warn(format!(
                         "extensions.KHR_lights_punctual.lights[{l}]: unknown type; light skipped"
@@ -585,11 +611,32 @@ impl Cx<'_> {
                     return Ok(());
                 }
             };
+            let color = Vec3::from_array(light.color);
+            let usable = light.intensity.is_finite()
+                && light.intensity >= 0.0
+                && color.is_finite()
+                && color.min_element() >= 0.0;
+            if !usable {
+                self.warn(format!(
+                    "extensions.KHR_lights_punctual.lights[{l}]: intensity {} or colour {color} \
+                     is negative or not finite; light skipped",
+                    light.intensity
+                ));
+                return Ok(());
+            }
+            let range = light.range.filter(|r| r.is_finite() && *r > 0.0);
+            if light.range.is_some() && range.is_none() {
+                self.warn(format!(
+                    "extensions.KHR_lights_punctual.lights[{l}].range: must be a positive \
+                     number; the light has no range"
+                ));
+            }
             self.asset.lights.push(NamedLight {
                 name: light.name.clone().unwrap_or_else(|| node_name.clone()),
                 kind,
-                color: Vec3::from_array(light.color),
+                color,
                 intensity: light.intensity,
+                range,
             });
         }
         Ok(())

@@ -20,20 +20,12 @@
 //! - Material 0 is always the default grey ([`MaterialParams::default_grey`]); triangles
 //!   without a material use it.
 //!
-//! Material mapping from glTF's metallic-roughness model to the renderer's Lambert + Phong
-//! parameters (see [`pbr_material`]):
-//!
-//! | parameter | value |
-//! |---|---|
-//! | `color` | `baseColorFactor.rgb` (alpha ignored) |
-//! | `diffuse` | 1 − metallic |
-//! | `specular` | mix(0.04, base colour, metallic) |
-//! | `shininess` | 2/α⁴ − 2 with α = max(roughness, 0.05), at least 1 |
-//! | `reflectivity` | metallic · (1 − roughness)² |
-//! | `transparency` | `KHR_materials_transmission.transmissionFactor` (0 without it) |
-//! | `ior` | `KHR_materials_ior.ior` (1.5 without it) |
-//!
-//! and from MTL: `Kd` → `color` (default 0.8 grey), `Ks` → `specular` (default black), `Ns` →
+//! glTF materials keep their metallic-roughness model (glTF 2.0's Appendix B BRDF, see
+//! [`crate::shade::brdf`] and [`pbr_material`]): base colour, metallic and roughness factors,
+//! `KHR_materials_transmission.transmissionFactor` as transparency and `KHR_materials_ior.ior`
+//! as the index of refraction; smooth metals also mirror the scene (reflectivity
+//! metallic·(1 − roughness)²). OBJ/MTL materials are Lambert + Phong,
+//! from MTL: `Kd` → `color` (default 0.8 grey), `Ks` → `specular` (default black), `Ns` →
 //! `shininess` (at least 1), `d` → transparency 1 − d (or `Tr` → transparency Tr when there
 //! is no `d`), `Ni` → `ior`, `map_Kd` → base colour texture, `diffuse` = 1, `reflectivity` = 0.
 
@@ -158,6 +150,8 @@ pub struct NamedLight {
     /// Intensity as the file gives it (candela for point and spot lights, lux for
     /// directional lights in glTF).
     pub intensity: f32,
+    /// Distance at which the light reaches zero (KHR_lights_punctual's `range`), if any.
+    pub range: Option<f32>,
 }
 
 /// Kind and placement of a [`NamedLight`].
@@ -179,6 +173,10 @@ pub enum LightKind {
         position: Vec3,
         /// Unit direction of the cone's axis (the node's −Z axis).
         direction: Vec3,
+        /// Angle from the axis, in radians, inside which the light has full intensity.
+        inner_cone_angle: f32,
+        /// Angle from the axis, in radians, beyond which there is no light (at most π/2).
+        outer_cone_angle: f32,
     },
 }
 
@@ -365,8 +363,9 @@ impl MeshMaterial {
     }
 }
 
-/// Phong parameters for a metallic-roughness material (the table in the module
-/// documentation). Factors are clamped to their valid ranges first.
+/// The renderer's material for a glTF metallic-roughness material: the same model (see
+/// [`MaterialParams::metallic_roughness`]), with `KHR_materials_transmission` as transparency
+/// and `KHR_materials_ior` as the index of refraction. Factors are clamped to their ranges.
 pub fn pbr_material(
     base_color: Vec3,
     metallic: f32,
@@ -374,38 +373,18 @@ pub fn pbr_material(
     transmission: f32,
     ior: f32,
 ) -> MaterialParams {
-    let clamp01 = |x: f32| {
-        if x.is_finite() {
-            x.clamp(0.0, 1.0)
+    MaterialParams {
+        transparency: if transmission.is_finite() {
+            transmission.clamp(0.0, 1.0)
         } else {
             0.0
-        }
-    };
-    let base = Vec3::new(
-        clamp01(base_color.x),
-        clamp01(base_color.y),
-        clamp01(base_color.z),
-    );
-    let metallic = clamp01(metallic);
-    let roughness = if roughness.is_finite() {
-        roughness.clamp(0.0, 1.0)
-    } else {
-        1.0
-    };
-    let alpha = roughness.max(0.05);
-    let shininess = (2.0 / alpha.powi(4) - 2.0).max(1.0);
-    MaterialParams {
-        color: base,
-        diffuse: 1.0 - metallic,
-        specular: Vec3::splat(0.04).lerp(base, metallic),
-        shininess,
-        reflectivity: metallic * (1.0 - roughness) * (1.0 - roughness),
-        transparency: clamp01(transmission),
+        },
         ior: if ior.is_finite() && ior > 0.0 {
             ior
         } else {
             1.5
         },
+        ..MaterialParams::metallic_roughness(base_color, metallic, roughness, None)
     }
 }
 
