@@ -69,10 +69,12 @@ pub struct AmbientOcclusionDesc {
     pub step: Positive,
 }
 
-/// The `materials` map in file order; a name defined twice is an error (a map would silently
-/// keep the last one).
+/// The `materials` map in file order, each value still as its RON text; a name defined twice
+/// is an error (a map would silently keep the last one). The values are parsed by
+/// [`MaterialEntry::parse`] once the whole file has been read, so that an error inside one can
+/// be placed in the file (a nested parse only knows places inside its own text).
 #[derive(Debug, Clone, Default)]
-pub struct Materials(pub Vec<(String, MaterialEntry)>);
+pub struct Materials(pub Vec<(String, Box<ron::value::RawValue>)>);
 
 /// One entry of the `materials` map: Lambert + Phong unless it is written `Pbr(...)`.
 #[derive(Debug, Clone)]
@@ -92,7 +94,7 @@ impl MaterialEntry {
     /// would accept both but replace every field's error by "did not match any variant". So the
     /// value is captured as raw text, and its leading name picks the type to parse it as, which
     /// keeps RON's own message for a wrong field or value.
-    fn parse(raw: &ron::value::RawValue) -> Result<MaterialEntry, ron::error::SpannedError> {
+    pub fn parse(raw: &ron::value::RawValue) -> Result<MaterialEntry, ron::error::SpannedError> {
         let text = raw.trim().get_ron();
         let options = ron::Options::default()
             .with_default_extension(ron::extensions::Extensions::IMPLICIT_SOME);
@@ -127,14 +129,7 @@ impl<'de> Deserialize<'de> for Materials {
                             "material \"{name}\" is defined twice"
                         )));
                     }
-                    let raw = map.next_value::<Box<ron::value::RawValue>>()?;
-                    let entry = MaterialEntry::parse(&raw).map_err(|e| {
-                        serde::de::Error::custom(format!(
-                            "material \"{name}\", line {} column {} of its value: {}",
-                            e.span.start.line, e.span.start.col, e.code
-                        ))
-                    })?;
-                    out.push((name, entry));
+                    out.push((name, map.next_value::<Box<ron::value::RawValue>>()?));
                 }
                 Ok(Materials(out))
             }

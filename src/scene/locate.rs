@@ -45,6 +45,24 @@ struct Token {
     end: usize,
 }
 
+/// The byte offset of a 1-based line and column (in characters) of `text`, clamped to its end:
+/// the inverse of [`place_of`] for the places RON's errors report.
+pub fn offset_of(text: &str, place: ron::error::Position) -> usize {
+    let mut offset = 0;
+    for (i, line) in text.split_inclusive('\n').enumerate() {
+        if i + 1 == place.line {
+            let column = place.col.saturating_sub(1);
+            return offset
+                + line
+                    .char_indices()
+                    .nth(column)
+                    .map_or(line.len(), |(b, _)| b);
+        }
+        offset += line.len();
+    }
+    text.len()
+}
+
 /// Splits RON text into tokens, dropping whitespace and (nested) comments.
 fn tokens(source: &str) -> Vec<Token> {
     let bytes = source.as_bytes();
@@ -131,7 +149,7 @@ fn tokens(source: &str) -> Vec<Token> {
 }
 
 /// Offset of the value of the field reached by the key path (e.g. `["image", "samples"]`), where each key
-/// is a `name:` one bracket level below the previous one, starting inside the top-level
+/// is a `name:` (or a map's `"name":`) one bracket level below the previous one, starting inside the top-level
 /// `Scene( … )`. `None` when the file does not spell the field out (it took its default).
 pub fn field(source: &str, path: &[&str]) -> Option<usize> {
     let toks = tokens(source);
@@ -148,8 +166,13 @@ pub fn field(source: &str, path: &[&str]) -> Option<usize> {
                 depth = depth.saturating_sub(1);
                 keys.truncate(depth + 1);
             }
-            Kind::Ident if toks.get(i + 1).map(|n| n.kind) == Some(Kind::Colon) => {
-                let name = &source[t.start..t.end];
+            // A struct field `name:` or a map key `"name":` (compared without its quotes).
+            Kind::Ident | Kind::Str if toks.get(i + 1).map(|n| n.kind) == Some(Kind::Colon) => {
+                let name = if t.kind == Kind::Str {
+                    &source[t.start + 1..t.end.saturating_sub(1).max(t.start + 1)]
+                } else {
+                    &source[t.start..t.end]
+                };
                 keys[depth] = Some(name);
                 if depth == path.len()
                     && (1..=path.len()).all(|d| keys.get(d).copied().flatten() == Some(path[d - 1]))
@@ -304,6 +327,30 @@ pub fn follow(source: &str, start: usize, steps: &[Nav]) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn offset_of_inverts_place_of() {
+        let text = "(\n  color: (1, 0, 0),\n  «x»: ü,\n)";
+        for offset in text.char_indices().map(|(b, _)| b) {
+            let p = place_of(text, offset);
+            let back = offset_of(
+                text,
+                ron::error::Position {
+                    line: p.line,
+                    col: p.column,
+                },
+            );
+            assert_eq!(back, offset, "{p:?}");
+        }
+    }
+
+    #[test]
+    fn finds_map_values_by_quoted_key() {
+        let src =
+            "Scene(\n  materials: {\n    \"red\": (color: (1, 0, 0)),\n    \"b\": Pbr(),\n  },\n)";
+        let at = field(src, &["materials", "b"]).unwrap();
+        assert!(src[at..].starts_with("Pbr()"));
+    }
 
     #[test]
     fn finds_object_elements() {

@@ -541,8 +541,18 @@ impl Scene {
 
         let mut materials = vec![MaterialParams::default_grey()];
         let mut material_names = vec!["(default)".to_string()];
-        for (name, m) in &file.materials.0 {
-            materials.push(match m {
+        for (name, raw) in &file.materials.0 {
+            let entry = MaterialEntry::parse(raw).map_err(|e| {
+                // The nested parse places its error inside the value's own (trimmed) text;
+                // shift that place by where the value starts in the file.
+                let start = locate::field(source, &["materials", name])
+                    .unwrap_or_else(|| top(&["materials"]));
+                at(
+                    start + locate::offset_of(raw.trim().get_ron(), e.span.start),
+                    format!("material \"{name}\": {}", parse_message(&e.code)),
+                )
+            })?;
+            materials.push(match &entry {
                 MaterialEntry::Phong(d) => MaterialParams::from(d),
                 MaterialEntry::Pbr(d) => MaterialParams::from(d),
             });
