@@ -270,7 +270,7 @@ impl SceneData {
             let texture = (i as u32)
                 .checked_sub(sm.material_offset)
                 .and_then(|k| sm.materials.get(k as usize))
-                .and_then(|mm| mm.base_color_texture)
+                .and_then(|mm| mm.textures.base_color.map(|r| r.texture))
                 .map_or(NONE, |t| t as u32);
             data.materials.push(MaterialRecord {
                 lanes: std::array::from_fn(|i| std::array::from_fn(|j| v[4 * i + j])),
