@@ -408,6 +408,7 @@ impl MeshBvh {
     /// The closest-hit leaf test: the triangles of the leaf slots `slots` of a node (`meta` as
     /// the walk hands it over) against one ray, keeping the nearest in `best` and `tmax`.
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
     fn closest_in_leaves(
         &self,
         wr: &WatertightRay,
