@@ -417,6 +417,25 @@ fn alpha_masked_texels_are_holes_for_camera_and_shadow_rays() {
     let h = tracer.closest_hit(&down(0.6, 0.0), 0.0, 100.0).unwrap();
     assert!(material(&scene, &h).color.y > 0.9);
 
+    #[cfg(feature = "gpu")]
+    {
+        let gpu = hytrace::gpu::query::GpuQuery::new(common::gpu::ctx(), &scene).unwrap();
+        for x in [-0.9, -0.6, -0.2] {
+            let (t, occluded) = probe(&gpu, x);
+            assert!(
+                (t - 6.0).abs() < 1e-4 && !occluded,
+                "GPU at x = {x}: {t} {occluded}"
+            );
+        }
+        for x in [0.2, 0.6, 0.9] {
+            let (t, occluded) = probe(&gpu, x);
+            assert!(
+                (t - 5.0).abs() < 1e-4 && occluded,
+                "GPU at x = {x}: {t} {occluded}"
+            );
+        }
+    }
+
     #[cfg(feature = "embree")]
     {
         let embree = hytrace::reference::embree::EmbreeScene::build(&scene).unwrap();

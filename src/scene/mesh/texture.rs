@@ -83,6 +83,51 @@ impl Texture {
     }
 }
 
+impl Texture {
+    /// The texels as the 8-bit values they were decoded from, RGBA in the bytes of a `u32`
+    /// from the lowest (so that decoding them — from sRGB for an sRGB texture — gives back
+    /// `texels` exactly); `None` when some texel is not such a value (16-bit and float
+    /// images, or textures built otherwise). The GPU stores textures this way, at a quarter
+    /// of the size.
+    pub fn packed8(&self) -> Option<Vec<u32>> {
+        let code = |x: f32, srgb: bool| -> Option<u32> {
+            let decode = |i: u32| {
+                let c = i as f32 / 255.0;
+                if srgb { srgb_to_linear(c) } else { c }
+            };
+            let guess = if srgb { linear_to_srgb(x) } else { x };
+            let g = (guess * 255.0).round();
+            if !(0.0..=255.0).contains(&g) {
+                return None;
+            }
+            let g = g as u32;
+            [g, g.saturating_sub(1), (g + 1).min(255)]
+                .into_iter()
+                .find(|&i| decode(i) == x)
+        };
+        self.texels
+            .iter()
+            .map(|t| {
+                Some(
+                    code(t.x, self.srgb)?
+                        | code(t.y, self.srgb)? << 8
+                        | code(t.z, self.srgb)? << 16
+                        | code(t.w, false)? << 24,
+                )
+            })
+            .collect()
+    }
+}
+
+/// The sRGB encoding of a linear channel in [0, 1] (the inverse of [`srgb_to_linear`]).
+fn linear_to_srgb(c: f32) -> f32 {
+    if c <= 0.0031308 {
+        c * 12.92
+    } else {
+        1.055 * c.powf(1.0 / 2.4) - 0.055
+    }
+}
+
 /// Texel index `i` mapped into 0..n by the wrap mode.
 fn wrap(i: i64, n: i64, mode: Wrap) -> usize {
     let r = match mode {
@@ -307,5 +352,11 @@ mod tests {
         assert!((c.x - 0.2158).abs() < 1e-3);
         // alpha is linear in both
         assert_eq!(c.w, d.w);
+        // both pack back into the bytes they came from
+        assert_eq!(colour.packed8(), Some(vec![0x8080_8080]));
+        assert_eq!(data.packed8(), Some(vec![0x8080_8080]));
+        let mut odd = data.clone();
+        odd.texels[0].x = 0.3;
+        assert_eq!(odd.packed8(), None);
     }
 }
