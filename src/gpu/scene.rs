@@ -551,6 +551,58 @@ impl GpuScene {
     }
 }
 
+/// The record of a scene material whose lanes are `lanes`; `file` is the mesh file's
+/// material it comes from, if any (its textures and alpha mode).
+fn material_record(
+    lanes: &crate::sdf::tape::MaterialVec,
+    file: Option<&crate::scene::mesh::MeshMaterial>,
+) -> MaterialRecord {
+    use crate::scene::mesh::AlphaMode;
+    let mut r = MaterialRecord {
+        lanes: std::array::from_fn(|i| std::array::from_fn(|j| lanes[4 * i + j])),
+        slots: [[NONE; 4]; 2],
+        factors: [0.5, 1.0, 1.0, 1.0],
+        alpha_mode: ALPHA_OPAQUE,
+        ..Default::default()
+    };
+    let Some(m) = file else {
+        return r;
+    };
+    for (k, slot) in m.textures.slots().into_iter().enumerate() {
+        let Some(t) = slot else { continue };
+        r.slots[k / 4][k % 4] = (t.texture as u32 & 0x7fff_ffff) | (t.tex_coord.min(1) << 31);
+        let [c0, c1, c2] = t.transform.columns();
+        r.transforms[2 * k] = [c0[0], c0[1], c1[0], c1[1]];
+        r.transforms[2 * k + 1] = [c2[0], c2[1], 0.0, 0.0];
+    }
+    let (cutoff, mode) = match m.alpha_mode {
+        AlphaMode::Opaque => (0.5, ALPHA_OPAQUE),
+        AlphaMode::Mask { cutoff } => (cutoff, ALPHA_MASK),
+        AlphaMode::Blend => (0.5, ALPHA_BLEND),
+    };
+    r.alpha_mode = mode;
+    r.factors = [
+        cutoff,
+        m.base_alpha,
+        m.textures.normal.map_or(1.0, |n| n.1),
+        m.textures.occlusion.map_or(1.0, |o| o.1),
+    ];
+    r
+}
+
+/// `MaterialRecord::alpha_mode` of `AlphaMode::Opaque` (and of scene materials).
+pub const ALPHA_OPAQUE: u32 = 0;
+/// `MaterialRecord::alpha_mode` of `AlphaMode::Mask`.
+pub const ALPHA_MASK: u32 = 1;
+/// `MaterialRecord::alpha_mode` of `AlphaMode::Blend`.
+pub const ALPHA_BLEND: u32 = 2;
+
+/// `TextureRecord::wrap` bit: one `u32` per texel, RGBA bytes from the lowest
+/// (`Texture::packed8`); without it, four (the f32 bits of R, G, B, A).
+pub const TEXELS_PACKED8: u32 = 1 << 8;
+/// `TextureRecord::wrap` bit: packed colour bytes are sRGB-encoded (decoded on sampling).
+pub const TEXELS_SRGB: u32 = 1 << 9;
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -686,55 +738,3 @@ mod tests {
         assert_eq!(data.refs[unbounded], 300);
     }
 }
-
-/// The record of a scene material whose lanes are `lanes`; `file` is the mesh file's
-/// material it comes from, if any (its textures and alpha mode).
-fn material_record(
-    lanes: &crate::sdf::tape::MaterialVec,
-    file: Option<&crate::scene::mesh::MeshMaterial>,
-) -> MaterialRecord {
-    use crate::scene::mesh::AlphaMode;
-    let mut r = MaterialRecord {
-        lanes: std::array::from_fn(|i| std::array::from_fn(|j| lanes[4 * i + j])),
-        slots: [[NONE; 4]; 2],
-        factors: [0.5, 1.0, 1.0, 1.0],
-        alpha_mode: ALPHA_OPAQUE,
-        ..Default::default()
-    };
-    let Some(m) = file else {
-        return r;
-    };
-    for (k, slot) in m.textures.slots().into_iter().enumerate() {
-        let Some(t) = slot else { continue };
-        r.slots[k / 4][k % 4] = (t.texture as u32 & 0x7fff_ffff) | (t.tex_coord.min(1) << 31);
-        let [c0, c1, c2] = t.transform.columns();
-        r.transforms[2 * k] = [c0[0], c0[1], c1[0], c1[1]];
-        r.transforms[2 * k + 1] = [c2[0], c2[1], 0.0, 0.0];
-    }
-    let (cutoff, mode) = match m.alpha_mode {
-        AlphaMode::Opaque => (0.5, ALPHA_OPAQUE),
-        AlphaMode::Mask { cutoff } => (cutoff, ALPHA_MASK),
-        AlphaMode::Blend => (0.5, ALPHA_BLEND),
-    };
-    r.alpha_mode = mode;
-    r.factors = [
-        cutoff,
-        m.base_alpha,
-        m.textures.normal.map_or(1.0, |n| n.1),
-        m.textures.occlusion.map_or(1.0, |o| o.1),
-    ];
-    r
-}
-
-/// `MaterialRecord::alpha_mode` of `AlphaMode::Opaque` (and of scene materials).
-pub const ALPHA_OPAQUE: u32 = 0;
-/// `MaterialRecord::alpha_mode` of `AlphaMode::Mask`.
-pub const ALPHA_MASK: u32 = 1;
-/// `MaterialRecord::alpha_mode` of `AlphaMode::Blend`.
-pub const ALPHA_BLEND: u32 = 2;
-
-/// `TextureRecord::wrap` bit: one `u32` per texel, RGBA bytes from the lowest
-/// (`Texture::packed8`); without it, four (the f32 bits of R, G, B, A).
-pub const TEXELS_PACKED8: u32 = 1 << 8;
-/// `TextureRecord::wrap` bit: packed colour bytes are sRGB-encoded (decoded on sampling).
-pub const TEXELS_SRGB: u32 = 1 << 9;
