@@ -469,6 +469,27 @@ fn blend_coverage_and_opaque_alpha() {
 }
 
 #[test]
+fn the_occlusion_texture_applies_its_red_channel_with_the_strength() {
+    let dir = common::temp_dir("occlusion");
+    // the two-texel texture as occlusion: R = 1 on the left, 0 on the right
+    let path = masked_quads(
+        dir.path(),
+        r#", "occlusionTexture": {"index": 0, "strength": 0.25}"#,
+    );
+    let scene = Scene::from_model(&path, None).unwrap_or_else(|e| panic!("{e}"));
+    let tracer = SceneTracer::new(&scene);
+    let occlusion = |x: f32| {
+        let h = tracer.closest_hit(&down(x, 0.0), 0.0, 100.0).unwrap();
+        material(&scene, &h).occlusion
+    };
+    // §3.9.4: 1 + strength·(R − 1), R linear (not sRGB-decoded)
+    assert!((occlusion(-0.9) - 1.0).abs() < 1e-6);
+    assert!((occlusion(0.9) - 0.75).abs() < 1e-6);
+    // halfway between the texel centres R = 0.5 as stored: 1 − 0.25·0.5
+    assert!((occlusion(0.0) - 0.875).abs() < 1e-3, "{}", occlusion(0.0));
+}
+
+#[test]
 fn bad_material_input_is_a_warning_or_an_error_naming_the_place() {
     let dir = common::temp_dir("bad-materials");
     // a texture transform that overflows f32, a negative cutoff, a missing image
