@@ -297,12 +297,170 @@ fn block_vertex(b: u32, k: u32, lane: u32) -> vec3<f32> {
     );
 }
 
+// ---- textures (Texture::sample) and a material's texture slots (SceneMeshes::surface).
+
+fn rem_euclid(i: i32, n: i32) -> i32 {
+    let r = i % n;
+    if r < 0 {
+        return r + n;
+    }
+    return r;
+}
+
+// texture::wrap: texel index i mapped into 0..n by the wrap mode.
+fn wrap_index(i: i32, n: i32, mode: u32) -> i32 {
+    if mode == WRAP_CLAMP_TO_EDGE {
+        return clamp(i, 0, n - 1);
+    }
+    if mode == WRAP_MIRRORED_REPEAT {
+        let m = rem_euclid(i, 2 * n);
+        if m >= n {
+            return 2 * n - 1 - m;
+        }
+        return m;
+    }
+    return rem_euclid(i, n);
+}
+
+// A float texel coordinate as an integer: NaN to 0, clamped so that +1 cannot overflow
+// (the CPU's saturating `as i64` conversion, within ±2³⁰).
+fn texel_floor(f: f32) -> i32 {
+    if f != f {
+        return 0;
+    }
+    return i32(clamp(f, -1073741824.0, 1073741824.0));
+}
+
+fn lerp4(a: vec4<f32>, b: vec4<f32>, t: f32) -> vec4<f32> {
+    return a + (b - a) * t;
+}
+
+// Texture::sample: bilinear, texel centres at ((i + ½)/w, (j + ½)/h), (0, 0) the top-left.
+fn texture_sample(index: u32, uv: vec2<f32>) -> vec4<f32> {
+    let tex = textures[index];
+    if tex.width == 0u || tex.height == 0u {
+        return vec4<f32>(1.0);
+    }
+    let w = i32(tex.width);
+    let h = i32(tex.height);
+    let x = uv.x * f32(tex.width) - 0.5;
+    let y = uv.y * f32(tex.height) - 0.5;
+    let fx = floor(x);
+    let fy = floor(y);
+    var tx = x - fx;
+    var ty = y - fy;
+    let x0 = texel_floor(fx);
+    let y0 = texel_floor(fy);
+    let wrap_u = tex.wrap & 15u;
+    let wrap_v = (tex.wrap >> 4u) & 15u;
+    let xa = u32(wrap_index(x0, w, wrap_u));
+    let xb = u32(wrap_index(x0 + 1, w, wrap_u));
+    let ya = u32(wrap_index(y0, h, wrap_v));
+    let yb = u32(wrap_index(y0 + 1, h, wrap_v));
+    // finite exactly when t − t == 0 (NaN and ±∞ give NaN)
+    if !(tx - tx == 0.0 && ty - ty == 0.0) {
+        tx = 0.0;
+        ty = 0.0;
+    }
+    let row_a = ya * tex.width;
+    let row_b = yb * tex.width;
+    let top = lerp4(texel_at(tex, row_a + xa), texel_at(tex, row_a + xb), tx);
+    let bottom = lerp4(texel_at(tex, row_b + xa), texel_at(tex, row_b + xb), tx);
+    return lerp4(top, bottom, ty);
+}
+
+// texture::srgb_to_linear.
+fn texel_srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 {
+        return c / 12.92;
+    }
+    return pow((c + 0.055) / 1.055, 2.4);
+}
+
+// Texel i of a texture in the texel buffer: four bytes (Texture::packed8, decoded from sRGB
+// for colour textures) or four f32 words.
+fn texel_at(tex: TextureRecord, i: u32) -> vec4<f32> {
+    if (tex.wrap & TEXELS_PACKED8) != 0u {
+        // unpack4x8unorm divides by 255 as the CPU's decoding does
+        let c = unpack4x8unorm(texels[tex.texel_start + i]);
+        if (tex.wrap & TEXELS_SRGB) != 0u {
+            return vec4<f32>(texel_srgb_to_linear(c.x), texel_srgb_to_linear(c.y), texel_srgb_to_linear(c.z), c.w);
+        }
+        return c;
+    }
+    let k = tex.texel_start + 4u * i;
+    return vec4<f32>(bitcast<f32>(texels[k]), bitcast<f32>(texels[k + 1u]), bitcast<f32>(texels[k + 2u]), bitcast<f32>(texels[k + 3u]));
+}
+
+// MaterialTextures::slots order.
+const SLOT_BASE_COLOR: u32 = 0u;
+const SLOT_METALLIC_ROUGHNESS: u32 = 1u;
+const SLOT_NORMAL: u32 = 2u;
+const SLOT_OCCLUSION: u32 = 3u;
+const SLOT_EMISSIVE: u32 = 4u;
+
+fn material_slot(m: u32, slot: u32) -> u32 {
+    return materials[m].slots[slot / 4u][slot % 4u];
+}
+
+fn material_has(m: u32, slot: u32) -> bool {
+    return material_slot(m, slot) != NONE;
+}
+
+// The texture of slot `slot` of material m at barycentrics `bary` of the triangle with
+// vertices `corners` of `mesh`: its coordinate set interpolated, KHR_texture_transform
+// applied (UvTransform::apply), sampled; white without a texture or coordinates.
+fn material_texel(m: u32, slot: u32, mesh: MeshRecord, corners: vec3<u32>, bary: vec3<f32>) -> vec4<f32> {
+    let code = material_slot(m, slot);
+    if code == NONE || mesh.has_uvs == 0u {
+        return vec4<f32>(1.0);
+    }
+    let va = vertices[mesh.vertex_start + corners.x];
+    let vb = vertices[mesh.vertex_start + corners.y];
+    let vc = vertices[mesh.vertex_start + corners.z];
+    var uv: vec2<f32>;
+    if (code >> 31u) == 1u {
+        uv = bary.x * va.uv1.xy + bary.y * vb.uv1.xy + bary.z * vc.uv1.xy;
+    } else {
+        uv = bary.x * vec2<f32>(va.u, va.v) + bary.y * vec2<f32>(vb.u, vb.v) + bary.z * vec2<f32>(vc.u, vc.v);
+    }
+    let a = materials[m].transforms[2u * slot];
+    let b = materials[m].transforms[2u * slot + 1u];
+    let t = a.xy * uv.x + a.zw * uv.y + b.xy;
+    return texture_sample(code & 0x7fffffffu, t);
+}
+
+// SceneMeshes::masked_out: whether the hit at (u, v) of `triangle` of instance `instance` is
+// a hole of an alpha mask (MASK material, coverage below the cutoff; glTF 2.0 §3.9.6).
+fn masked_out(instance: u32, triangle: u32, u: f32, v: f32) -> bool {
+    let inst = instances[instance];
+    if inst.material_override != NONE {
+        return false;
+    }
+    let mesh = meshes[inst.mesh];
+    let tri = triangle_indices[mesh.triangle_start + triangle];
+    let m = inst.material_base + tri.material;
+    if materials[m].alpha_mode != ALPHA_MASK {
+        return false;
+    }
+    let bary = vec3<f32>(1.0 - u - v, u, v);
+    let corners = vec3<u32>(tri.a, tri.b, tri.c);
+    let color = bary.x * vertices[mesh.vertex_start + tri.a].color.w
+        + bary.y * vertices[mesh.vertex_start + tri.b].color.w
+        + bary.z * vertices[mesh.vertex_start + tri.c].color.w;
+    let factors = materials[m].factors;
+    let alpha = factors.y * color * material_texel(m, SLOT_BASE_COLOR, mesh, corners, bary).w;
+    return alpha < factors.x;
+}
+
 // MeshBvh::closest_hit in object space (`traverse_grouped`): at each node the hit leaf
 // children's triangles are tested together (their blocks), then the inner children are
 // ordered and pushed; the nearest triangle with tmin ≤ t ≤ tmax wins, ties to the smaller
 // triangle index. With `any_hit` (MeshBvh::any_hit) the first triangle found, children in
 // slot order.
-fn blas_walk(root: u32, o: vec3<f32>, d: vec3<f32>, tmin_in: f32, tmax_in: f32, any_hit: bool) -> MeshHit {
+// With `instance` not NONE, hits on the holes of its alpha masks do not count
+// (HitFilter, the CPU's AlphaTest).
+fn blas_walk(root: u32, o: vec3<f32>, d: vec3<f32>, tmin_in: f32, tmax_in: f32, any_hit: bool, instance: u32) -> MeshHit {
     var best = MeshHit(false, tmax_in, 0u, 0.0, 0.0);
     let tmin = query_tmin(tmin_in);
     var tmax = tmax_in;
@@ -332,7 +490,8 @@ fn blas_walk(root: u32, o: vec3<f32>, d: vec3<f32>, tmin_in: f32, tmax_in: f32, 
                     }
                     let h = intersect_triangle(wr, block_vertex(b, 0u, lane), block_vertex(b, 1u, lane), block_vertex(b, 2u, lane), tmin, tmax);
                     let id = tri_blocks[b].id[lane / 4u][lane % 4u];
-                    if h.hit && (!best.hit || h.t < best.t || (h.t == best.t && id < best.triangle)) {
+                    if h.hit && (!best.hit || h.t < best.t || (h.t == best.t && id < best.triangle))
+                        && (instance == NONE || !masked_out(instance, id, h.u, h.v)) {
                         best = MeshHit(true, h.t, id, h.u, h.v);
                         if any_hit {
                             return best;
@@ -401,7 +560,11 @@ fn tlas_walk(o: vec3<f32>, d: vec3<f32>, tmin_in: f32, tmax_in: f32, any_hit: bo
                 let index = refs[j];
                 let inst = instances[index];
                 let mesh = meshes[inst.mesh];
-                let h = blas_walk(mesh.root, rows_point(inst.world_to_object, o), rows_vector(inst.world_to_object, d), tmin, tmax, any_hit);
+                var tested = NONE;
+                if inst.alpha_tested != 0u {
+                    tested = index;
+                }
+                let h = blas_walk(mesh.root, rows_point(inst.world_to_object, o), rows_vector(inst.world_to_object, d), tmin, tmax, any_hit, tested);
                 if h.hit && (!best.hit || h.t < best.t
                     || (h.t == best.t && (index < best.instance || (index == best.instance && h.triangle < best.triangle)))) {
                     best = InstanceHit(true, h.t, index, h.triangle, h.u, h.v);

@@ -144,115 +144,115 @@ fn sdf_walk(query: u32, o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32, margin
     return s;
 }
 
-// ---- mesh surfaces (SceneMeshes::surface) and textures (Texture::sample).
+// ---- mesh surfaces (SceneMeshes::surface; texture sampling is in mesh.wgsl).
 
 struct MeshSurface {
     normal: vec3<f32>,
     material: u32,
-    tint: vec3<f32>,
+    // SurfaceSample: multipliers of the material's colour, opacity, metallic, roughness,
+    // occlusion and emission
+    color: vec3<f32>,
+    alpha: f32,
+    metallic: f32,
+    roughness: f32,
+    occlusion: f32,
+    emissive: vec3<f32>,
 }
 
-fn rem_euclid(i: i32, n: i32) -> i32 {
-    let r = i % n;
-    if r < 0 {
-        return r + n;
+// meshes::normal_mapped: the texel decoded as 2t − 1, x and y scaled, in the frame (T, B, N)
+// with T made orthogonal to N and B = w·(N × T); kept at least MIN_COS above the tangent
+// plane of n.
+fn normal_mapped(n_in: vec3<f32>, tangent: vec4<f32>, texel: vec3<f32>, scale: f32) -> vec3<f32> {
+    if !(dot(n_in, n_in) > 0.0) {
+        return n_in;
     }
-    return r;
-}
-
-// texture::wrap: texel index i mapped into 0..n by the wrap mode.
-fn wrap_index(i: i32, n: i32, mode: u32) -> i32 {
-    if mode == WRAP_CLAMP_TO_EDGE {
-        return clamp(i, 0, n - 1);
+    let n = normalize(n_in);
+    let t0 = tangent.xyz - n * dot(n, tangent.xyz);
+    if !(dot(t0, t0) > 0.0) {
+        return n;
     }
-    if mode == WRAP_MIRRORED_REPEAT {
-        let m = rem_euclid(i, 2 * n);
-        if m >= n {
-            return 2 * n - 1 - m;
-        }
-        return m;
+    let t = normalize(t0);
+    var sign = 1.0;
+    if tangent.w < 0.0 {
+        sign = -1.0;
     }
-    return rem_euclid(i, n);
-}
-
-// A float texel coordinate as an integer: NaN to 0, clamped so that +1 cannot overflow
-// (the CPU's saturating `as i64` conversion, within ±2³⁰).
-fn texel_floor(f: f32) -> i32 {
-    if f != f {
-        return 0;
+    let b = sign * cross(n, t);
+    let d = 2.0 * texel - vec3<f32>(1.0);
+    let mapped0 = t * (d.x * scale) + b * (d.y * scale) + n * d.z;
+    if !(dot(mapped0, mapped0) > 0.0) {
+        return n;
     }
-    return i32(clamp(f, -1073741824.0, 1073741824.0));
-}
-
-fn lerp4(a: vec4<f32>, b: vec4<f32>, t: f32) -> vec4<f32> {
-    return a + (b - a) * t;
-}
-
-// Texture::sample: bilinear, texel centres at ((i + ½)/w, (j + ½)/h), (0, 0) the top-left.
-fn texture_sample(index: u32, uv: vec2<f32>) -> vec4<f32> {
-    let tex = textures[index];
-    if tex.width == 0u || tex.height == 0u {
-        return vec4<f32>(1.0);
+    let mapped = normalize(mapped0);
+    let min_cos = 0.05;
+    let c = dot(mapped, n);
+    if c >= min_cos {
+        return mapped;
     }
-    let w = i32(tex.width);
-    let h = i32(tex.height);
-    let x = uv.x * f32(tex.width) - 0.5;
-    let y = uv.y * f32(tex.height) - 0.5;
-    let fx = floor(x);
-    let fy = floor(y);
-    var tx = x - fx;
-    var ty = y - fy;
-    let x0 = texel_floor(fx);
-    let y0 = texel_floor(fy);
-    let wrap_u = tex.wrap & 15u;
-    let wrap_v = (tex.wrap >> 4u) & 15u;
-    let xa = u32(wrap_index(x0, w, wrap_u));
-    let xb = u32(wrap_index(x0 + 1, w, wrap_u));
-    let ya = u32(wrap_index(y0, h, wrap_v));
-    let yb = u32(wrap_index(y0 + 1, h, wrap_v));
-    // finite exactly when t − t == 0 (NaN and ±∞ give NaN)
-    if !(tx - tx == 0.0 && ty - ty == 0.0) {
-        tx = 0.0;
-        ty = 0.0;
+    let along = mapped - n * c;
+    var dir = vec3<f32>(0.0);
+    if dot(along, along) > 0.0 {
+        dir = normalize(along);
     }
-    let row_a = tex.texel_start + ya * tex.width;
-    let row_b = tex.texel_start + yb * tex.width;
-    let top = lerp4(texels[row_a + xa], texels[row_a + xb], tx);
-    let bottom = lerp4(texels[row_b + xa], texels[row_b + xb], tx);
-    return lerp4(top, bottom, ty);
+    return normalize_or_y(dir * sqrt(1.0 - min_cos * min_cos) + n * min_cos);
 }
 
 fn mesh_surface(instance: u32, triangle: u32, u: f32, v: f32) -> MeshSurface {
     let inst = instances[instance];
     let mesh = meshes[inst.mesh];
     let tri = triangle_indices[mesh.triangle_start + triangle];
+    let corners = vec3<u32>(tri.a, tri.b, tri.c);
     let va = vertices[mesh.vertex_start + tri.a];
     let vb = vertices[mesh.vertex_start + tri.b];
     let vc = vertices[mesh.vertex_start + tri.c];
     let w = 1.0 - u - v;
+    let bary = vec3<f32>(w, u, v);
     let geometric = cross(vb.position - va.position, vc.position - va.position);
     var n = w * va.normal + u * vb.normal + v * vc.normal;
     if !(dot(n, n) > 1e-20) {
         n = geometric;
     }
-    // the normal matrix is stored as columns: x_axis·n.x + y_axis·n.y + z_axis·n.z
-    let nm = inst.normal_matrix;
-    let world = nm[0].xyz * n.x + nm[1].xyz * n.y + nm[2].xyz * n.z;
     var surface: MeshSurface;
-    surface.normal = normalize_or_y(world);
-    surface.tint = vec3<f32>(1.0);
+    surface.color = vec3<f32>(1.0);
+    surface.alpha = 1.0;
+    surface.metallic = 1.0;
+    surface.roughness = 1.0;
+    surface.occlusion = 1.0;
+    surface.emissive = vec3<f32>(1.0);
     if inst.material_override != NONE {
         surface.material = inst.material_override;
     } else {
         surface.material = inst.material_base + tri.material;
-        if mesh.has_uvs != 0u {
-            let texture = materials[surface.material].texture;
-            if texture != NONE {
-                let uv = w * vec2<f32>(va.u, va.v) + u * vec2<f32>(vb.u, vb.v) + v * vec2<f32>(vc.u, vc.v);
-                surface.tint = texture_sample(texture, uv).xyz;
-            }
+        let m = surface.material;
+        let base = material_texel(m, SLOT_BASE_COLOR, mesh, corners, bary)
+            * (w * va.color + u * vb.color + v * vc.color);
+        surface.color = base.xyz;
+        if materials[m].alpha_mode == ALPHA_BLEND {
+            surface.alpha = base.w;
+        }
+        if material_has(m, SLOT_METALLIC_ROUGHNESS) {
+            // glTF 2.0 §3.9.2: metalness in B, roughness in G
+            let mr = material_texel(m, SLOT_METALLIC_ROUGHNESS, mesh, corners, bary);
+            surface.metallic = mr.z;
+            surface.roughness = mr.y;
+        }
+        let factors = materials[m].factors;
+        if material_has(m, SLOT_OCCLUSION) {
+            // §3.9.4: 1 + strength·(R − 1)
+            surface.occlusion = 1.0 + factors.w * (material_texel(m, SLOT_OCCLUSION, mesh, corners, bary).x - 1.0);
+        }
+        if material_has(m, SLOT_EMISSIVE) {
+            surface.emissive = material_texel(m, SLOT_EMISSIVE, mesh, corners, bary).xyz;
+        }
+        if material_has(m, SLOT_NORMAL) && mesh.has_uvs != 0u {
+            let tangent = w * va.tangent + u * vb.tangent + v * vc.tangent;
+            let texel = material_texel(m, SLOT_NORMAL, mesh, corners, bary).xyz;
+            n = normal_mapped(n, tangent, texel, factors.z);
         }
     }
+    // the normal matrix is stored as columns: x_axis·n.x + y_axis·n.y + z_axis·n.z
+    let nm = inst.normal_matrix;
+    let world = nm[0].xyz * n.x + nm[1].xyz * n.y + nm[2].xyz * n.z;
+    surface.normal = normalize_or_y(world);
     return surface;
 }
 
@@ -354,13 +354,24 @@ fn scene_exit(hit: SceneHit, o: vec3<f32>, d: vec3<f32>, tmax: f32) -> vec4<f32>
 }
 
 // SceneTracer::material_at: the SDF's blended material from the shading tape valid at p (the
-// leaf's, or the whole one), or the mesh triangle's material with its base-colour texture
-// applied.
+// leaf's, or the whole one), or the mesh triangle's material with its textures applied.
 fn scene_material(hit: SceneHit, p: vec3<f32>) -> Material {
     if hit.kind == HIT_MESH {
         let s = mesh_surface(hit.object, hit.triangle, hit.bary.x, hit.bary.y);
         var m = material_from_lanes(materials[s.material].lanes);
-        m.color = m.color * s.tint;
+        // SurfaceSample::apply
+        m.color = m.color * s.color;
+        m.opacity = m.opacity * s.alpha;
+        m.occlusion = m.occlusion * s.occlusion;
+        m.emissive = m.emissive * s.emissive;
+        if s.metallic != 1.0 || s.roughness != 1.0 {
+            let before = m.metallic * (1.0 - m.roughness) * (1.0 - m.roughness);
+            m.metallic = m.metallic * s.metallic;
+            m.roughness = m.roughness * s.roughness;
+            if m.pbr > 0.0 && abs(m.reflectivity - before) < 1e-6 {
+                m.reflectivity = m.metallic * (1.0 - m.roughness) * (1.0 - m.roughness);
+            }
+        }
         return m;
     }
     return material_from_lanes(tape_material(field_shading_at(hit.object, p), p));

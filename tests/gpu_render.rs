@@ -286,6 +286,30 @@ fn a_textured_gltf_model_renders_the_same_on_cpu_and_gpu() {
     report(&outcomes);
 }
 
+/// glTF materials beyond the base colour: normal, metallic-roughness and emissive textures,
+/// emissive strength and KHR_texture_transform (with MikkTSpace or file tangents).
+#[test]
+fn gltf_material_models_render_the_same_on_cpu_and_gpu() {
+    let Some(assets) = assets() else { return };
+    let gpu = gpu();
+    let mut models = vec![
+        assets.join("glTF/Avocado/glTF/Avocado.gltf"),
+        assets.join("glTF/bevy-lights/DepthOfFieldExample.glb"),
+    ];
+    let transform =
+        PathBuf::from("/usr/share/assimp/models/glTF2/textureTransform/TextureTransformTest.gltf");
+    if transform.exists() {
+        models.push(transform);
+    }
+    let mut outcomes = Vec::new();
+    for model in models {
+        let scene = Scene::from_model(&model, None).unwrap_or_else(|e| panic!("{e}"));
+        let name = model.file_stem().unwrap().to_string_lossy();
+        outcomes.push(compare_scene(&name, &scene, &gpu));
+    }
+    report(&outcomes);
+}
+
 #[test]
 fn many_small_tiles_give_the_same_image_as_few_large_ones() {
     let gpu = gpu();

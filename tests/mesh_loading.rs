@@ -304,7 +304,12 @@ fn check_invariants(name: &str, a: &MeshAsset, problems: &mut Vec<String>) {
         }
     }
     for m in &a.materials {
-        if m.base_color_texture.is_some_and(|t| t >= a.textures.len()) {
+        if m.textures
+            .slots()
+            .iter()
+            .flatten()
+            .any(|t| t.texture >= a.textures.len())
+        {
             problems.push(format!(
                 "{name}: material {} has a bad texture index",
                 m.name
@@ -652,7 +657,7 @@ fn box_textured_in_three_forms() {
         let t = &a.textures[0];
         assert_eq!((t.width, t.height), (w, h), "{f}: texture size");
         let m = &a.materials[1];
-        assert_eq!(m.base_color_texture, Some(0), "{f}");
+        assert_eq!(m.textures.base_color.map(|t| t.texture), Some(0), "{f}");
         assert_eq!(
             a.meshes[0].uvs.len(),
             a.meshes[0].positions.len(),
@@ -1261,7 +1266,7 @@ fn missing_mtl_and_textures_are_warnings() {
     assert_eq!(red.params.shininess, 64.0);
     assert!((red.params.transparency - 0.75).abs() < 1e-6);
     assert_eq!(red.params.ior, 1.33);
-    assert_eq!(red.base_color_texture, None);
+    assert_eq!(red.textures.base_color, None);
     let short = a.materials.iter().find(|m| m.name == "short").unwrap();
     assert_eq!(short.params.color, Vec3::splat(0.5));
     let all = a.warnings.join("\n");
@@ -1285,6 +1290,7 @@ fn texture_sampling_is_bilinear_with_wrap_modes() {
         wrap_u: Wrap::Repeat,
         wrap_v: Wrap::Repeat,
         name: "test".into(),
+        srgb: false,
     };
     // Texel centres.
     assert_eq!(t.sample(Vec2::new(0.25, 0.25)), t.texels[0]);

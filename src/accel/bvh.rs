@@ -149,6 +149,36 @@ fn split_boxes(tris: &[[Vec3; 3]]) -> (Vec<OAabb>, Vec<u32>) {
     (boxes, owner)
 }
 
+/// Which triangle hits count, for surfaces with holes (glTF's alpha masks): a query asks
+/// [`HitFilter::tests`] once per instance it reaches, and [`HitFilter::accept`] for each hit
+/// on an instance that is tested. A rejected hit is as if the triangle were not there: the
+/// closest-hit walk goes on to the next one, the any-hit walk keeps looking.
+pub trait HitFilter: Sync {
+    /// Whether hits on instance `instance` need [`HitFilter::accept`] (false: all count).
+    fn tests(&self, instance: u32) -> bool;
+    /// Whether the hit at barycentrics (u, v) of `triangle` of `instance` counts.
+    fn accept(&self, instance: u32, triangle: u32, u: f32, v: f32) -> bool;
+}
+
+/// Every hit counts.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoFilter;
+
+impl HitFilter for NoFilter {
+    #[inline(always)]
+    fn tests(&self, _: u32) -> bool {
+        false
+    }
+    #[inline(always)]
+    fn accept(&self, _: u32, _: u32, _: f32, _: f32) -> bool {
+        true
+    }
+}
+
+/// One instance's hit test in a mesh walk: `accept(triangle, u, v)`, or `None` when every hit
+/// counts (the common case, which costs the leaves nothing).
+type Accept<'a> = Option<&'a dyn Fn(u32, f32, f32) -> bool>;
+
 /// A closest hit on a mesh.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MeshHit {
@@ -248,6 +278,7 @@ impl MeshBvh {
             &NodeRay::new(ray.origin, ray.direction),
             tmin,
             tmax,
+            None,
         )
     }
 
@@ -259,6 +290,7 @@ impl MeshBvh {
             &NodeRay::new(ray.origin, ray.direction),
             tmin,
             tmax,
+            None,
         )
     }
 
@@ -268,12 +300,13 @@ impl MeshBvh {
         nr: &NodeRay,
         tmin: f32,
         mut tmax: f32,
+        accept: Accept<'_>,
     ) -> Option<MeshHit> {
         // The leaves use the walk's tmin.
         let tmin = wide::query_tmin(tmin);
         let mut best: Option<MeshHit> = None;
         wide::traverse_grouped::<true>(&self.nodes, nr, tmin, &mut tmax, |meta, slots, tmax| {
-            self.closest_in_leaves(shear.get(), meta, slots, tmin, tmax, &mut best);
+            self.closest_in_leaves(shear.get(), meta, slots, tmin, tmax, &mut best, accept);
             ControlFlow::Continue(())
         });
         best
@@ -287,9 +320,10 @@ impl MeshBvh {
         tmin: f32,
         tmax: &mut [f32],
         best: &mut [Option<MeshHit>],
+        accept: Accept<'_>,
     ) {
         self.walk_packet::<true>(w, tmin, tmax, |wr, ray, meta, slots, tmin, tmax| {
-            self.closest_in_leaves(wr, meta, slots, tmin, tmax, &mut best[ray]);
+            self.closest_in_leaves(wr, meta, slots, tmin, tmax, &mut best[ray], accept);
         });
     }
 
@@ -301,9 +335,10 @@ impl MeshBvh {
         tmin: f32,
         tmax: &mut [f32],
         found: &mut [bool],
+        accept: Accept<'_>,
     ) {
         self.walk_packet::<false>(w, tmin, tmax, |wr, ray, meta, slots, tmin, tmax| {
-            if self.any_in_leaves(wr, meta, slots, tmin, *tmax) {
+            if self.any_in_leaves(wr, meta, slots, tmin, *tmax, accept) {
                 found[ray] = true;
                 *tmax = f32::NEG_INFINITY;
             }
@@ -350,15 +385,30 @@ impl MeshBvh {
         slots: u32,
         tmin: f32,
         tmax: f32,
+        accept: Accept<'_>,
     ) -> bool {
-        self.leaves
-            .blocks_for(meta, slots)
-            .any(|k| leaf::block_hits(&self.leaves.blocks[k], wr, slots, tmin, tmax).mask != 0)
+        self.leaves.blocks_for(meta, slots).any(|k| {
+            let hits = leaf::block_hits(&self.leaves.blocks[k], wr, slots, tmin, tmax);
+            let Some(accept) = accept else {
+                return hits.mask != 0;
+            };
+            let mut mask = hits.mask;
+            while mask != 0 {
+                let lane = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                let h = hits.hit(lane);
+                if accept(self.leaves.ids[k][lane], h.u, h.v) {
+                    return true;
+                }
+            }
+            false
+        })
     }
 
     /// The closest-hit leaf test: the triangles of the leaf slots `slots` of a node (`meta` as
     /// the walk hands it over) against one ray, keeping the nearest in `best` and `tmax`.
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
     fn closest_in_leaves(
         &self,
         wr: &WatertightRay,
@@ -367,6 +417,7 @@ impl MeshBvh {
         tmin: f32,
         tmax: &mut f32,
         best: &mut Option<MeshHit>,
+        accept: Accept<'_>,
     ) {
         for k in self.leaves.blocks_for(meta, slots) {
             let hits = leaf::block_hits(&self.leaves.blocks[k], wr, slots, tmin, *tmax);
@@ -381,7 +432,7 @@ impl MeshBvh {
                 let better = match best {
                     None => true,
                     Some(b) => h.t < b.t || (h.t == b.t && id < b.triangle),
-                };
+                } && accept.is_none_or(|accept| accept(id, h.u, h.v));
                 if better {
                     *best = Some(MeshHit {
                         t: h.t,
@@ -395,11 +446,18 @@ impl MeshBvh {
         }
     }
 
-    fn any_in(&self, shear: &mut Shear, nr: &NodeRay, tmin: f32, mut tmax: f32) -> bool {
+    fn any_in(
+        &self,
+        shear: &mut Shear,
+        nr: &NodeRay,
+        tmin: f32,
+        mut tmax: f32,
+        accept: Accept<'_>,
+    ) -> bool {
         let tmin = wide::query_tmin(tmin);
         let mut found = false;
         wide::traverse_grouped::<false>(&self.nodes, nr, tmin, &mut tmax, |meta, slots, tmax| {
-            found = self.any_in_leaves(shear.get(), meta, slots, tmin, *tmax);
+            found = self.any_in_leaves(shear.get(), meta, slots, tmin, *tmax, accept);
             if found {
                 ControlFlow::Break(())
             } else {
@@ -585,9 +643,16 @@ trait PacketQuery {
         tmin: f32,
         tmax: &mut [f32],
         answers: &mut [Self::Answer],
+        accept: Accept<'_>,
     );
     /// The single-ray walk of `mesh` (object-space rays that cannot share one).
-    fn walk_one(mesh: &MeshBvh, ray: &Ray, tmin: f32, tmax: f32) -> Self::Answer;
+    fn walk_one(
+        mesh: &MeshBvh,
+        ray: &Ray,
+        tmin: f32,
+        tmax: f32,
+        accept: Accept<'_>,
+    ) -> Self::Answer;
 }
 
 /// Closest hit: the nearest triangle per mesh.
@@ -604,13 +669,26 @@ impl PacketQuery for Closest {
         tmin: f32,
         tmax: &mut [f32],
         answers: &mut [Option<MeshHit>],
+        accept: Accept<'_>,
     ) {
-        mesh.closest_in_packet(w, tmin, tmax, answers)
+        mesh.closest_in_packet(w, tmin, tmax, answers, accept)
     }
     #[inline(always)]
-    fn walk_one(mesh: &MeshBvh, r: &Ray, tmin: f32, tmax: f32) -> Option<MeshHit> {
+    fn walk_one(
+        mesh: &MeshBvh,
+        r: &Ray,
+        tmin: f32,
+        tmax: f32,
+        accept: Accept<'_>,
+    ) -> Option<MeshHit> {
         let nr = NodeRay::new(r.origin, r.direction);
-        mesh.closest_in(&mut Shear::new(r.origin, r.direction), &nr, tmin, tmax)
+        mesh.closest_in(
+            &mut Shear::new(r.origin, r.direction),
+            &nr,
+            tmin,
+            tmax,
+            accept,
+        )
     }
 }
 
@@ -628,13 +706,20 @@ impl PacketQuery for Any {
         tmin: f32,
         tmax: &mut [f32],
         answers: &mut [bool],
+        accept: Accept<'_>,
     ) {
-        mesh.any_in_packet(w, tmin, tmax, answers)
+        mesh.any_in_packet(w, tmin, tmax, answers, accept)
     }
     #[inline(always)]
-    fn walk_one(mesh: &MeshBvh, r: &Ray, tmin: f32, tmax: f32) -> bool {
+    fn walk_one(mesh: &MeshBvh, r: &Ray, tmin: f32, tmax: f32, accept: Accept<'_>) -> bool {
         let nr = NodeRay::new(r.origin, r.direction);
-        mesh.any_in(&mut Shear::new(r.origin, r.direction), &nr, tmin, tmax)
+        mesh.any_in(
+            &mut Shear::new(r.origin, r.direction),
+            &nr,
+            tmin,
+            tmax,
+            accept,
+        )
     }
 }
 
@@ -803,9 +888,23 @@ impl InstanceBvh {
         tmin: f32,
         tmax: f32,
     ) -> Option<InstanceHit> {
+        self.closest_hit_filtered(meshes, ray, tmin, tmax, &NoFilter)
+    }
+
+    /// [`Self::closest_hit`] counting only the hits `filter` accepts (alpha masks).
+    pub fn closest_hit_filtered(
+        &self,
+        meshes: &[MeshBvh],
+        ray: &Ray,
+        tmin: f32,
+        tmax: f32,
+        filter: &impl HitFilter,
+    ) -> Option<InstanceHit> {
         let mut best: Option<InstanceHit> = None;
         self.walk::<true>(meshes, ray, tmin, tmax, |p, mesh, shear, nr, tmax| {
-            if let Some(h) = mesh.closest_in(shear, nr, tmin, *tmax) {
+            let test = |t: u32, u: f32, v: f32| filter.accept(p.index, t, u, v);
+            let accept: Accept<'_> = filter.tests(p.index).then_some(&test);
+            if let Some(h) = mesh.closest_in(shear, nr, tmin, *tmax, accept) {
                 if beats(&best, h.t, p.index, h.triangle) {
                     best = Some(InstanceHit {
                         t: h.t,
@@ -837,6 +936,22 @@ impl InstanceBvh {
         tmax: &[f32],
         out: &mut [Option<InstanceHit>],
     ) {
+        self.closest_hits_filtered(meshes, rays, tmin, tmax, out, &NoFilter)
+    }
+
+    /// [`Self::closest_hits`] counting only the hits `filter` accepts (alpha masks).
+    ///
+    /// # Panics
+    /// When the three slices differ in length.
+    pub fn closest_hits_filtered(
+        &self,
+        meshes: &[MeshBvh],
+        rays: &[Ray],
+        tmin: f32,
+        tmax: &[f32],
+        out: &mut [Option<InstanceHit>],
+        filter: &impl HitFilter,
+    ) {
         assert!(rays.len() == tmax.len() && rays.len() == out.len());
         for ((rays, tmax), out) in rays
             .chunks(PACKET)
@@ -844,22 +959,23 @@ impl InstanceBvh {
             .zip(out.chunks_mut(PACKET))
         {
             out.fill(None);
-            let traced = self.packet::<Closest>(meshes, rays, tmin, tmax, |p, i, h, tmax| {
-                let Some(h) = h else { return };
-                if beats(&out[i], h.t, p.index, h.triangle) {
-                    out[i] = Some(InstanceHit {
-                        t: h.t,
-                        instance: p.index,
-                        triangle: h.triangle,
-                        u: h.u,
-                        v: h.v,
-                    });
-                    *tmax = h.t;
-                }
-            });
+            let traced =
+                self.packet::<Closest>(meshes, rays, tmin, tmax, filter, |p, i, h, tmax| {
+                    let Some(h) = h else { return };
+                    if beats(&out[i], h.t, p.index, h.triangle) {
+                        out[i] = Some(InstanceHit {
+                            t: h.t,
+                            instance: p.index,
+                            triangle: h.triangle,
+                            u: h.u,
+                            v: h.v,
+                        });
+                        *tmax = h.t;
+                    }
+                });
             if !traced {
                 for ((r, &tmax), out) in rays.iter().zip(tmax).zip(out.iter_mut()) {
-                    *out = self.closest_hit(meshes, r, tmin, tmax);
+                    *out = self.closest_hit_filtered(meshes, r, tmin, tmax, filter);
                 }
             }
         }
@@ -878,6 +994,22 @@ impl InstanceBvh {
         tmax: &[f32],
         out: &mut [bool],
     ) {
+        self.any_hits_filtered(meshes, rays, tmin, tmax, out, &NoFilter)
+    }
+
+    /// [`Self::any_hits`] counting only the hits `filter` accepts (alpha masks).
+    ///
+    /// # Panics
+    /// When the three slices differ in length.
+    pub fn any_hits_filtered(
+        &self,
+        meshes: &[MeshBvh],
+        rays: &[Ray],
+        tmin: f32,
+        tmax: &[f32],
+        out: &mut [bool],
+        filter: &impl HitFilter,
+    ) {
         assert!(rays.len() == tmax.len() && rays.len() == out.len());
         for ((rays, tmax), out) in rays
             .chunks(PACKET)
@@ -885,7 +1017,7 @@ impl InstanceBvh {
             .zip(out.chunks_mut(PACKET))
         {
             out.fill(false);
-            let traced = self.packet::<Any>(meshes, rays, tmin, tmax, |_, i, hit, tmax| {
+            let traced = self.packet::<Any>(meshes, rays, tmin, tmax, filter, |_, i, hit, tmax| {
                 if hit {
                     out[i] = true;
                     // Retired: the walk drops the ray.
@@ -894,7 +1026,7 @@ impl InstanceBvh {
             });
             if !traced {
                 for ((r, &tmax), out) in rays.iter().zip(tmax).zip(out.iter_mut()) {
-                    *out = self.any_hit(meshes, r, tmin, tmax);
+                    *out = self.any_hit_filtered(meshes, r, tmin, tmax, filter);
                 }
             }
         }
@@ -909,6 +1041,7 @@ impl InstanceBvh {
         rays: &[Ray],
         tmin: f32,
         tmax_in: &[f32],
+        filter: &impl HitFilter,
         mut keep: impl FnMut(&PlacedInstance, usize, Q::Answer, &mut f32),
     ) -> bool {
         let Some((frustum, world)) = Frustum::new(rays.iter().map(|r| (r.origin, r.direction)))
@@ -941,6 +1074,8 @@ impl InstanceBvh {
                 let Some(mesh) = meshes.get(p.mesh as usize) else {
                     continue;
                 };
+                let test = |t: u32, u: f32, v: f32| filter.accept(p.index, t, u, v);
+                let accept: Accept<'_> = filter.tests(p.index).then_some(&test);
                 let answers = &mut answers[..n];
                 if p.identity {
                     // The world rays themselves, bounded afresh when only some of them
@@ -959,7 +1094,7 @@ impl InstanceBvh {
                         active,
                         frustum: f,
                     };
-                    Q::walk(mesh, &mut w, tmin, tmax, answers);
+                    Q::walk(mesh, &mut w, tmin, tmax, answers, accept);
                 } else {
                     // The rays that may meet the instance, mapped into its object space (not
                     // renormalised: t stays the world ray's parameter) and packed together.
@@ -988,11 +1123,11 @@ impl InstanceBvh {
                                 active: wide::all_rays(k),
                                 frustum: &f,
                             };
-                            Q::walk(mesh, &mut w, tmin, &mut sub_tmax, packed);
+                            Q::walk(mesh, &mut w, tmin, &mut sub_tmax, packed, accept);
                         }
                         None => {
                             for (j, r) in object.iter().enumerate() {
-                                packed[j] = Q::walk_one(mesh, r, tmin, sub_tmax[j]);
+                                packed[j] = Q::walk_one(mesh, r, tmin, sub_tmax[j], accept);
                             }
                         }
                     }
@@ -1060,9 +1195,23 @@ impl InstanceBvh {
 
     /// Whether any instance is hit with `tmin <= t <= tmax`; stops at the first.
     pub fn any_hit(&self, meshes: &[MeshBvh], ray: &Ray, tmin: f32, tmax: f32) -> bool {
+        self.any_hit_filtered(meshes, ray, tmin, tmax, &NoFilter)
+    }
+
+    /// [`Self::any_hit`] counting only the hits `filter` accepts (alpha masks).
+    pub fn any_hit_filtered(
+        &self,
+        meshes: &[MeshBvh],
+        ray: &Ray,
+        tmin: f32,
+        tmax: f32,
+        filter: &impl HitFilter,
+    ) -> bool {
         let mut found = false;
-        self.walk::<false>(meshes, ray, tmin, tmax, |_, mesh, shear, nr, tmax| {
-            if mesh.any_in(shear, nr, tmin, *tmax) {
+        self.walk::<false>(meshes, ray, tmin, tmax, |p, mesh, shear, nr, tmax| {
+            let test = |t: u32, u: f32, v: f32| filter.accept(p.index, t, u, v);
+            let accept: Accept<'_> = filter.tests(p.index).then_some(&test);
+            if mesh.any_in(shear, nr, tmin, *tmax, accept) {
                 found = true;
                 return ControlFlow::Break(());
             }

@@ -94,6 +94,29 @@ pub struct MeshAccel {
     pub tlas: bvh::InstanceBvh,
     /// Wall-clock time of the whole build.
     pub build_time: std::time::Duration,
+    /// Per scene instance, whether it has alpha-masked triangles ([`AlphaTest`] tests them).
+    pub alpha_tested: Vec<bool>,
+}
+
+/// The scene's alpha masks as a [`bvh::HitFilter`]: a hit on a glTF `MASK` material where the
+/// coverage is below the cutoff does not count, for every query (glTF 2.0 §3.9.6: the
+/// surface is not there).
+#[derive(Clone, Copy)]
+pub struct AlphaTest<'a> {
+    meshes: &'a SceneMeshes,
+    tested: &'a [bool],
+}
+
+impl bvh::HitFilter for AlphaTest<'_> {
+    #[inline]
+    fn tests(&self, instance: u32) -> bool {
+        self.tested.get(instance as usize).copied().unwrap_or(false)
+    }
+    fn accept(&self, instance: u32, triangle: u32, u: f32, v: f32) -> bool {
+        !self
+            .meshes
+            .masked_out(instance as usize, triangle as usize, u, v)
+    }
 }
 
 impl MeshAccel {
@@ -114,10 +137,22 @@ impl MeshAccel {
             })
             .collect();
         let tlas = bvh::InstanceBvh::build(&blas, &instances, quality);
+        let alpha_tested = (0..meshes.instances.len())
+            .map(|i| meshes.alpha_tested(i))
+            .collect();
         MeshAccel {
             blas,
             tlas,
             build_time: start.elapsed(),
+            alpha_tested,
+        }
+    }
+
+    /// The alpha test of `meshes` (the meshes this was built from).
+    pub fn alpha_test<'a>(&'a self, meshes: &'a SceneMeshes) -> AlphaTest<'a> {
+        AlphaTest {
+            meshes,
+            tested: &self.alpha_tested,
         }
     }
 

@@ -148,7 +148,7 @@ gpu_struct! {
 
 gpu_struct! {
     /// A mesh vertex's shading attributes.
-    pub struct VertexRecord(32) {
+    pub struct VertexRecord(80) {
         /// Object-space position.
         pub position: [f32; 3],
         /// Texture coordinate u.
@@ -157,6 +157,12 @@ gpu_struct! {
         pub normal: [f32; 3],
         /// Texture coordinate v.
         pub v: f32,
+        /// Tangent and bitangent sign (`TriangleMesh::tangents`; (1, 0, 0, 1) without).
+        pub tangent: [f32; 4],
+        /// Vertex colour, linear RGBA (`TriangleMesh::colors`; white without).
+        pub color: [f32; 4],
+        /// Second texture coordinates (`TriangleMesh::uvs1`; zero without), then two zeros.
+        pub uv1: [f32; 4],
     }
 }
 
@@ -187,8 +193,8 @@ gpu_struct! {
         pub material_base: u32,
         /// Scene material replacing the file's, or [`NONE`].
         pub material_override: u32,
-        /// Unused.
-        pub pad: u32,
+        /// 1 when hits need the alpha-mask test (`SceneMeshes::alpha_tested`), else 0.
+        pub alpha_tested: u32,
     }
 }
 
@@ -196,12 +202,22 @@ gpu_struct! {
 const _: () = assert!(crate::sdf::tape::MATERIAL_FLOATS == 5 * 4);
 
 gpu_struct! {
-    /// A scene material: the lanes of `MaterialVec` and its base-colour texture.
-    pub struct MaterialRecord(96) {
+    /// A scene material: the lanes of `MaterialVec` and, for a mesh file's material, its
+    /// textures (`MaterialTextures`) and alpha mode.
+    pub struct MaterialRecord(304) {
         /// The lanes, four per vector.
         pub lanes: [[f32; 4]; 5],
-        /// Base-colour texture index, or [`NONE`].
-        pub texture: u32,
+        /// Per texture slot (base colour, metallic-roughness, normal, occlusion, emissive:
+        /// `MaterialTextures::slots`), the `KHR_texture_transform` matrix as two vectors:
+        /// (column 0, column 1) and (column 2, 0, 0) of `UvTransform::columns`.
+        pub transforms: [[f32; 4]; 10],
+        /// Per slot, the texture index with the texture coordinate set in bit 31, or
+        /// [`NONE`]; entries 5–7 unused.
+        pub slots: [[u32; 4]; 2],
+        /// Alpha cutoff, base colour factor alpha, normal scale, occlusion strength.
+        pub factors: [f32; 4],
+        /// `ALPHA_*` of the alpha mode (`ALPHA_OPAQUE` for scene materials).
+        pub alpha_mode: u32,
         /// Unused.
         pub pad0: u32,
         /// Unused.
@@ -214,13 +230,14 @@ gpu_struct! {
 gpu_struct! {
     /// A texture in the shared texel buffer.
     pub struct TextureRecord(16) {
-        /// First texel (row-major, row 0 at the top).
+        /// First word of the texels in the texel buffer (row-major, row 0 at the top).
         pub texel_start: u32,
         /// Width in texels.
         pub width: u32,
         /// Height in texels.
         pub height: u32,
-        /// Wrap modes: u in bits 0–3, v in bits 4–7 (`WRAP_*` constants).
+        /// Wrap modes: u in bits 0–3, v in bits 4–7 (`WRAP_*` constants); the texel format
+        /// in bits 8 and 9 (`TEXELS_PACKED8`, `TEXELS_SRGB`).
         pub wrap: u32,
     }
 }

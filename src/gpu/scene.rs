@@ -72,7 +72,7 @@ pub struct SceneData {
     /// Textures.
     pub textures: Vec<TextureRecord>,
     /// Texels of every texture.
-    pub texels: Vec<[f32; 4]>,
+    pub texels: Vec<u32>,
     /// Deepest BVH (levels), checked against [`STACK_SIZE`].
     pub max_depth: u32,
 }
@@ -197,6 +197,19 @@ impl SceneData {
                     u: uv.x,
                     normal: n.to_array(),
                     v: uv.y,
+                    tangent: mesh
+                        .tangents
+                        .get(k)
+                        .map_or([1.0, 0.0, 0.0, 1.0], |t| t.to_array()),
+                    color: mesh.colors.get(k).map_or([1.0; 4], |c| c.to_array()),
+                    uv1: mesh
+                        .uvs1
+                        .get(k)
+                        .copied()
+                        .unwrap_or_default()
+                        .extend(0.0)
+                        .extend(0.0)
+                        .to_array(),
                 });
             }
             for (t, idx) in mesh.triangles.iter().enumerate() {
@@ -228,7 +241,7 @@ impl SceneData {
 
         // Instances: all recorded (surfaces are looked up by scene index); the tree over the
         // valid ones is the CPU's, with its per-ray node margin.
-        for inst in &sm.instances {
+        for (k, inst) in sm.instances.iter().enumerate() {
             let inv = inst.transform.inverse();
             let rows = |a: &glam::Affine3A| -> [[f32; 4]; 3] {
                 let (x, y, z, t) = (
@@ -254,7 +267,7 @@ impl SceneData {
                 mesh: inst.mesh as u32,
                 material_base: inst.material_base,
                 material_override: inst.material_override.unwrap_or(NONE),
-                pad: 0,
+                alpha_tested: accel.alpha_tested.get(k).copied().unwrap_or(false) as u32,
             });
         }
         data.globals.instance_count = sm.instances.len() as u32;
@@ -267,16 +280,10 @@ impl SceneData {
         // Materials: the scene's table (mesh files' materials included) and their textures.
         for (i, m) in scene.materials.iter().enumerate() {
             let v = m.to_vec();
-            let texture = (i as u32)
+            let file = (i as u32)
                 .checked_sub(sm.material_offset)
-                .and_then(|k| sm.materials.get(k as usize))
-                .and_then(|mm| mm.base_color_texture)
-                .map_or(NONE, |t| t as u32);
-            data.materials.push(MaterialRecord {
-                lanes: std::array::from_fn(|i| std::array::from_fn(|j| v[4 * i + j])),
-                texture,
-                ..Default::default()
-            });
+                .and_then(|k| sm.materials.get(k as usize));
+            data.materials.push(material_record(&v, file));
         }
         data.globals.material_count = data.materials.len() as u32;
         for t in &sm.textures {
@@ -287,18 +294,28 @@ impl SceneData {
             } else {
                 (0, 0)
             };
+            let packed = if complete { t.packed8() } else { None };
+            let mut format = 0;
+            if packed.is_some() {
+                format |= TEXELS_PACKED8;
+                if t.srgb {
+                    format |= TEXELS_SRGB;
+                }
+            }
             data.textures.push(TextureRecord {
                 texel_start: data.texels.len() as u32,
                 width,
                 height,
-                wrap: wrap_code(t.wrap_u) | (wrap_code(t.wrap_v) << 4),
+                wrap: wrap_code(t.wrap_u) | (wrap_code(t.wrap_v) << 4) | format,
             });
-            if complete {
-                data.texels.extend(
+            match packed {
+                Some(p) => data.texels.extend(p),
+                None if complete => data.texels.extend(
                     t.texels[..(t.width as usize * t.height as usize)]
                         .iter()
-                        .map(|c| c.to_array()),
-                );
+                        .flat_map(|c| c.to_array().map(f32::to_bits)),
+                ),
+                None => {}
             }
         }
         data.check_depth()?;
@@ -533,6 +550,58 @@ impl GpuScene {
         &self.buffers
     }
 }
+
+/// The record of a scene material whose lanes are `lanes`; `file` is the mesh file's
+/// material it comes from, if any (its textures and alpha mode).
+fn material_record(
+    lanes: &crate::sdf::tape::MaterialVec,
+    file: Option<&crate::scene::mesh::MeshMaterial>,
+) -> MaterialRecord {
+    use crate::scene::mesh::AlphaMode;
+    let mut r = MaterialRecord {
+        lanes: std::array::from_fn(|i| std::array::from_fn(|j| lanes[4 * i + j])),
+        slots: [[NONE; 4]; 2],
+        factors: [0.5, 1.0, 1.0, 1.0],
+        alpha_mode: ALPHA_OPAQUE,
+        ..Default::default()
+    };
+    let Some(m) = file else {
+        return r;
+    };
+    for (k, slot) in m.textures.slots().into_iter().enumerate() {
+        let Some(t) = slot else { continue };
+        r.slots[k / 4][k % 4] = (t.texture as u32 & 0x7fff_ffff) | (t.tex_coord.min(1) << 31);
+        let [c0, c1, c2] = t.transform.columns();
+        r.transforms[2 * k] = [c0[0], c0[1], c1[0], c1[1]];
+        r.transforms[2 * k + 1] = [c2[0], c2[1], 0.0, 0.0];
+    }
+    let (cutoff, mode) = match m.alpha_mode {
+        AlphaMode::Opaque => (0.5, ALPHA_OPAQUE),
+        AlphaMode::Mask { cutoff } => (cutoff, ALPHA_MASK),
+        AlphaMode::Blend => (0.5, ALPHA_BLEND),
+    };
+    r.alpha_mode = mode;
+    r.factors = [
+        cutoff,
+        m.base_alpha,
+        m.textures.normal.map_or(1.0, |n| n.1),
+        m.textures.occlusion.map_or(1.0, |o| o.1),
+    ];
+    r
+}
+
+/// `MaterialRecord::alpha_mode` of `AlphaMode::Opaque` (and of scene materials).
+pub const ALPHA_OPAQUE: u32 = 0;
+/// `MaterialRecord::alpha_mode` of `AlphaMode::Mask`.
+pub const ALPHA_MASK: u32 = 1;
+/// `MaterialRecord::alpha_mode` of `AlphaMode::Blend`.
+pub const ALPHA_BLEND: u32 = 2;
+
+/// `TextureRecord::wrap` bit: one `u32` per texel, RGBA bytes from the lowest
+/// (`Texture::packed8`); without it, four (the f32 bits of R, G, B, A).
+pub const TEXELS_PACKED8: u32 = 1 << 8;
+/// `TextureRecord::wrap` bit: packed colour bytes are sRGB-encoded (decoded on sampling).
+pub const TEXELS_SRGB: u32 = 1 << 9;
 
 #[cfg(test)]
 mod tests {

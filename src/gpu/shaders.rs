@@ -249,7 +249,7 @@ pub fn scene_bindings() -> Bindings {
         ("instances", Storage, array(InstanceRecord::wgsl_name())),
         ("materials", Storage, array(MaterialRecord::wgsl_name())),
         ("textures", Storage, array(TextureRecord::wgsl_name())),
-        ("texels", Storage, array(<[f32; 4]>::wgsl_name())),
+        ("texels", Storage, array(u32::wgsl_name())),
     ]
 }
 
@@ -354,6 +354,11 @@ pub fn wgsl_prelude() -> String {
     s += &u("WRAP_REPEAT", wrap_code(Wrap::Repeat));
     s += &u("WRAP_CLAMP_TO_EDGE", wrap_code(Wrap::ClampToEdge));
     s += &u("WRAP_MIRRORED_REPEAT", wrap_code(Wrap::MirroredRepeat));
+    s += &u("TEXELS_PACKED8", crate::gpu::scene::TEXELS_PACKED8);
+    s += &u("TEXELS_SRGB", crate::gpu::scene::TEXELS_SRGB);
+    s += &u("ALPHA_OPAQUE", crate::gpu::scene::ALPHA_OPAQUE);
+    s += &u("ALPHA_MASK", crate::gpu::scene::ALPHA_MASK);
+    s += &u("ALPHA_BLEND", crate::gpu::scene::ALPHA_BLEND);
     s += &u("VERDICT_EMPTY", verdict_code(Verdict::Empty));
     s += &u("VERDICT_FULL", verdict_code(Verdict::Full));
     s += &u("VERDICT_SURFACE", verdict_code(Verdict::Surface));

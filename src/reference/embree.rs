@@ -10,7 +10,11 @@
 //!   `RTC_GEOMETRY_TYPE_INSTANCE` of it in the top-level scene, with the instance's object→world
 //!   transform (`RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR`). Embree reports the hit in the instance's
 //!   object space; the normal returned is the triangle's geometric normal (counter-clockwise
-//!   front, as the files orient it) under the instance's normal matrix.
+//!   front, as the files orient it) under the instance's normal matrix. Meshes with glTF
+//!   alpha masks (`MASK` materials) get intersect and occluded filter functions
+//!   (`rtcSetGeometryIntersectFilterFunction`) that reject hits on the masks' holes with the
+//!   tracer's own test ([`SceneMeshes::masked_out`](crate::scene::SceneMeshes::masked_out)),
+//!   so masked surfaces are compared as the tracer sees them.
 //! * **SDF objects** whose tree is one analytic primitive (Sphere, Box, Plane, Torus, Cylinder,
 //!   Cone, Capsule, Ellipsoid) under any nesting of `Transform` (rotation, uniform scale,
 //!   translation) and `Material` nodes become `RTC_GEOMETRY_TYPE_USER` geometries. Their
@@ -593,6 +597,87 @@ fn triangle_geometry(
     Ok(g)
 }
 
+/// The scene's alpha masks for the mesh geometries' filter functions: a copy of the scene's
+/// meshes (Embree calls back with no borrow to tie them to) and the map from top-level
+/// geometry IDs to scene instances.
+struct AlphaFilter {
+    meshes: crate::scene::SceneMeshes,
+    /// Top-level geometry ID → scene instance.
+    instance_of: Vec<u32>,
+    /// Meshes some instance of which is alpha-tested.
+    masked_meshes: Vec<usize>,
+}
+
+impl AlphaFilter {
+    /// The filter of `meshes`, or `None` when no instance has an alpha mask.
+    fn of(meshes: &crate::scene::SceneMeshes) -> Option<Box<AlphaFilter>> {
+        let mut masked_meshes: Vec<usize> = (0..meshes.instances.len())
+            .filter(|&i| meshes.alpha_tested(i))
+            .map(|i| meshes.instances[i].mesh)
+            .collect();
+        masked_meshes.sort_unstable();
+        masked_meshes.dedup();
+        (!masked_meshes.is_empty()).then(|| {
+            Box::new(AlphaFilter {
+                meshes: meshes.clone(),
+                instance_of: Vec::new(),
+                masked_meshes,
+            })
+        })
+    }
+
+    /// Sets the filter functions of a mesh geometry (committed again by the caller).
+    fn attach(&mut self, g: &Geometry) {
+        let user = self as *mut AlphaFilter as *mut c_void;
+        // SAFETY: the filter is boxed and kept by the `EmbreeScene` as long as the geometry.
+        unsafe {
+            embree4_sys::rtcSetGeometryUserData(g.0, user);
+            embree4_sys::rtcSetGeometryIntersectFilterFunction(g.0, Some(alpha_filter));
+            embree4_sys::rtcSetGeometryOccludedFilterFunction(g.0, Some(alpha_filter));
+        }
+    }
+
+    fn set_instance(&mut self, top_id: u32, instance: u32) {
+        let i = top_id as usize;
+        if self.instance_of.len() <= i {
+            self.instance_of.resize(i + 1, u32::MAX);
+        }
+        self.instance_of[i] = instance;
+    }
+}
+
+/// The intersect and occluded filter of alpha-masked meshes: a hit on a hole of the mask is
+/// rejected (`valid` cleared), so Embree goes on as if the triangle were not there.
+unsafe extern "C" fn alpha_filter(args: *const embree4_sys::RTCFilterFunctionNArguments) {
+    // SAFETY: Embree passes valid arguments; the user pointer is the boxed `AlphaFilter`.
+    let args = unsafe { &*args };
+    let filter = unsafe { &*(args.geometryUserPtr as *const AlphaFilter) };
+    let n = args.N as usize;
+    // RTCHitN is structure-of-arrays: Ng_x, Ng_y, Ng_z, u, v, primID, geomID, instID[0], …
+    // each N 4-byte lanes long (rtcore_ray.h)
+    let hit = args.hit as *const u32;
+    for i in 0..n {
+        // SAFETY: `valid` and the hit's lanes have N entries.
+        let valid = unsafe { &mut *args.valid.add(i) };
+        if *valid == 0 {
+            continue;
+        }
+        let lane = |field: usize| unsafe { *hit.add(field * n + i) };
+        let (u, v) = (f32::from_bits(lane(3)), f32::from_bits(lane(4)));
+        let (triangle, top) = (lane(5), lane(7));
+        let Some(&instance) = filter.instance_of.get(top as usize) else {
+            continue;
+        };
+        if instance != u32::MAX
+            && filter
+                .meshes
+                .masked_out(instance as usize, triangle as usize, u, v)
+        {
+            *valid = 0;
+        }
+    }
+}
+
 /// A committed user geometry of one primitive whose callbacks are `S`'s; the caller keeps
 /// `shape` (boxed) alive as long as the scene.
 fn user_geometry<S: UserGeometry>(device: &Device, shape: &S) -> Result<Geometry, String> {
@@ -657,6 +742,9 @@ pub struct EmbreeScene {
     _shapes: Vec<Box<UserShape>>,
     #[allow(clippy::vec_box)]
     certified: Vec<Box<CertifiedShape>>,
+    /// The alpha masks the mesh geometries' filter functions read (boxed: Embree holds its
+    /// address), when any instance has one.
+    _alpha: Option<Box<AlphaFilter>>,
     device: Device,
     /// Top-level geometry ID → what it is.
     ids: Vec<Option<ObjectId>>,
@@ -794,11 +882,16 @@ impl EmbreeScene {
 
         // Meshes: one scene per mesh, instanced.
         let meshes = &scene.meshes;
+        let mut alpha = AlphaFilter::of(meshes);
         let mut mesh_scenes = Vec::with_capacity(meshes.meshes.len());
-        for mesh in &meshes.meshes {
+        for (m, mesh) in meshes.meshes.iter().enumerate() {
             let s = SceneHandle::new(&device)?;
             if !mesh.triangles.is_empty() {
                 let g = triangle_geometry(&device, &mesh.positions, &mesh.triangles)?;
+                if let Some(a) = alpha.as_mut().filter(|a| a.masked_meshes.contains(&m)) {
+                    a.attach(&g);
+                    g.commit();
+                }
                 s.attach(&g);
             }
             s.commit();
@@ -821,7 +914,11 @@ impl EmbreeScene {
         let mut instances = Vec::with_capacity(meshes.instances.len());
         for (k, inst) in meshes.instances.iter().enumerate() {
             let g = instance(&device, &mesh_scenes[inst.mesh], &inst.transform)?;
-            record(top.attach(&g), ObjectId::MeshInstance(k));
+            let id = top.attach(&g);
+            record(id, ObjectId::MeshInstance(k));
+            if let Some(a) = alpha.as_mut() {
+                a.set_instance(id, k as u32);
+            }
             instances.push((inst.mesh, inst.normal_matrix));
         }
 
@@ -988,6 +1085,7 @@ impl EmbreeScene {
             _mesh_scenes: mesh_scenes,
             _shapes: shapes,
             certified,
+            _alpha: alpha,
             device,
             ids,
             face_normals,

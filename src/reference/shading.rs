@@ -99,11 +99,12 @@ impl<'a> EmbreeTracer<'a> {
             ObjectId::MeshInstance(k) => {
                 self.mesh_hits.fetch_add(1, Ordering::Relaxed);
                 let accel = self.ours.mesh_accel();
-                let found = accel.tlas.closest_hit(
+                let found = accel.tlas.closest_hit_filtered(
                     &accel.blas,
                     ray,
                     (q.t - self.window).max(0.0),
                     q.t + self.window,
+                    &accel.alpha_test(&scene.meshes),
                 );
                 let (instance, triangle, u, v) = match found {
                     Some(h) => (h.instance, h.triangle, h.u, h.v),
@@ -123,7 +124,7 @@ impl<'a> EmbreeTracer<'a> {
                         u,
                         v,
                         material: surf.material,
-                        tint: surf.tint,
+                        sample: surf.sample,
                     },
                     normal: if found.is_some() {
                         surf.normal

@@ -75,7 +75,7 @@ pub fn icosphere_scene(level: u32) -> Result<Scene, SceneError> {
         triangle_material: vec![0; triangles.len()],
         positions,
         triangles,
-        uvs: Vec::new(),
+        ..TriangleMesh::default()
     });
     scene.meshes.instances.push(SceneInstance {
         mesh: 0,

@@ -1,8 +1,9 @@
 //! The triangle meshes of a scene: files loaded once, placed any number of times.
 
-use super::mesh::{self, MeshError, MeshMaterial, Texture, TriangleMesh};
+use super::material::MaterialParams;
+use super::mesh::{self, AlphaMode, MeshError, MeshMaterial, Texture, TextureRef, TriangleMesh};
 use crate::geom::Aabb;
-use glam::{Affine3A, Mat3A, Vec2, Vec3};
+use glam::{Affine3A, Mat3A, Vec2, Vec3, Vec4};
 use std::collections::HashMap;
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
@@ -34,7 +35,7 @@ pub struct SceneMeshes {
     pub instances: Vec<SceneInstance>,
     /// Materials from the files, in scene order starting at `material_offset`.
     pub materials: Vec<MeshMaterial>,
-    /// Textures from the files; `MeshMaterial::base_color_texture` indexes here.
+    /// Textures from the files; `MeshMaterial::textures` indexes here.
     pub textures: Vec<Texture>,
     /// Loaded files: path → (first mesh, first material, the file's own instances).
     loaded: HashMap<PathBuf, LoadedFile>,
@@ -88,7 +89,9 @@ impl SceneMeshes {
             self.textures.extend(asset.textures);
             self.materials
                 .extend(asset.materials.into_iter().map(|mut m| {
-                    m.base_color_texture = m.base_color_texture.map(|t| t + texture_base);
+                    for slot in m.textures.slots_mut().into_iter().flatten() {
+                        slot.texture += texture_base;
+                    }
                     m
                 }));
             self.cameras.extend(asset.cameras);
@@ -157,57 +160,273 @@ impl SceneMeshes {
         })
     }
 
+    /// The file material of `triangle` of instance `instance`, or `None` when the scene
+    /// overrides the instance's materials (and the file's textures and alpha do not apply).
+    pub fn file_material(&self, instance: usize, triangle: usize) -> Option<&MeshMaterial> {
+        let inst = self.instances.get(instance)?;
+        if inst.material_override.is_some() {
+            return None;
+        }
+        let m = self.meshes.get(inst.mesh)?;
+        let local = m.triangle_material.get(triangle).copied().unwrap_or(0);
+        self.materials
+            .get((inst.material_base - self.material_offset + local) as usize)
+    }
+
+    /// Whether any triangle of instance `instance` has an alpha-masked material
+    /// ([`AlphaMode::Mask`]): whether hits on it need [`Self::masked_out`].
+    pub fn alpha_tested(&self, instance: usize) -> bool {
+        let Some(inst) = self.instances.get(instance) else {
+            return false;
+        };
+        if inst.material_override.is_some() {
+            return false;
+        }
+        let first = (inst.material_base - self.material_offset) as usize;
+        let m = &self.meshes[inst.mesh];
+        let masked = |k: &u32| {
+            self.materials
+                .get(first + *k as usize)
+                .is_some_and(|mm| matches!(mm.alpha_mode, AlphaMode::Mask { .. }))
+        };
+        // most meshes use one or two materials: test each distinct index once
+        let mut seen: Vec<u32> = m.triangle_material.clone();
+        seen.sort_unstable();
+        seen.dedup();
+        seen.iter().any(masked)
+    }
+
+    /// Whether the point at barycentrics (u, v) of `triangle` of instance `instance` is a
+    /// hole of an alpha mask: its material is [`AlphaMode::Mask`] and its coverage
+    /// (`baseColorFactor` alpha × base colour texture alpha × `COLOR_0` alpha) is below the
+    /// cutoff (glTF 2.0 §3.9.6). Such points are not there for any ray.
+    pub fn masked_out(&self, instance: usize, triangle: usize, u: f32, v: f32) -> bool {
+        let Some(mat) = self.file_material(instance, triangle) else {
+            return false;
+        };
+        let AlphaMode::Mask { cutoff } = mat.alpha_mode else {
+            return false;
+        };
+        let m = &self.meshes[self.instances[instance].mesh];
+        let corners = Corners::new(m, triangle, u, v);
+        let alpha = mat.base_alpha
+            * corners.color(m).w
+            * mat
+                .textures
+                .base_color
+                .map_or(1.0, |t| self.sample(m, &corners, &t).w);
+        alpha < cutoff
+    }
+
+    /// `texture` sampled at the point `corners` describes.
+    fn sample(&self, m: &TriangleMesh, corners: &Corners, t: &TextureRef) -> Vec4 {
+        let uvs = if t.tex_coord == 1 { &m.uvs1 } else { &m.uvs };
+        match (uvs.is_empty(), self.textures.get(t.texture)) {
+            (false, Some(tex)) => {
+                let uv = corners.interpolate2(uvs);
+                tex.sample(t.transform.apply(uv))
+            }
+            _ => Vec4::ONE,
+        }
+    }
+
     /// Surface attributes at barycentrics (u, v) of `triangle` of instance `instance`: the
-    /// world-space shading normal (interpolated vertex normals under the inverse transpose),
-    /// the scene material index and the base-colour multiplier from the texture.
+    /// world-space shading normal (interpolated vertex normals, perturbed by the normal
+    /// texture, under the inverse transpose), the scene material index and what the file
+    /// material's textures and vertex colours make of it there.
     pub fn surface(&self, instance: usize, triangle: usize, u: f32, v: f32) -> MeshSurface {
         let inst = &self.instances[instance];
         let m = &self.meshes[inst.mesh];
-        let [a, b, c] = m.triangles[triangle].map(|i| i as usize);
-        let w = 1.0 - u - v;
+        let corners = Corners::new(m, triangle, u, v);
+        let [a, b, c] = corners.index;
         let geometric = (m.positions[b] - m.positions[a]).cross(m.positions[c] - m.positions[a]);
-        let local_normal = {
-            let n = w * m.normals[a] + u * m.normals[b] + v * m.normals[c];
-            if n.length_squared() > 1e-20 {
-                n
-            } else {
-                geometric
-            }
+        let interpolated = corners.interpolate3(&m.normals);
+        let mut local_normal = if interpolated.length_squared() > 1e-20 {
+            interpolated
+        } else {
+            geometric
         };
-        let normal = (inst.normal_matrix * local_normal)
-            .try_normalize()
-            .unwrap_or(Vec3::Y);
         let local_material = m.triangle_material.get(triangle).copied().unwrap_or(0);
         let material = inst
             .material_override
             .unwrap_or(inst.material_base + local_material);
-        let tint = if inst.material_override.is_none() && !m.uvs.is_empty() {
-            let mat = &self.materials
-                [(inst.material_base - self.material_offset + local_material) as usize];
-            mat.base_color_texture.map_or(Vec3::ONE, |t| {
-                let uv: Vec2 = w * m.uvs[a] + u * m.uvs[b] + v * m.uvs[c];
-                self.textures[t].sample(uv).truncate()
-            })
-        } else {
-            Vec3::ONE
-        };
+        let mut sample = SurfaceSample::NONE;
+        if let Some(mat) = self.file_material(instance, triangle) {
+            let t = &mat.textures;
+            let color = corners.color(m);
+            let base = t
+                .base_color
+                .map_or(Vec4::ONE, |r| self.sample(m, &corners, &r))
+                * color;
+            sample.color = base.truncate();
+            if mat.alpha_mode == AlphaMode::Blend {
+                sample.alpha = base.w;
+            }
+            if let Some(r) = &t.metallic_roughness {
+                // §3.9.2: "The metalness values are sampled from the B channel. The roughness
+                // values are sampled from the G channel."
+                let mr = self.sample(m, &corners, r);
+                sample.metallic = mr.z;
+                sample.roughness = mr.y;
+            }
+            if let Some((r, strength)) = &t.occlusion {
+                // §3.9.4: occlusion = 1.0 + strength * (R - 1.0)
+                sample.occlusion = 1.0 + strength * (self.sample(m, &corners, r).x - 1.0);
+            }
+            if let Some(r) = &t.emissive {
+                sample.emissive = self.sample(m, &corners, r).truncate();
+            }
+            if let (Some((r, scale)), false) = (&t.normal, m.tangents.is_empty()) {
+                let tangent = corners.interpolate4(&m.tangents);
+                let texel = self.sample(m, &corners, r).truncate();
+                local_normal = normal_mapped(local_normal, tangent, texel, *scale);
+            }
+        }
+        let normal = (inst.normal_matrix * local_normal)
+            .try_normalize()
+            .unwrap_or(Vec3::Y);
         MeshSurface {
             normal,
             material,
-            tint,
+            sample,
         }
+    }
+}
+
+/// The vertices of one triangle and the barycentric weights of a point in it.
+struct Corners {
+    index: [usize; 3],
+    weight: [f32; 3],
+}
+
+impl Corners {
+    fn new(m: &TriangleMesh, triangle: usize, u: f32, v: f32) -> Self {
+        Corners {
+            index: m.triangles[triangle].map(|i| i as usize),
+            weight: [1.0 - u - v, u, v],
+        }
+    }
+
+    fn interpolate2(&self, values: &[Vec2]) -> Vec2 {
+        (0..3).map(|k| self.weight[k] * values[self.index[k]]).sum()
+    }
+
+    fn interpolate3(&self, values: &[Vec3]) -> Vec3 {
+        (0..3).map(|k| self.weight[k] * values[self.index[k]]).sum()
+    }
+
+    fn interpolate4(&self, values: &[Vec4]) -> Vec4 {
+        (0..3).map(|k| self.weight[k] * values[self.index[k]]).sum()
+    }
+
+    /// The vertex colour (`COLOR_0`), white without one.
+    fn color(&self, m: &TriangleMesh) -> Vec4 {
+        if m.colors.is_empty() {
+            Vec4::ONE
+        } else {
+            self.interpolate4(&m.colors)
+        }
+    }
+}
+
+/// Normal mapping (glTF 2.0 §3.9.3): the texel t decoded as 2t − 1, x and y scaled by
+/// `scale`, taken in the frame (T, B, N) with B = w·(N × T) — `tangent` = (T, w), T made
+/// orthogonal to N first (Gram–Schmidt, as MikkTSpace's consumers do). Everything is in the
+/// mesh's object space; the result is not normalised.
+///
+/// The mapped normal is kept on the side of the surface `n` is on (at least a small angle
+/// above its tangent plane): the integrator turns normals towards the viewer by `n`'s side,
+/// so a map that tilted the normal past the tangent plane would light the back of the surface.
+pub fn normal_mapped(n: Vec3, tangent: Vec4, texel: Vec3, scale: f32) -> Vec3 {
+    let Some(n) = n.try_normalize() else {
+        return n;
+    };
+    let t = tangent.truncate();
+    let Some(t) = (t - n * n.dot(t)).try_normalize() else {
+        return n;
+    };
+    let b = if tangent.w < 0.0 { -1.0 } else { 1.0 } * n.cross(t);
+    let d = 2.0 * texel - Vec3::ONE;
+    let mapped = t * (d.x * scale) + b * (d.y * scale) + n * d.z;
+    let Some(mapped) = mapped.try_normalize() else {
+        return n;
+    };
+    // no lower than ~3° above the tangent plane
+    const MIN_COS: f32 = 0.05;
+    let c = mapped.dot(n);
+    if c >= MIN_COS {
+        return mapped;
+    }
+    let along = mapped - n * c;
+    (along.normalize_or_zero() * (1.0 - MIN_COS * MIN_COS).sqrt() + n * MIN_COS)
+        .try_normalize()
+        .unwrap_or(n)
+}
+
+/// What a mesh file material's textures and vertex colours make of it at one point: each
+/// field multiplies the corresponding [`MaterialParams`] field (all 1 where there is no
+/// texture).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfaceSample {
+    /// Multiplies `color`: base colour texture × `COLOR_0`.
+    pub color: Vec3,
+    /// Multiplies `opacity` (BLEND materials only: texture alpha × `COLOR_0` alpha).
+    pub alpha: f32,
+    /// Multiplies `metallic` (metallic-roughness texture, blue).
+    pub metallic: f32,
+    /// Multiplies `roughness` (metallic-roughness texture, green).
+    pub roughness: f32,
+    /// Multiplies `occlusion` (occlusion texture with its strength).
+    pub occlusion: f32,
+    /// Multiplies `emissive` (emissive texture).
+    pub emissive: Vec3,
+}
+
+impl SurfaceSample {
+    /// No texture: changes nothing.
+    pub const NONE: SurfaceSample = SurfaceSample {
+        color: Vec3::ONE,
+        alpha: 1.0,
+        metallic: 1.0,
+        roughness: 1.0,
+        occlusion: 1.0,
+        emissive: Vec3::ONE,
+    };
+
+    /// `params` modulated by the sample. The mirror reflectance of a metallic-roughness
+    /// material follows its textured metalness and roughness as
+    /// [`MaterialParams::metallic_roughness`] derives it from the factors.
+    pub fn apply(&self, mut params: MaterialParams) -> MaterialParams {
+        if *self == SurfaceSample::NONE {
+            return params;
+        }
+        params.color *= self.color;
+        params.opacity *= self.alpha;
+        params.occlusion *= self.occlusion;
+        params.emissive *= self.emissive;
+        if self.metallic != 1.0 || self.roughness != 1.0 {
+            let derived = |m: f32, r: f32| m * (1.0 - r) * (1.0 - r);
+            let before = derived(params.metallic, params.roughness);
+            params.metallic *= self.metallic;
+            params.roughness *= self.roughness;
+            // only a reflectance that came from the factors follows the texture
+            if params.pbr > 0.0 && (params.reflectivity - before).abs() < 1e-6 {
+                params.reflectivity = derived(params.metallic, params.roughness);
+            }
+        }
+        params
     }
 }
 
 /// What the shader needs from a mesh hit.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MeshSurface {
-    /// World-space unit shading normal (as the file orients it).
+    /// World-space unit shading normal (as the file orients it, normal-mapped).
     pub normal: Vec3,
     /// Scene material index.
     pub material: u32,
-    /// Multiplier of the material's colour from its base-colour texture (1 without one).
-    pub tint: Vec3,
+    /// What the file material's textures make of the material here.
+    pub sample: SurfaceSample,
 }
 
 /// A scene's `mesh:` path starts with `$NAME/` for a variable NAME that has no value.

@@ -39,8 +39,8 @@ pub enum Surface {
         v: f32,
         /// Scene material index there (found once, with the normal, at the hit).
         material: u32,
-        /// Base-colour texture multiplier there.
-        tint: Vec3,
+        /// What the file material's textures make of the material there.
+        sample: crate::scene::meshes::SurfaceSample,
     },
 }
 
@@ -277,9 +277,13 @@ impl<'a> SceneTracer<'a> {
         let mesh_hit = if self.meshes.is_empty() {
             None
         } else {
-            self.meshes
-                .tlas
-                .closest_hit(&self.meshes.blas, ray, tmin, limit)
+            self.meshes.tlas.closest_hit_filtered(
+                &self.meshes.blas,
+                ray,
+                tmin,
+                limit,
+                &self.meshes.alpha_test(&self.scene.meshes),
+            )
         };
         self.closest_hit_after_meshes(ray, tmin, limit, mesh_hit)
     }
@@ -296,9 +300,14 @@ impl<'a> SceneTracer<'a> {
         let mut mesh_hits = vec![None; rays.len()];
         if !self.meshes.is_empty() {
             let limits = vec![limit; rays.len()];
-            self.meshes
-                .tlas
-                .closest_hits(&self.meshes.blas, rays, tmin, &limits, &mut mesh_hits);
+            self.meshes.tlas.closest_hits_filtered(
+                &self.meshes.blas,
+                rays,
+                tmin,
+                &limits,
+                &mut mesh_hits,
+                &self.meshes.alpha_test(&self.scene.meshes),
+            );
         }
         if self.scene.tracer.stepper != Stepper::Hart || !self.packets {
             for ((ray, mesh_hit), out) in rays.iter().zip(mesh_hits).zip(out) {
@@ -439,7 +448,7 @@ impl<'a> SceneTracer<'a> {
                     u: h.u,
                     v: h.v,
                     material: surf.material,
-                    tint: surf.tint,
+                    sample: surf.sample,
                 },
                 normal: surf.normal,
                 gradient: 1.0,
@@ -634,7 +643,7 @@ impl<'a> SceneTracer<'a> {
     }
 
     /// The material at a hit: the SDF's blended material from its shading tape, or the mesh
-    /// triangle's material with its base-colour texture applied. `materials` is the scene's
+    /// triangle's material with its textures applied. `materials` is the scene's
     /// table as the tapes expect it.
     pub fn material_at(&self, hit: &Hit, p: Vec3, materials: &[MaterialVec]) -> MaterialParams {
         match hit.surface {
@@ -648,22 +657,21 @@ impl<'a> SceneTracer<'a> {
                 };
                 MaterialParams::from_vec(&tape.material_at(p, materials))
             }
-            Surface::Mesh { material, tint, .. } => {
-                let mut m = self.scene.materials[material as usize];
-                m.color *= tint;
-                m
-            }
+            Surface::Mesh {
+                material, sample, ..
+            } => sample.apply(self.scene.materials[material as usize]),
         }
     }
 
     /// Whether a mesh blocks the ray within (tmin, tmax).
     fn mesh_blocks(&self, ray: &Ray, tmin: f32, tmax: f32) -> bool {
         !self.meshes.is_empty()
-            && self.meshes.tlas.any_hit(
+            && self.meshes.tlas.any_hit_filtered(
                 &self.meshes.blas,
                 ray,
                 tmin,
                 tmax.min(self.scene.tracer.max_distance),
+                &self.meshes.alpha_test(&self.scene.meshes),
             )
     }
 
@@ -675,11 +683,12 @@ impl<'a> SceneTracer<'a> {
         let object = match surface {
             Surface::Sdf(object) => object,
             Surface::Mesh { .. } => {
-                let h = self.meshes.tlas.closest_hit(
+                let h = self.meshes.tlas.closest_hit_filtered(
                     &self.meshes.blas,
                     ray,
                     0.0,
                     tmax.min(s.max_distance),
+                    &self.meshes.alpha_test(&self.scene.meshes),
                 )?;
                 let n = self
                     .scene

@@ -4,13 +4,14 @@
 //! GLB container, buffers, accessors with their sparse substitutions, images) is read here
 //! with explicit bounds checks, so malformed files give errors instead of panics.
 
-use super::texture::{self, Texture, Wrap};
+use super::texture::{self, Texture, UvTransform, Wrap};
 use super::{
-    CameraProjection, LightKind, MeshAsset, MeshError, MeshInstance, MeshMaterial, NamedCamera,
-    NamedLight, TriangleMesh, pbr_material, repair_normals, unit, vertex_normals,
+    AlphaMode, CameraProjection, LightKind, MeshAsset, MeshError, MeshInstance, MeshMaterial,
+    NamedCamera, NamedLight, TextureRef, TriangleMesh, pbr_material, repair_normals, unit,
+    vertex_normals,
 };
 use ::gltf::json;
-use glam::{Affine3A, Mat4, Quat, Vec2, Vec3};
+use glam::{Affine3A, Mat4, Quat, Vec2, Vec3, Vec4};
 use json::accessor::{ComponentType, Type};
 use json::mesh::{Mode, Semantic};
 use json::validation::Checked;
@@ -372,8 +373,9 @@ struct Cx<'a> {
     asset: MeshAsset,
     /// glTF mesh index → index in `asset.meshes`.
     mesh_slot: HashMap<usize, usize>,
-    /// glTF texture index → index in `asset.textures` (`None`: failed, already warned).
-    texture_slot: HashMap<usize, Option<usize>>,
+    /// (glTF texture index, decoded from sRGB) → index in `asset.textures` (`None`: failed,
+    /// already warned).
+    texture_slot: HashMap<(usize, bool), Option<usize>>,
 }
 
 impl Cx<'_> {
@@ -658,11 +660,36 @@ impl Cx<'_> {
                 Checked::Valid(Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan)
             )
         };
-        let uv_key = Checked::Valid(Semantic::TexCoords(0));
-        let any_uv = mesh
+        let any = |sem: Semantic| {
+            let key = Checked::Valid(sem);
+            mesh.primitives
+                .iter()
+                .any(|p| drawn(p) && p.attributes.contains_key(&key))
+        };
+        let (any_uv, any_uv1, any_color) = (
+            any(Semantic::TexCoords(0)),
+            any(Semantic::TexCoords(1)),
+            any(Semantic::Colors(0)),
+        );
+        // the asset material of a primitive (materials are read before meshes)
+        let material_of = |p: &json::mesh::Primitive| match p.material {
+            Some(m) if m.value() < root.materials.len() => m.value() as u32 + 1,
+            _ => 0,
+        };
+        // per primitive, the texture coordinate set of its material's normal texture
+        let normal_mapped: Vec<Option<u32>> = mesh
             .primitives
             .iter()
-            .any(|p| drawn(p) && p.attributes.contains_key(&uv_key));
+            .map(|p| {
+                self.asset
+                    .materials
+                    .get(material_of(p) as usize)
+                    .and_then(|m| m.textures.normal.as_ref())
+                    .map(|(t, _)| t.tex_coord)
+                    .filter(|_| drawn(p))
+            })
+            .collect();
+        let any_tangent = normal_mapped.iter().any(Option::is_some);
         for (pi, prim) in mesh.primitives.iter().enumerate() {
             let place = format!("meshes[{mi}].primitives[{pi}]");
             if !drawn(prim) {
@@ -718,23 +745,13 @@ impl Cx<'_> {
                     Some(n)
                 }
             };
-            let uvs = match attr(Semantic::TexCoords(0)) {
-                None => None,
-                Some(a) => {
-                    let p = format!("{place}.attributes.TEXCOORD_0");
-                    let t: Vec<[f32; 2]> = self.read_vecs(a, &p)?;
-                    if t.len() != nv {
-                        return fail(
-                            p,
-                            format!(
-                                "accessors[{a}] has {} elements but POSITION has {nv}",
-                                t.len()
-                            ),
-                        );
-                    }
-                    Some(t)
-                }
-            };
+            let uvs =
+                self.vertex_attr::<2>(attr(Semantic::TexCoords(0)), &place, "TEXCOORD_0", nv)?;
+            let uvs1 =
+                self.vertex_attr::<2>(attr(Semantic::TexCoords(1)), &place, "TEXCOORD_1", nv)?;
+            let colors = self.vertex_colors(attr(Semantic::Colors(0)), &place, nv)?;
+            let file_tangents =
+                self.vertex_attr::<4>(attr(Semantic::Tangents), &place, "TANGENT", nv)?;
             let indices: Vec<u32> = match prim.indices {
                 Some(a) => {
                     let a = a.value();
@@ -797,16 +814,97 @@ impl Cx<'_> {
                 }
                 None => vertex_normals(&pos, &tris),
             };
-            let material = match prim.material {
-                Some(m) if m.value() < root.materials.len() => m.value() as u32 + 1,
-                _ => 0,
-            };
+            let material = material_of(prim);
+            let mut pos = pos;
+            let mut nrm = nrm;
+            let to2 = |v: Option<Vec<[f32; 2]>>| v.map(|v| v.into_iter().map(Vec2::from).collect());
+            let mut uvs: Option<Vec<Vec2>> = to2(uvs);
+            let mut uvs1: Option<Vec<Vec2>> = to2(uvs1);
+            let mut colors = colors;
+            let mut tangents: Option<Vec<Vec4>> = None;
+            if any_tangent {
+                let from_file = file_tangents.and_then(|t| {
+                    let t: Option<Vec<Vec4>> = t
+                        .into_iter()
+                        .map(|t| {
+                            let t = Vec4::from(t);
+                            let xyz = unit(t.truncate())?;
+                            t.w.is_finite()
+                                .then(|| xyz.extend(if t.w < 0.0 { -1.0 } else { 1.0 }))
+                        })
+                        .collect();
+                    if t.is_none() {
+                        self.warn(format!(
+                            "{place}.attributes.TANGENT: a tangent is zero or not finite; \
+                             tangents generated instead"
+                        ));
+                    }
+                    t
+                });
+                tangents = Some(match from_file {
+                    Some(t) => t,
+                    None => {
+                        let set = match normal_mapped[pi] {
+                            Some(1) => uvs1.as_deref(),
+                            Some(_) => uvs.as_deref(),
+                            None => None,
+                        };
+                        match set {
+                            Some(set) => {
+                                let (t, split) =
+                                    super::tangent::generate(&pos, &nrm, set, &mut tris);
+                                // the vertices MikkTSpace split, copied in every attribute
+                                for &v in &split {
+                                    let v = v as usize;
+                                    pos.push(pos[v]);
+                                    nrm.push(nrm[v]);
+                                    for a in [&mut uvs, &mut uvs1].into_iter().flatten() {
+                                        a.push(a[v]);
+                                    }
+                                    if let Some(c) = &mut colors {
+                                        c.push(c[v]);
+                                    }
+                                }
+                                t
+                            }
+                            // no texture coordinates to orient a tangent: any one orthogonal
+                            // to the normal (the normal map's x and y then have no meaning)
+                            None => nrm
+                                .iter()
+                                .map(|n| n.any_orthonormal_vector().extend(1.0))
+                                .collect(),
+                        }
+                    }
+                });
+            }
+            let nv = pos.len();
+            if base + nv > u32::MAX as usize {
+                return fail(pos_place, "the mesh has more than 2³² vertices");
+            }
             out.positions.extend(pos);
             out.normals.extend(nrm);
-            if any_uv {
-                match uvs {
-                    Some(t) => out.uvs.extend(t.iter().map(|&t| Vec2::from_array(t))),
-                    None => out.uvs.extend(std::iter::repeat_n(Vec2::ZERO, nv)),
+            let fill = |out: &mut Vec<Vec2>, have: bool, v: Option<Vec<Vec2>>| {
+                if have {
+                    match v {
+                        Some(t) => out.extend(t),
+                        None => out.extend(std::iter::repeat_n(Vec2::ZERO, nv)),
+                    }
+                }
+            };
+            fill(&mut out.uvs, any_uv, uvs);
+            fill(&mut out.uvs1, any_uv1, uvs1);
+            if any_color {
+                match colors {
+                    Some(c) => out.colors.extend(c),
+                    None => out.colors.extend(std::iter::repeat_n(Vec4::ONE, nv)),
+                }
+            }
+            if any_tangent {
+                match tangents {
+                    Some(t) => out.tangents.extend(t),
+                    None => out
+                        .tangents
+                        .extend(std::iter::repeat_n(Vec4::new(1.0, 0.0, 0.0, 1.0), nv)),
                 }
             }
             let b = base as u32;
@@ -818,12 +916,72 @@ impl Cx<'_> {
         Ok(out)
     }
 
+    /// A per-vertex attribute of `N` components (`None` when absent), checked to have one
+    /// element per vertex.
+    fn vertex_attr<const N: usize>(
+        &self,
+        accessor: Option<usize>,
+        place: &str,
+        name: &str,
+        nv: usize,
+    ) -> Result<Option<Vec<[f32; N]>>, Fail> {
+        let Some(a) = accessor else {
+            return Ok(None);
+        };
+        let p = format!("{place}.attributes.{name}");
+        let v: Vec<[f32; N]> = self.read_vecs(a, &p)?;
+        if v.len() != nv {
+            return fail(
+                p,
+                format!(
+                    "accessors[{a}] has {} elements but POSITION has {nv}",
+                    v.len()
+                ),
+            );
+        }
+        Ok(Some(v))
+    }
+
+    /// `COLOR_0` as linear RGBA (VEC3 or VEC4; alpha 1 for VEC3), non-finite values as white.
+    fn vertex_colors(
+        &self,
+        accessor: Option<usize>,
+        place: &str,
+        nv: usize,
+    ) -> Result<Option<Vec<Vec4>>, Fail> {
+        let Some(a) = accessor else {
+            return Ok(None);
+        };
+        let p = format!("{place}.attributes.COLOR_0");
+        let colors: Vec<Vec4> = match self.types(a, &p)?.0 {
+            Type::Vec3 => self
+                .vertex_attr::<3>(Some(a), place, "COLOR_0", nv)?
+                .unwrap_or_default()
+                .into_iter()
+                .map(|c| Vec3::from(c).extend(1.0))
+                .collect(),
+            _ => self
+                .vertex_attr::<4>(Some(a), place, "COLOR_0", nv)?
+                .unwrap_or_default()
+                .into_iter()
+                .map(Vec4::from)
+                .collect(),
+        };
+        Ok(Some(
+            colors
+                .into_iter()
+                .map(|c| if c.is_finite() { c } else { Vec4::ONE })
+                .collect(),
+        ))
+    }
+
     /// Material `i` of the file (asset material i + 1).
     fn material(&mut self, i: usize) -> MeshMaterial {
         let root = self.root;
         let m = &root.materials[i];
+        let at = format!("materials[{i}]");
         let pbr = &m.pbr_metallic_roughness;
-        let [r, g, b, _alpha] = pbr.base_color_factor.0;
+        let [r, g, b, alpha] = pbr.base_color_factor.0;
         let ext = m.extensions.as_ref();
         let transmission = ext
             .and_then(|e| e.transmission.as_ref())
@@ -833,56 +991,225 @@ impl Cx<'_> {
             .and_then(|e| e.ior.as_ref())
             .map(|x| x.ior.0)
             .unwrap_or(1.5);
-        let params = pbr_material(
+        let mut params = pbr_material(
             Vec3::new(r, g, b),
             pbr.metallic_factor.0,
             pbr.roughness_factor.0,
             transmission,
             ior,
         );
-        let name = m.name.clone().unwrap_or_else(|| format!("materials[{i}]"));
-        let base_color_texture = match &pbr.base_color_texture {
-            None => None,
-            Some(info) if info.tex_coord != 0 => {
-                self.warn(format!(
-                    "materials[{i}].pbrMetallicRoughness.baseColorTexture: uses TEXCOORD_{}; \
-                     only TEXCOORD_0 is supported, texture ignored",
-                    info.tex_coord
-                ));
-                None
+        // §3.9.2: the factor's alpha is coverage like the texture's (used by MASK and BLEND)
+        let base_alpha = if alpha.is_finite() {
+            alpha.clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
+        // KHR_materials_emissive_strength scales emissiveFactor beyond 1
+        let strength = ext
+            .and_then(|e| e.emissive_strength.as_ref())
+            .map(|e| e.emissive_strength.0)
+            .unwrap_or(1.0);
+        let strength = if strength.is_finite() && strength >= 0.0 {
+            strength
+        } else {
+            self.warn(format!(
+                "{at}.extensions.KHR_materials_emissive_strength.emissiveStrength: {strength} \
+                 is not a non-negative number; 1 is used"
+            ));
+            1.0
+        };
+        let emissive = Vec3::from(m.emissive_factor.0) * strength;
+        params.emissive = if emissive.is_finite() {
+            emissive.max(Vec3::ZERO)
+        } else {
+            Vec3::ZERO
+        };
+        let name = m.name.clone().unwrap_or_else(|| at.clone());
+        let info = |x: &json::texture::Info| {
+            (
+                x.index.value(),
+                x.tex_coord,
+                x.extensions
+                    .as_ref()
+                    .and_then(|e| e.texture_transform.clone()),
+            )
+        };
+        // normalTexture and occlusionTexture are not textureInfo in gltf-json's types: their
+        // KHR_texture_transform is among the other extensions
+        let other_transform = |others: Option<&serde_json::Map<String, json::Value>>| {
+            others
+                .and_then(|o| o.get("KHR_texture_transform"))
+                .and_then(|v| json::deserialize::from_value(v.clone()).ok())
+        };
+        let base_color = pbr.base_color_texture.as_ref().map(info);
+        let metallic_roughness = pbr.metallic_roughness_texture.as_ref().map(info);
+        let emissive_texture = m.emissive_texture.as_ref().map(info);
+        let normal = m.normal_texture.as_ref().map(|n| {
+            (
+                (
+                    n.index.value(),
+                    n.tex_coord,
+                    other_transform(n.extensions.as_ref().map(|e| &e.others)),
+                ),
+                n.scale,
+            )
+        });
+        let occlusion = m.occlusion_texture.as_ref().map(|o| {
+            (
+                (
+                    o.index.value(),
+                    o.tex_coord,
+                    other_transform(o.extensions.as_ref().map(|e| &e.others)),
+                ),
+                o.strength.0,
+            )
+        });
+        let textures = super::MaterialTextures {
+            base_color: base_color.and_then(|x| {
+                self.texture_ref(
+                    x,
+                    true,
+                    &format!("{at}.pbrMetallicRoughness.baseColorTexture"),
+                )
+            }),
+            metallic_roughness: metallic_roughness.and_then(|x| {
+                self.texture_ref(
+                    x,
+                    false,
+                    &format!("{at}.pbrMetallicRoughness.metallicRoughnessTexture"),
+                )
+            }),
+            normal: normal.and_then(|(x, scale)| {
+                let place = format!("{at}.normalTexture");
+                let scale = self.finite_or(scale, 1.0, &format!("{place}.scale"));
+                Some((self.texture_ref(x, false, &place)?, scale))
+            }),
+            occlusion: occlusion.and_then(|(x, strength)| {
+                let place = format!("{at}.occlusionTexture");
+                let strength = self
+                    .finite_or(strength, 1.0, &format!("{place}.strength"))
+                    .clamp(0.0, 1.0);
+                Some((self.texture_ref(x, false, &place)?, strength))
+            }),
+            emissive: emissive_texture
+                .and_then(|x| self.texture_ref(x, true, &format!("{at}.emissiveTexture"))),
+        };
+        let alpha_mode = match m.alpha_mode {
+            Checked::Valid(json::material::AlphaMode::Mask) => {
+                let cutoff = m.alpha_cutoff.map_or(0.5, |c| c.0);
+                let cutoff = if cutoff.is_finite() && cutoff >= 0.0 {
+                    cutoff
+                } else {
+                    self.warn(format!(
+                        "{at}.alphaCutoff: {cutoff} is not a non-negative number; 0.5 is used"
+                    ));
+                    0.5
+                };
+                AlphaMode::Mask { cutoff }
             }
-            Some(info) => self.texture(info.index.value(), i),
+            Checked::Valid(json::material::AlphaMode::Blend) => AlphaMode::Blend,
+            _ => AlphaMode::Opaque,
+        };
+        // §3.9.6: only BLEND shades with partial coverage (OPAQUE ignores alpha, MASK keeps
+        // or drops whole points)
+        params.opacity = if alpha_mode == AlphaMode::Blend {
+            base_alpha
+        } else {
+            1.0
         };
         MeshMaterial {
             name,
             params,
-            base_color_texture,
+            textures,
+            alpha_mode,
+            base_alpha,
         }
     }
 
-    /// glTF texture `t` decoded (once), or `None` with a warning when it cannot be.
-    fn texture(&mut self, t: usize, material: usize) -> Option<usize> {
-        if let Some(&slot) = self.texture_slot.get(&t) {
+    /// `value`, or `fallback` with a warning naming `place` when it is not finite.
+    fn finite_or(&mut self, value: f32, fallback: f32, place: &str) -> f32 {
+        if value.is_finite() {
+            value
+        } else {
+            self.warn(format!(
+                "{place}: {value} is not finite; {fallback} is used"
+            ));
+            fallback
+        }
+    }
+
+    /// A material's use of glTF texture `index` on coordinate set `tex_coord` with its
+    /// `KHR_texture_transform` (whose `texCoord`, when given, overrides the set), decoded in
+    /// the colour space of the use; `None`, with a warning naming `place`, when it cannot be
+    /// used.
+    fn texture_ref(
+        &mut self,
+        (index, tex_coord, transform): (
+            usize,
+            u32,
+            Option<json::extensions::texture::TextureTransform>,
+        ),
+        srgb: bool,
+        place: &str,
+    ) -> Option<TextureRef> {
+        let (tex_coord, transform) = match transform {
+            None => (tex_coord, UvTransform::IDENTITY),
+            Some(t) => {
+                let uv = UvTransform {
+                    offset: Vec2::from(t.offset.0),
+                    rotation: t.rotation.0,
+                    scale: Vec2::from(t.scale.0),
+                };
+                let uv = if uv.is_finite() {
+                    uv
+                } else {
+                    self.warn(format!(
+                        "{place}.extensions.KHR_texture_transform: offset, rotation or scale is \
+                         not finite; the transform is ignored"
+                    ));
+                    UvTransform::IDENTITY
+                };
+                (t.tex_coord.unwrap_or(tex_coord), uv)
+            }
+        };
+        if tex_coord > 1 {
+            self.warn(format!(
+                "{place}.texCoord: TEXCOORD_{tex_coord}; only TEXCOORD_0 and TEXCOORD_1 are \
+                 supported, the texture is ignored"
+            ));
+            return None;
+        }
+        let texture = self.texture(index, srgb, place)?;
+        Some(TextureRef {
+            texture,
+            tex_coord,
+            transform,
+        })
+    }
+
+    /// glTF texture `t` decoded (once per colour space), or `None` with a warning when it
+    /// cannot be.
+    fn texture(&mut self, t: usize, srgb: bool, used_by: &str) -> Option<usize> {
+        if let Some(&slot) = self.texture_slot.get(&(t, srgb)) {
             return slot;
         }
-        let slot = match self.decode_texture(t) {
+        let slot = match self.decode_texture(t, srgb) {
             Ok(tex) => {
                 self.asset.textures.push(tex);
                 Some(self.asset.textures.len() - 1)
             }
             Err((place, m)) => {
                 self.warn(format!(
-                    "{place}: {m}; materials[{material}] is drawn without its base colour \
-                     texture"
+                    "{place}: {m}; {used_by} is ignored (the material is drawn without it)"
                 ));
                 None
             }
         };
-        self.texture_slot.insert(t, slot);
+        self.texture_slot.insert((t, srgb), slot);
         slot
     }
 
-    fn decode_texture(&self, t: usize) -> Result<Texture, Fail> {
+    fn decode_texture(&self, t: usize, srgb: bool) -> Result<Texture, Fail> {
         let root = self.root;
         let Some(tex) = root.textures.get(t) else {
             return fail(format!("textures[{t}]"), "does not exist");
@@ -921,7 +1248,7 @@ impl Cx<'_> {
             }
             (None, None) => return fail(place, "has neither uri nor bufferView"),
         };
-        texture::decode(&bytes, mime.as_deref(), name, wrap_u, wrap_v)
+        texture::decode(&bytes, mime.as_deref(), name, wrap_u, wrap_v, srgb)
             .map_err(|m| (place, format!("cannot decode the image: {m}")))
     }
 

@@ -16,7 +16,9 @@
 //!   normals.
 //! - Texture coordinates follow glTF: (0, 0) is the top-left corner of the image. OBJ and PLY
 //!   store v upwards, so their v is flipped (v ↦ 1 − v) while loading.
-//! - Colours are linear RGB; texture texels are decoded from sRGB at load.
+//! - Colours are linear RGB. Texture texels are decoded by their use: colour textures (base
+//!   colour, emissive) from sRGB, data textures (metallic-roughness, normal, occlusion) as
+//!   stored; see [`texture`](Texture).
 //! - Material 0 is always the default grey ([`MaterialParams::default_grey`]); triangles
 //!   without a material use it.
 //!
@@ -24,7 +26,13 @@
 //! [`crate::shade::brdf`] and [`pbr_material`]): base colour, metallic and roughness factors,
 //! `KHR_materials_transmission.transmissionFactor` as transparency and `KHR_materials_ior.ior`
 //! as the index of refraction; smooth metals also mirror the scene (reflectivity
-//! metallic·(1 − roughness)²). OBJ/MTL materials are Lambert + Phong,
+//! metallic·(1 − roughness)²). Their textures ([`MaterialTextures`]) follow glTF 2.0 §3.9:
+//! base colour (RGBA, times `baseColorFactor` and `COLOR_0`), metallic-roughness (B metalness,
+//! G roughness, times the factors), normal (tangent space with `scale`; tangents from
+//! `TANGENT`, else generated with MikkTSpace), occlusion (R, with `strength`) and emissive
+//! (times `emissiveFactor` and `KHR_materials_emissive_strength`), each on `TEXCOORD_0` or
+//! `TEXCOORD_1` with its `KHR_texture_transform`; `alphaMode` and `alphaCutoff` become an
+//! [`AlphaMode`]. OBJ/MTL materials are Lambert + Phong,
 //! from MTL: `Kd` → `color` (default 0.8 grey), `Ks` → `specular` (default black), `Ns` →
 //! `shininess` (at least 1), `d` → transparency 1 − d (or `Tr` → transparency Tr when there
 //! is no `d`), `Ni` → `ior`, `map_Kd` → base colour texture, `diffuse` = 1, `reflectivity` = 0.
@@ -33,14 +41,15 @@ mod gltf;
 mod obj;
 mod ply;
 mod polygon;
+mod tangent;
 mod texture;
 
 use crate::geom::Aabb;
 use crate::scene::material::MaterialParams;
-use glam::{Affine3A, Vec2, Vec3};
+use glam::{Affine3A, Vec2, Vec3, Vec4};
 use std::path::{Path, PathBuf};
 
-pub use texture::{Texture, Wrap};
+pub use texture::{Texture, UvTransform, Wrap, srgb_to_linear};
 
 /// Everything a mesh file holds that the renderer uses.
 #[derive(Debug, Clone)]
@@ -49,7 +58,7 @@ pub struct MeshAsset {
     pub meshes: Vec<TriangleMesh>,
     /// Materials; index 0 is always the default grey.
     pub materials: Vec<MeshMaterial>,
-    /// Textures referenced by [`MeshMaterial::base_color_texture`].
+    /// Textures referenced by [`MeshMaterial::textures`].
     pub textures: Vec<Texture>,
     /// Placements of meshes in the file's world space.
     pub instances: Vec<MeshInstance>,
@@ -75,6 +84,16 @@ pub struct TriangleMesh {
     /// Texture coordinates, one per vertex (glTF `TEXCOORD_0`, OBJ `vt`, PLY `u v`), with
     /// (0, 0) at the image's top-left corner; empty when the file has none.
     pub uvs: Vec<Vec2>,
+    /// Second texture coordinates (glTF `TEXCOORD_1`), one per vertex; empty when no
+    /// primitive has them.
+    pub uvs1: Vec<Vec2>,
+    /// Tangents for normal mapping, one per vertex: unit xyz along +u, w = ±1 such that the
+    /// bitangent w·(normal × tangent) points up the image (glTF `TANGENT`, else generated with
+    /// MikkTSpace); empty when no material of the mesh has a normal texture.
+    pub tangents: Vec<Vec4>,
+    /// Vertex colours (glTF `COLOR_0`, linear RGBA), one per vertex; empty when no primitive
+    /// has them (white).
+    pub colors: Vec<Vec4>,
     /// Triangles as vertex indices, counter-clockwise seen from the front.
     pub triangles: Vec<[u32; 3]>,
     /// Per triangle, an index into [`MeshAsset::materials`].
@@ -97,11 +116,86 @@ pub struct MeshInstance {
 pub struct MeshMaterial {
     /// Name from the file (`(default)` for material 0).
     pub name: String,
-    /// Shading parameters; see the module documentation for how they are derived.
+    /// Shading parameters; see the module documentation for how they are derived. For glTF
+    /// materials, `params.opacity` is `baseColorFactor`'s alpha.
     pub params: MaterialParams,
-    /// Index into [`MeshAsset::textures`], sampled with the mesh's uvs; the sample multiplies
-    /// `params.color`.
-    pub base_color_texture: Option<usize>,
+    /// Textures that modulate `params` across the surface.
+    pub textures: MaterialTextures,
+    /// How the base colour's alpha is used.
+    pub alpha_mode: AlphaMode,
+    /// `baseColorFactor`'s alpha (1 for other formats): with the texture's and the vertex
+    /// colour's alpha, the coverage that [`AlphaMode::Mask`] compares with its cutoff (for
+    /// [`AlphaMode::Blend`] it is also `params.opacity`).
+    pub base_alpha: f32,
+}
+
+/// A material's textures (glTF 2.0 §3.9.2–3.9.5); each multiplies what its factor set.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct MaterialTextures {
+    /// sRGB base colour and linear alpha; multiplies `params.color` (and the alpha).
+    pub base_color: Option<TextureRef>,
+    /// Linear; blue multiplies `params.metallic`, green `params.roughness`.
+    pub metallic_roughness: Option<TextureRef>,
+    /// Linear tangent-space normals, with the normal scale (x and y of the decoded normal
+    /// are multiplied by it).
+    pub normal: Option<(TextureRef, f32)>,
+    /// Linear; red is the occlusion, applied with the strength: 1 + strength·(R − 1).
+    pub occlusion: Option<(TextureRef, f32)>,
+    /// sRGB; multiplies `params.emissive`.
+    pub emissive: Option<TextureRef>,
+}
+
+impl MaterialTextures {
+    /// Every texture slot's reference, in the order base colour, metallic-roughness, normal,
+    /// occlusion, emissive.
+    pub fn slots(&self) -> [Option<&TextureRef>; 5] {
+        [
+            self.base_color.as_ref(),
+            self.metallic_roughness.as_ref(),
+            self.normal.as_ref().map(|n| &n.0),
+            self.occlusion.as_ref().map(|o| &o.0),
+            self.emissive.as_ref(),
+        ]
+    }
+
+    /// Mutable [`Self::slots`].
+    pub fn slots_mut(&mut self) -> [Option<&mut TextureRef>; 5] {
+        [
+            self.base_color.as_mut(),
+            self.metallic_roughness.as_mut(),
+            self.normal.as_mut().map(|n| &mut n.0),
+            self.occlusion.as_mut().map(|o| &mut o.0),
+            self.emissive.as_mut(),
+        ]
+    }
+}
+
+/// One texture as a material uses it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TextureRef {
+    /// Index into the textures ([`MeshAsset::textures`], `SceneMeshes::textures`).
+    pub texture: usize,
+    /// Which texture coordinates: 0 ([`TriangleMesh::uvs`]) or 1 ([`TriangleMesh::uvs1`]).
+    pub tex_coord: u32,
+    /// `KHR_texture_transform`, applied to the coordinates before sampling.
+    pub transform: UvTransform,
+}
+
+/// glTF's `alphaMode` (§3.9.6).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum AlphaMode {
+    /// Alpha is ignored: the surface is fully opaque.
+    #[default]
+    Opaque,
+    /// Where alpha (base colour factor × texture × vertex colour) is below the cutoff the
+    /// surface is not there at all, for every ray; elsewhere it is opaque.
+    Mask {
+        /// The cutoff, `alphaCutoff` (0.5 when absent).
+        cutoff: f32,
+    },
+    /// Alpha is the surface's coverage: the fraction of the light it shades, the rest passing
+    /// through (`MaterialParams::opacity`).
+    Blend,
 }
 
 /// A camera from the file, in world space.
@@ -293,6 +387,9 @@ pub fn load(path: &Path) -> Result<MeshAsset, MeshError> {
         debug_assert_eq!(mesh.triangles.len(), mesh.triangle_material.len());
         debug_assert_eq!(mesh.positions.len(), mesh.normals.len());
         debug_assert!(mesh.uvs.is_empty() || mesh.uvs.len() == mesh.positions.len());
+        debug_assert!(mesh.uvs1.is_empty() || mesh.uvs1.len() == mesh.positions.len());
+        debug_assert!(mesh.tangents.is_empty() || mesh.tangents.len() == mesh.positions.len());
+        debug_assert!(mesh.colors.is_empty() || mesh.colors.len() == mesh.positions.len());
         mesh.triangle_material.resize(mesh.triangles.len(), 0);
     }
     Ok(asset)
@@ -358,7 +455,9 @@ impl MeshMaterial {
         MeshMaterial {
             name: "(default)".to_string(),
             params: MaterialParams::default_grey(),
-            base_color_texture: None,
+            textures: MaterialTextures::default(),
+            alpha_mode: AlphaMode::Opaque,
+            base_alpha: 1.0,
         }
     }
 }

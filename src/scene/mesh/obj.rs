@@ -87,7 +87,16 @@ pub(super) fn load(file: &Path, bytes: &[u8]) -> Result<MeshAsset, MeshError> {
         asset.materials.push(MeshMaterial {
             name: m.name.clone(),
             params: m.params,
-            base_color_texture,
+            textures: super::MaterialTextures {
+                base_color: base_color_texture.map(|texture| super::TextureRef {
+                    texture,
+                    tex_coord: 0,
+                    transform: super::UvTransform::IDENTITY,
+                }),
+                ..Default::default()
+            },
+            alpha_mode: super::AlphaMode::Opaque,
+            base_alpha: 1.0,
         });
     }
     for (name, line) in &obj.usemtl {
@@ -891,7 +900,7 @@ fn load_texture(path: &Path, wrap: Wrap) -> Result<super::Texture, String> {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    texture::decode(&bytes, None, name, wrap, wrap)
+    texture::decode(&bytes, None, name, wrap, wrap, true)
 }
 
 #[cfg(test)]
