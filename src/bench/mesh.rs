@@ -747,8 +747,15 @@ fn summarize(rows: &[MeshRow], threads: &[usize]) -> Vec<MeshSummary> {
     out
 }
 
+/// A fraction as a percentage; one that falls short of 1 by less than the fourth decimal
+/// shows more decimals, so that a disagreement is never printed as 100%.
 fn percent(a: f64) -> String {
-    format!("{:.4}%", 100.0 * a)
+    let s = format!("{:.4}%", 100.0 * a);
+    if a < 1.0 && s == "100.0000%" {
+        format!("{:.7}%", 100.0 * a)
+    } else {
+        s
+    }
 }
 
 impl MeshReport {
