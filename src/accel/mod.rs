@@ -120,12 +120,15 @@ impl bvh::HitFilter for AlphaTest<'_> {
 }
 
 impl MeshAccel {
-    /// Builds the BVHs of a scene's meshes.
+    /// Builds the BVHs of a scene's meshes, the meshes in parallel on the rayon pool (each
+    /// tree is built by one thread and is a function of its mesh alone, so the trees do not
+    /// depend on the number of threads).
     pub fn new(meshes: &SceneMeshes, quality: bvh::BuildQuality) -> Self {
+        use rayon::prelude::*;
         let start = std::time::Instant::now();
         let blas: Vec<_> = meshes
             .meshes
-            .iter()
+            .par_iter()
             .map(|m| bvh::MeshBvh::build(&m.positions, &m.triangles, quality))
             .collect();
         let instances: Vec<bvh::Instance> = meshes

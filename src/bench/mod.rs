@@ -56,6 +56,8 @@ pub struct BenchOptions {
     pub peer_size: u32,
     /// Seconds after which the peer section cancels a fidget frame.
     pub peer_frame_limit: f64,
+    /// Rays per Embree packet query (8 or 16); `None`: the widest the library runs natively.
+    pub embree_packet: Option<usize>,
 }
 
 /// Which sections run.

@@ -54,6 +54,10 @@ pub struct BenchArgs {
     /// is our counterpart).
     #[arg(long, value_enum, default_value = "highest")]
     pub bvh: super::flags::BvhArg,
+    /// Rays per Embree packet query, 8 or 16 (default: the widest the Embree library runs
+    /// natively).
+    #[arg(long)]
+    pub embree_packet: Option<usize>,
     /// Sections to run, comma-separated: mesh, sdf, scaling, peer (default all; peer needs
     /// the `fidget` feature), or evaluators: only the peer section's "Tape evaluators" table.
     #[arg(long, value_delimiter = ',')]
@@ -165,6 +169,12 @@ pub fn run(args: BenchArgs) -> Result<()> {
     if !(0.0..=600.0).contains(&min_seconds) {
         anyhow::bail!("--min-seconds {min_seconds}: expected a number of seconds in 0..=600");
     }
+    if let Some(p) = args.embree_packet
+        && p != 8
+        && p != 16
+    {
+        anyhow::bail!("--embree-packet {p}: expected 8 or 16 rays");
+    }
     let opts = BenchOptions {
         quick: args.quick,
         runs: args.runs.unwrap_or(if args.quick { 1 } else { 5 }).max(1),
@@ -182,6 +192,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         sections,
         peer_size,
         peer_frame_limit: args.peer_frame_limit,
+        embree_packet: args.embree_packet,
     };
     let sdf_scenes = if sections.sdf || sections.peer || sections.evaluators {
         load_scenes(&args.scenes, args.quick)?

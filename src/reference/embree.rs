@@ -49,6 +49,10 @@
 //! * An object is [`SdfCheck::Skipped`] only if the mesher refuses it (bounds that are NaN),
 //!   with the reason.
 
+mod packet;
+
+pub use packet::PacketWidth;
+
 use super::analytic::{self, AnalyticHit};
 use super::certified::{self, Root, Search};
 use super::interval64::{self, Program, Registers as IntervalRegisters};
@@ -108,11 +112,11 @@ impl Drop for Device {
 struct SceneHandle(RTCScene);
 
 impl SceneHandle {
-    fn new(device: &Device) -> Result<Self, String> {
-        Self::with_quality(device, RTCBuildQuality::HIGH)
-    }
-
-    fn with_quality(device: &Device, quality: RTCBuildQuality) -> Result<Self, String> {
+    fn with_quality(
+        device: &Device,
+        quality: RTCBuildQuality,
+        robust: bool,
+    ) -> Result<Self, String> {
         // SAFETY: the device is alive.
         let s = unsafe { embree4_sys::rtcNewScene(device.0) };
         if s.is_null() {
@@ -124,7 +128,10 @@ impl SceneHandle {
             // A referee must be watertight: Embree's default triangle test lets rays through
             // shared edges (seen on ReciprocatingSaw: hits 2.6 units behind an edge our
             // watertight test catches); ROBUST mode makes its traversal and test watertight.
-            embree4_sys::rtcSetSceneFlags(s, RTCSceneFlags::ROBUST);
+            // Only the benchmark turns it off, to time Embree at its fastest.
+            if robust {
+                embree4_sys::rtcSetSceneFlags(s, RTCSceneFlags::ROBUST);
+            }
         }
         Ok(SceneHandle(s))
     }
@@ -790,6 +797,32 @@ pub struct ReferenceOptions {
     /// The certified search's δ and work bound; `None`: [`certified_search`] of the scene's
     /// tracer settings.
     pub search: Option<Search>,
+    /// Embree's ROBUST scene flag (watertight traversal and triangle test). On for a referee;
+    /// the benchmark also times Embree without it, its fastest mode.
+    pub robust: bool,
+    /// Build quality of the top-level scene and the mesh scenes.
+    pub quality: EmbreeQuality,
+}
+
+/// Embree's scene build quality (`RTCBuildQuality`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub enum EmbreeQuality {
+    /// `RTC_BUILD_QUALITY_LOW`: a Morton build.
+    Low,
+    /// `RTC_BUILD_QUALITY_MEDIUM`: binned SAH, Embree's default.
+    Medium,
+    /// `RTC_BUILD_QUALITY_HIGH`: binned SAH with spatial splits.
+    High,
+}
+
+impl EmbreeQuality {
+    fn rtc(self) -> RTCBuildQuality {
+        match self {
+            EmbreeQuality::Low => RTCBuildQuality::LOW,
+            EmbreeQuality::Medium => RTCBuildQuality::MEDIUM,
+            EmbreeQuality::High => RTCBuildQuality::HIGH,
+        }
+    }
 }
 
 impl Default for ReferenceOptions {
@@ -800,6 +833,8 @@ impl Default for ReferenceOptions {
             mesh_clip: None,
             meshed: false,
             search: None,
+            robust: true,
+            quality: EmbreeQuality::High,
         }
     }
 }
@@ -867,10 +902,11 @@ impl EmbreeScene {
         Self::build_with(scene, &ReferenceOptions::default())
     }
 
-    /// Builds (and commits, build quality HIGH) the Embree scene of `scene`.
+    /// Builds (and commits) the Embree scene of `scene`.
     pub fn build_with(scene: &Scene, options: &ReferenceOptions) -> Result<EmbreeScene, String> {
         let device = Device::new()?;
-        let top = SceneHandle::new(&device)?;
+        let quality = options.quality.rtc();
+        let top = SceneHandle::with_quality(&device, quality, options.robust)?;
         let mut ids: Vec<Option<ObjectId>> = Vec::new();
         let mut record = |id: u32, what: ObjectId| {
             let i = id as usize;
@@ -885,7 +921,7 @@ impl EmbreeScene {
         let mut alpha = AlphaFilter::of(meshes);
         let mut mesh_scenes = Vec::with_capacity(meshes.meshes.len());
         for (m, mesh) in meshes.meshes.iter().enumerate() {
-            let s = SceneHandle::new(&device)?;
+            let s = SceneHandle::with_quality(&device, quality, options.robust)?;
             if !mesh.triangles.is_empty() {
                 let g = triangle_geometry(&device, &mesh.positions, &mesh.triangles)?;
                 if let Some(a) = alpha.as_mut().filter(|a| a.masked_meshes.contains(&m)) {
@@ -1028,7 +1064,11 @@ impl EmbreeScene {
                         // Its own scene of MEDIUM build quality, instanced with the identity:
                         // the top-level scene's HIGH quality (spatial splits) would cost
                         // seconds on millions of small, well-shaped triangles for little gain.
-                        let s = SceneHandle::with_quality(&device, RTCBuildQuality::MEDIUM)?;
+                        let s = SceneHandle::with_quality(
+                            &device,
+                            RTCBuildQuality::MEDIUM,
+                            options.robust,
+                        )?;
                         let g = triangle_geometry(&device, &mesh.positions, &mesh.triangles)?;
                         s.attach(&g);
                         s.commit();
@@ -1096,6 +1136,32 @@ impl EmbreeScene {
         })
     }
 
+    /// What a hit record says, as a [`QueryHit`]: `ids` are its geomID, primID and instID[0],
+    /// `ng` its geometric normal (the user geometries' normal; a triangle's is looked up).
+    fn query_hit(&self, t: f32, ids: [u32; 3], ng: Vec3) -> Option<QueryHit> {
+        let [geom_id, prim_id, inst_id] = ids;
+        if geom_id == RTC_INVALID_GEOMETRY_ID {
+            return None;
+        }
+        let (top_id, inside_instance) = if inst_id != RTC_INVALID_GEOMETRY_ID {
+            (inst_id, true)
+        } else {
+            (geom_id, false)
+        };
+        let object = self.ids.get(top_id as usize).copied().flatten()?;
+        let normal = match object {
+            ObjectId::MeshInstance(k) if inside_instance => {
+                let (mesh, nm) = self.instances[k];
+                (nm * self.face_normals[mesh][prim_id as usize]).normalize_or_zero()
+            }
+            ObjectId::Sdf(i) if !self.sdf_face_normals[i].is_empty() => {
+                self.sdf_face_normals[i][prim_id as usize]
+            }
+            _ => ng.normalize_or_zero(),
+        };
+        Some(QueryHit { t, normal, object })
+    }
+
     fn rtc_ray(ray: &Ray, tmin: f32, tmax: f32) -> RTCRay {
         RTCRay {
             org_x: ray.origin.x,
@@ -1129,30 +1195,11 @@ impl RayQuery for EmbreeScene {
         debug_assert!(self.device.check("rtcIntersect1").is_ok());
         let rh = slot.ray_hit;
         let hit = rh.hit;
-        if hit.geomID == RTC_INVALID_GEOMETRY_ID {
-            return None;
-        }
-        let (top_id, inside_instance) = if hit.instID[0] != RTC_INVALID_GEOMETRY_ID {
-            (hit.instID[0], true)
-        } else {
-            (hit.geomID, false)
-        };
-        let object = self.ids.get(top_id as usize).copied().flatten()?;
-        let normal = match object {
-            ObjectId::MeshInstance(k) if inside_instance => {
-                let (mesh, nm) = self.instances[k];
-                (nm * self.face_normals[mesh][hit.primID as usize]).normalize_or_zero()
-            }
-            ObjectId::Sdf(i) if !self.sdf_face_normals[i].is_empty() => {
-                self.sdf_face_normals[i][hit.primID as usize]
-            }
-            _ => Vec3::new(hit.Ng_x, hit.Ng_y, hit.Ng_z).normalize_or_zero(),
-        };
-        Some(QueryHit {
-            t: rh.ray.tfar,
-            normal,
-            object,
-        })
+        self.query_hit(
+            rh.ray.tfar,
+            [hit.geomID, hit.primID, hit.instID[0]],
+            Vec3::new(hit.Ng_x, hit.Ng_y, hit.Ng_z),
+        )
     }
 
     fn occluded(&self, ray: &Ray, tmin: f32, tmax: f32) -> bool {
