@@ -160,9 +160,18 @@ fn trace_camera_ray(origin: vec3<f32>, direction: vec3<f32>) -> CameraSample {
             primary = false;
         }
         let cos_i = clamp(-dot(d, n), 0.0, 1.0);
-        var f_r = 0.0;
+        // integrator::mirror_reflectance: Schlick from R₀ = r (Phong) or r·F(f₀) (PBR), and
+        // the share left to local shading (1 − F_r for Phong, all of it for PBR)
+        let pbr_weight = clamp(m.pbr, 0.0, 1.0);
+        var f_r = vec3<f32>(0.0);
+        var local_share = 1.0;
         if m.reflectivity > 0.0 {
-            f_r = m.reflectivity + (1.0 - m.reflectivity) * pow5(1.0 - cos_i);
+            let grazing = pow5(1.0 - cos_i);
+            let phong = m.reflectivity + (1.0 - m.reflectivity) * grazing;
+            let f0 = brdf_f0(m);
+            let pbr = m.reflectivity * (f0 + (1.0 - f0) * grazing);
+            f_r = mix(vec3<f32>(phong), pbr, pbr_weight);
+            local_share = 1.0 - (1.0 - pbr_weight) * phong;
         }
         var f_t = 0.0;
         if m.transparency > 0.0 {
@@ -170,7 +179,7 @@ fn trace_camera_ray(origin: vec3<f32>, direction: vec3<f32>) -> CameraSample {
         }
         let opaque = 1.0 - m.transparency;
         let coverage = clamp(m.opacity, 0.0, 1.0);
-        let local_weight = coverage * opaque * (1.0 - f_r);
+        let local_weight = coverage * opaque * local_share;
         let offset = surface_offset(hit.t, p);
         if m.opacity < 1.0 {
             // the uncovered fraction of a BLEND surface goes on straight through
@@ -180,7 +189,7 @@ fn trace_camera_ray(origin: vec3<f32>, direction: vec3<f32>) -> CameraSample {
             sample.radiance += item.weight * local_weight * shade_local(p, n, -d, hit.t, m);
         }
         let reflect_weight = coverage * (opaque * f_r + m.transparency * f_t);
-        if reflect_weight > 0.0 {
+        if max(reflect_weight.x, max(reflect_weight.y, reflect_weight.z)) > 0.0 {
             spawn(item, max_bounces, p + n * offset, optics_reflect(d, n), item.weight * reflect_weight, 0u, no_hit, 1.0);
         }
         let transmit_weight = coverage * m.transparency * (1.0 - f_t);

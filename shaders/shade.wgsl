@@ -157,7 +157,9 @@ fn shade_local(p: vec3<f32>, n: vec3<f32>, to_eye: vec3<f32>, t: f32, m: Materia
     let offset = surface_offset(t, p);
     let origin = p + n * offset;
     let pbr = clamp(m.pbr, 0.0, 1.0);
-    let ambient_reflectance = mix(m.color * m.diffuse, brdf_ambient_albedo(m), pbr) * m.occlusion;
+    // shade_with: the PBR ambient less the traced reflection's share r·f₀
+    let pbr_ambient = brdf_ambient_albedo(m) - clamp(m.reflectivity, 0.0, 1.0) * brdf_f0(m);
+    let ambient_reflectance = mix(m.color * m.diffuse, pbr_ambient, pbr) * m.occlusion;
     var out = m.emissive;
     for (var i = 0u; i < shade_settings.light_count; i += 1u) {
         let light = shade_lights[i];

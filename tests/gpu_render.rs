@@ -286,21 +286,14 @@ fn a_textured_gltf_model_renders_the_same_on_cpu_and_gpu() {
     report(&outcomes);
 }
 
-/// glTF materials beyond the base colour: normal, metallic-roughness and emissive textures,
-/// emissive strength and KHR_texture_transform (with MikkTSpace or file tangents).
+/// Every glTF test scene (textures of every kind, texture transforms, metals and dielectrics,
+/// spot and point lights in the file's units): the GPU's shading mirrors the CPU's.
 #[test]
-fn gltf_material_models_render_the_same_on_cpu_and_gpu() {
-    let Some(assets) = assets() else { return };
+fn gltf_test_scenes_render_the_same_on_cpu_and_gpu() {
+    let Some(models) = common::gltf_test_models() else {
+        return;
+    };
     let gpu = gpu();
-    let mut models = vec![
-        assets.join("glTF/Avocado/glTF/Avocado.gltf"),
-        assets.join("glTF/bevy-lights/DepthOfFieldExample.glb"),
-    ];
-    let transform =
-        PathBuf::from("/usr/share/assimp/models/glTF2/textureTransform/TextureTransformTest.gltf");
-    if transform.exists() {
-        models.push(transform);
-    }
     let mut outcomes = Vec::new();
     for model in models {
         let scene = Scene::from_model(&model, None).unwrap_or_else(|e| panic!("{e}"));

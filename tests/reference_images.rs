@@ -1,5 +1,6 @@
-//! Stored reference images, as Mitsuba 3 keeps them: every shipped scene rendered small and
-//! checked in under `tests/reference/`, and each run's CPU and GPU images compared with them.
+//! Stored reference images, as Mitsuba 3 keeps them: every shipped scene and every glTF test
+//! scene (`common::gltf_test_models`, rendered as `hytrace render MODEL` does; stored as
+//! `gltf-NAME.png`) rendered small and checked in under `tests/reference/`, and each run's CPU and GPU images compared with them.
 //! The other image tests are differential (CPU against GPU, against Embree): a bug in code both
 //! backends share passes those unseen, and is caught here.
 //!
@@ -23,6 +24,8 @@ use hytrace::scene::Scene;
 use image::RgbImage;
 use std::path::{Path, PathBuf};
 
+mod common;
+
 /// Largest per-channel difference a pixel may show, in 8-bit sRGB levels.
 const LEVELS: u8 = 3;
 /// Share of pixels that must be within [`LEVELS`].
@@ -44,6 +47,25 @@ fn scenes() -> Vec<PathBuf> {
     v.sort();
     assert!(v.len() >= 10, "the shipped scenes: {v:?}");
     v
+}
+
+/// Every scene with a stored reference: the shipped scenes, then the glTF test scenes.
+fn cases() -> Vec<(String, Scene)> {
+    let mut out: Vec<(String, Scene)> = scenes()
+        .iter()
+        .map(|p| {
+            (
+                p.file_stem().unwrap().to_str().unwrap().to_string(),
+                load(p),
+            )
+        })
+        .collect();
+    for model in common::gltf_test_models().unwrap_or_default() {
+        let scene = Scene::from_model(&model, None).unwrap_or_else(|e| panic!("{e}"));
+        let stem = model.file_stem().unwrap().to_str().unwrap();
+        out.push((format!("gltf-{stem}"), scene));
+    }
+    out
 }
 
 fn load(path: &Path) -> Scene {
@@ -138,9 +160,7 @@ fn updating() -> bool {
 #[test]
 fn cpu_images_match_the_stored_references() {
     let mut failures = Vec::new();
-    for path in scenes() {
-        let name = path.file_stem().unwrap().to_str().unwrap().to_string();
-        let scene = load(&path);
+    for (name, scene) in cases() {
         let fb = cpu::render(&scene, &options(&scene)).unwrap();
         let image = shaded(&scene, &fb);
         if updating() {
@@ -170,9 +190,7 @@ fn gpu_images_match_the_stored_references() {
     );
     let renderer = GpuRenderer::new(&ctx);
     let mut failures = Vec::new();
-    for path in scenes() {
-        let name = path.file_stem().unwrap().to_str().unwrap().to_string();
-        let scene = load(&path);
+    for (name, scene) in cases() {
         let fb = renderer.render(&ctx, &scene, &options(&scene)).unwrap();
         match check(&name, "gpu", &shaded(&scene, &fb)) {
             Ok(s) => println!("{s}"),

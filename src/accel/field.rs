@@ -1561,7 +1561,15 @@ pub(crate) mod tests {
                 let mut on = p;
                 on[axis] = cell.hi[axis];
                 let mut below = on;
-                below[axis] = f32::from_bits(on[axis].to_bits() - 1);
+                // the next float down (`f32::next_down` is newer than our minimum Rust)
+                let x = on[axis];
+                below[axis] = if x == 0.0 {
+                    -f32::from_bits(1)
+                } else if x > 0.0 {
+                    f32::from_bits(x.to_bits() - 1)
+                } else {
+                    f32::from_bits(x.to_bits() + 1)
+                };
                 if on[axis] >= tree.hi[axis] || !cell.contains(below) {
                     continue;
                 }

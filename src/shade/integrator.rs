@@ -2,11 +2,13 @@
 //! iteratively with a small explicit stack (no recursion, as a GPU needs) up to a bounce limit.
 //!
 //! At a surface with reflectivity r, transparency τ and index of refraction η, and Schlick
-//! reflectances F_r (R₀ = r, only where r > 0) and F_t (R₀ = ((1−η)/(1+η))², total internal
-//! reflection included):
+//! reflectances F_r (see [`mirror_reflectance`]: R₀ = r for Phong, r·F(f₀) for the
+//! metallic-roughness model, a colour; only where r > 0) and F_t (R₀ = ((1−η)/(1+η))², total
+//! internal reflection included), and the local share s = 1 − F_r for Phong, 1 for the
+//! metallic-roughness model:
 //!
 //! ```text
-//! L = α·{(1 − τ)·[(1 − F_r)·L_local + F_r·L_reflected] + τ·[F_t·L_reflected + (1 − F_t)·albedo·L_transmitted]}
+//! L = α·{(1 − τ)·[s·L_local + F_r·L_reflected] + τ·[F_t·L_reflected + (1 − F_t)·albedo·L_transmitted]}
 //!   + (1 − α)·L_behind
 //! ```
 //!
@@ -19,10 +21,12 @@
 //! transmitted ray and the internally reflected one. Paths whose weight drops below 1/1000,
 //! and paths beyond `shading.max_bounces`, are dropped.
 
+use super::brdf::MetallicRoughness;
 use super::optics::{reflect, refract, schlick};
 use super::{ShadingTracer, SurfacePoint, shade, shade_with, surface_offset};
 use crate::geom::Ray;
 use crate::scene::MAX_BOUNCES;
+use crate::scene::material::MaterialParams;
 use crate::sdf::tape::MaterialVec;
 use crate::trace::{Hit, Surface};
 use arrayvec::ArrayVec;
@@ -78,13 +82,44 @@ pub struct Surfaced {
     pub point: SurfacePoint,
     /// Cosine between the normal and the reversed ray.
     pub cos_i: f32,
-    /// Schlick reflectance of a mirror (0 where the material reflects nothing).
-    pub f_r: f32,
+    /// Reflectance of the traced mirror reflection, [`mirror_reflectance`] (0 where the
+    /// material reflects nothing).
+    pub f_r: Vec3,
     /// Schlick reflectance of a dielectric's surface (0 where it is opaque).
     pub f_t: f32,
-    /// The weight of local shading: α(1 − τ)(1 − F_r), with α the coverage (glTF BLEND's
-    /// alpha, 1 elsewhere); the remaining 1 − α continues straight through the surface.
+    /// The weight of local shading: α(1 − τ)·(the local share of [`mirror_reflectance`]), with
+    /// α the coverage (glTF BLEND's alpha, 1 elsewhere); the remaining 1 − α continues
+    /// straight through the surface.
     pub local_weight: f32,
+}
+
+/// The colour a traced mirror reflection is weighted by at incidence cosine `cos_i`, and the
+/// weight left to local shading (before coverage and transparency).
+///
+/// Lambert + Phong: Schlick's Fresnel (1994) with R₀ = r, and local shading gets 1 − F_r (the
+/// mirror takes its share of everything). Metallic-roughness: r·F, F = f₀ + (1 − f₀)(1 − cos)⁵
+/// the BRDF's own Fresnel term, so a metal's reflections take its colour, as its highlights do,
+/// and a dielectric reflects 4 % head-on; local shading keeps its full weight, because the
+/// BRDF already leaves (1 − F) to the diffuse part and the lights' highlights are not in the
+/// traced reflection; only the ambient specular share r·f₀ moves to the reflection (see
+/// [`super::shade_with`]). A blend of the two models mixes both by the material's model weight.
+/// Zero reflection where r = 0.
+pub fn mirror_reflectance(m: &MaterialParams, cos_i: f32) -> (Vec3, f32) {
+    let pbr_weight = m.pbr.clamp(0.0, 1.0);
+    if m.reflectivity <= 0.0 {
+        return (Vec3::ZERO, 1.0);
+    }
+    let grazing = (1.0 - cos_i).powi(5);
+    let phong = Vec3::splat(m.reflectivity + (1.0 - m.reflectivity) * grazing);
+    let f0 = MetallicRoughness {
+        base_color: m.color,
+        metallic: m.metallic,
+        roughness: m.roughness,
+    }
+    .f0();
+    let pbr = m.reflectivity * (f0 + (1.0 - f0) * grazing);
+    let local = 1.0 - (1.0 - pbr_weight) * phong.x;
+    (phong.lerp(pbr, pbr_weight), local)
 }
 
 /// What the integrator computes at a hit of `ray`.
@@ -109,11 +144,7 @@ pub fn surfaced<T: ShadingTracer + ?Sized>(
         hit.normal
     };
     let cos_i = (-d.dot(n)).clamp(0.0, 1.0);
-    let f_r = if m.reflectivity > 0.0 {
-        m.reflectivity + (1.0 - m.reflectivity) * (1.0 - cos_i).powi(5)
-    } else {
-        0.0
-    };
+    let (f_r, local_share) = mirror_reflectance(&m, cos_i);
     let f_t = if m.transparency > 0.0 {
         schlick(cos_i, 1.0, m.ior)
     } else {
@@ -130,7 +161,7 @@ pub fn surfaced<T: ShadingTracer + ?Sized>(
         cos_i,
         f_r,
         f_t,
-        local_weight: m.opacity.clamp(0.0, 1.0) * (1.0 - m.transparency) * (1.0 - f_r),
+        local_weight: m.opacity.clamp(0.0, 1.0) * (1.0 - m.transparency) * local_share,
     }
 }
 
@@ -260,7 +291,7 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
             sample.radiance += item.weight * local_weight * local;
         }
         let reflect_weight = coverage * (opaque * f_r + m.transparency * f_t);
-        if reflect_weight > 0.0 {
+        if reflect_weight.max_element() > 0.0 {
             spawn(
                 &mut stack,
                 Ray::new(p + n * offset, reflect(d, n)),
@@ -281,4 +312,62 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
         }
     }
     sample
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_metal_mirrors_in_its_own_colour_and_keeps_its_local_shading() {
+        let gold = Vec3::new(1.0, 0.766, 0.336);
+        let m = MaterialParams::metallic_roughness(gold, 1.0, 0.0, None);
+        let (f_r, local) = mirror_reflectance(&m, 1.0);
+        // head-on, a smooth metal mirrors f₀ = its base colour
+        assert!((f_r - gold).abs().max_element() < 1e-6, "{f_r}");
+        assert_eq!(local, 1.0);
+        // at grazing incidence every colour goes to 1 (Schlick)
+        let (grazing, _) = mirror_reflectance(&m, 0.0);
+        assert!(
+            (grazing - Vec3::ONE).abs().max_element() < 1e-6,
+            "{grazing}"
+        );
+    }
+
+    #[test]
+    fn a_dielectric_mirrors_four_percent_head_on() {
+        let m = MaterialParams::metallic_roughness(Vec3::new(0.1, 0.2, 0.6), 0.0, 0.0, Some(1.0));
+        let (f_r, local) = mirror_reflectance(&m, 1.0);
+        assert!(
+            (f_r - Vec3::splat(0.04)).abs().max_element() < 1e-6,
+            "{f_r}"
+        );
+        assert_eq!(local, 1.0);
+        // a rough metal and a dielectric without reflectivity mirror nothing by default
+        let rough = MaterialParams::metallic_roughness(Vec3::ONE, 1.0, 1.0, None);
+        assert_eq!(mirror_reflectance(&rough, 1.0), (Vec3::ZERO, 1.0));
+    }
+
+    #[test]
+    fn a_phong_mirror_takes_its_share_from_local_shading() {
+        let m = MaterialParams {
+            reflectivity: 0.5,
+            ..MaterialParams::default_grey()
+        };
+        let (f_r, local) = mirror_reflectance(&m, 1.0);
+        assert_eq!(f_r, Vec3::splat(0.5));
+        assert_eq!(local, 0.5);
+        // an even blend of the two models mixes both answers
+        let pbr = MaterialParams::metallic_roughness(Vec3::ONE, 1.0, 0.0, Some(0.5));
+        let (a, b) = (m.to_vec(), pbr.to_vec());
+        let half = MaterialParams::from_vec(&std::array::from_fn(|i| 0.5 * (a[i] + b[i])));
+        let (f_r, local) = mirror_reflectance(&half, 1.0);
+        // blended: r = 0.5, colour 0.9, metallic 0.5, so f₀ = 0.04 + 0.5·(0.9 − 0.04) = 0.47
+        let expected = 0.5 * 0.5 + 0.5 * (0.5 * 0.47);
+        assert!(
+            (f_r - Vec3::splat(expected)).abs().max_element() < 1e-5,
+            "{f_r}"
+        );
+        assert!((local - 0.75).abs() < 1e-6, "{local}");
+    }
 }

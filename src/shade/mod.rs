@@ -212,8 +212,11 @@ pub fn shade_with<T: ShadingTracer + ?Sized>(
         roughness: m.roughness,
     };
     // The ambient light each model reflects: Lambert's albedo·kd, or the metallic-roughness
-    // albedo at normal incidence (see `brdf`); the material's own occlusion darkens both.
-    let ambient_reflectance = (m.color * m.diffuse).lerp(brdf.ambient_albedo(), pbr) * m.occlusion;
+    // albedo at normal incidence (see `brdf`) less the specular share r·f₀ that the traced
+    // mirror reflection brings instead (see `integrator::mirror_reflectance`); the material's
+    // own occlusion darkens both.
+    let pbr_ambient = brdf.ambient_albedo() - m.reflectivity.clamp(0.0, 1.0) * brdf.f0();
+    let ambient_reflectance = (m.color * m.diffuse).lerp(pbr_ambient, pbr) * m.occlusion;
     let mut out = m.emissive;
     for (i, light) in scene.lights.iter().enumerate() {
         if let Light::Ambient { radiance } = *light {

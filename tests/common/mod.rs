@@ -44,6 +44,49 @@ pub fn assets_or_skip(what: &str) -> Option<PathBuf> {
     None
 }
 
+/// assimp's test models (Debian's `assimp-testmodels`, which the test command installs).
+pub const ASSIMP_MODELS: &str = "/usr/share/assimp/models";
+
+/// The glTF test scenes: models that exercise the glTF material and light model (textures of
+/// every kind, texture transforms, vertex colours, metals and dielectrics over the roughness
+/// range, spot, point and directional lights in the file's units), each rendered on its own
+/// as `hytrace render MODEL` does. Missing files fail under `CI=true`; elsewhere the list is
+/// `None` and the reason is printed loudly.
+pub fn gltf_test_models() -> Option<Vec<PathBuf>> {
+    let assets = assets_or_skip("the glTF test scenes")?;
+    let mut models: Vec<PathBuf> = [
+        "glTF/Avocado/glTF/Avocado.gltf",
+        "glTF/BoxTextured/glTF-Binary/BoxTextured.glb",
+        "glTF/Duck/glTF-Binary/Duck.glb",
+        "glTF/CesiumMilkTruck/glTF-Binary/CesiumMilkTruck.glb",
+        "glTF/MetalRoughSpheresNoTextures/glTF/MetalRoughSpheresNoTextures.gltf",
+        "glTF/bevy-lights/DepthOfFieldExample.glb",
+        "glTF/bevy-lights/Cubes.glb",
+    ]
+    .iter()
+    .map(|p| assets.join(p))
+    .collect();
+    models.push(Path::new(ASSIMP_MODELS).join("glTF2/textureTransform/TextureTransformTest.gltf"));
+    let missing: Vec<String> = models
+        .iter()
+        .filter(|m| !m.is_file())
+        .map(|m| m.display().to_string())
+        .collect();
+    if !missing.is_empty() {
+        eprintln!(
+            "!!! glTF test scenes missing ({}): the glTF scene checks NOT RUN !!!",
+            missing.join(", ")
+        );
+        assert!(
+            std::env::var("CI").as_deref() != Ok("true"),
+            "CI must have every glTF test scene; missing: {}",
+            missing.join(", ")
+        );
+        return None;
+    }
+    Some(models)
+}
+
 /// The `hytrace` binary, run from the repository's root.
 pub fn hytrace() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_hytrace"));
