@@ -1,5 +1,5 @@
 //! Per-frame CPU render time with the acceleration structures built once, as the viewer
-//! renders: `cargo run --release --example frame_time -- [scene.ron] [width] [height] [frames]
+//! renders: `cargo run --release --example frame_time -- [scene.ron or model] [width] [height] [frames]
 //! [native|interpreted]` (no scene: the built-in showcase; tapes as native code by default).
 //! Prints the build time and the minimum and median of the frames' times, each one pass of
 //! [`cpu::render_pass`] at one sample per pixel.
@@ -14,7 +14,9 @@ use std::time::Instant;
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let scene = match args.first().map(String::as_str) {
-        Some(path) if path != "-" => Scene::load(Path::new(path))?,
+        Some(path) if path.ends_with(".ron") => Scene::load(Path::new(path))?,
+        // a model file on its own, as `hytrace render MODEL` frames and lights it
+        Some(path) if path != "-" => Scene::from_model(Path::new(path), None)?,
         _ => Scene::load(Path::new("assets/scenes/showcase.ron"))?,
     };
     let number = |i: usize, default: u32| args.get(i).map_or(Ok(default), |a| a.parse());

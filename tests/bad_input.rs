@@ -266,6 +266,58 @@ fn unknown_field_in_material() {
 }
 
 #[test]
+fn metallic_roughness_material_errors_name_the_field_and_the_range() {
+    expect_error(
+        &scene(
+            "    materials: {\n        \"red\": (color: (1, 0, 0)),\n        \"gold\": Pbr(base_color: (1, 0.8, 0.3), «metalic»: 1),\n    },\n",
+        ),
+        &["metalic", "metallic"],
+    );
+    expect_error(
+        &scene("    materials: {\n        \"m\": Pbr(metallic: «2»),\n    },\n"),
+        &["[0, 1]", "2"],
+    );
+    expect_error(
+        &scene(
+            "    materials: {\n        \"m\": Pbr(\n            roughness: «NaN»,\n        ),\n    },\n",
+        ),
+        &["finite"],
+    );
+    expect_error(
+        &scene("    materials: {\n        \"m\": Pbr(emissive: «(1, -1, 0)»),\n    },\n"),
+        &[">= 0"],
+    );
+}
+
+#[test]
+fn spot_light_cone_and_range_errors() {
+    expect_error(
+        &scene(
+            "    lights: [\n        «Spot»(position: (0, 1, 0), direction: (0, -1, 0), intensity: 1, inner_angle: 40, outer_angle: 30),\n    ],\n",
+        ),
+        &["inner_angle", "outer_angle", "40", "30"],
+    );
+    expect_error(
+        &scene(
+            "    lights: [\n        «Spot»(position: (0, 1, 0), direction: (0, -1, 0), intensity: 1, outer_angle: 120),\n    ],\n",
+        ),
+        &["outer_angle", "120", "90"],
+    );
+    expect_error(
+        &scene(
+            "    lights: [\n        Point(position: (0, 1, 0), intensity: 1, range: «0»),\n    ],\n",
+        ),
+        &["> 0"],
+    );
+    expect_error(
+        &scene(
+            "    lights: [\n        Spot(position: (0, 1, 0), direction: «(0, 0, 0)», intensity: 1),\n    ],\n",
+        ),
+        &["non-zero direction"],
+    );
+}
+
+#[test]
 fn unknown_field_in_sdf_node() {
     expect_error(
         &scene("    objects: [\n        (shape: Sphere(«radus»: 1)),\n    ],\n"),

@@ -96,6 +96,7 @@ mod shipped_scenes {
         glass,
         hybrid,
         implicit,
+        pbr,
         primitives,
         shadows,
         showcase,

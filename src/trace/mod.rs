@@ -545,12 +545,7 @@ impl<'a> SceneTracer<'a> {
     ) {
         let s = &self.scene.tracer;
         let (rays, tmins, limits) = gathered(queries, which, s.max_distance);
-        let mut blocked = vec![false; which.len()];
-        if !self.meshes.is_empty() {
-            for (k, &i) in which.iter().enumerate() {
-                blocked[k] = self.mesh_blocks(&rays[k], queries[i].tmin, queries[i].tmax);
-            }
-        }
+        let mut blocked = self.meshes_block(&rays, &tmins, &limits);
         let mut candidates = Candidates::with_tmins(&self.accel, &rays, &tmins, &limits, |_| 0.0);
         let mut results = [TraceResult::of_points(None, 0); packet::BUNDLE];
         candidates.in_packets(
@@ -584,16 +579,10 @@ impl<'a> SceneTracer<'a> {
     ) {
         let s = &self.scene.tracer;
         let (rays, tmins, limits) = gathered(queries, which, s.max_distance);
-        let mut res: Vec<f32> = which
-            .iter()
-            .map(|&i| {
-                let q = &queries[i];
-                if self.mesh_blocks(&q.ray, q.tmin, q.tmax) {
-                    0.0
-                } else {
-                    1.0
-                }
-            })
+        let mut res: Vec<f32> = self
+            .meshes_block(&rays, &tmins, &limits)
+            .into_iter()
+            .map(|blocked| if blocked { 0.0 } else { 1.0 })
             .collect();
         // k·h/t < 1 only where h < t/k ≤ limit/k: objects farther than that cannot darken
         let mut candidates =
@@ -664,6 +653,32 @@ impl<'a> SceneTracer<'a> {
     }
 
     /// Whether a mesh blocks the ray within (tmin, tmax).
+    /// [`Self::mesh_blocks`] of each ray over `[tmins[k], limits[k]]` (limits already within
+    /// `max_distance`). Rays that share one `tmin` — the renderer's shadow rays all start at
+    /// 0 — go through the instance BVH's packet any-hit walk, which traces coherent neighbours
+    /// (a tile row's shadow rays towards one light) together and gives the same answers.
+    fn meshes_block(&self, rays: &[Ray], tmins: &[f32], limits: &[f32]) -> Vec<bool> {
+        let mut blocked = vec![false; rays.len()];
+        if self.meshes.is_empty() || rays.is_empty() {
+            return blocked;
+        }
+        if tmins.iter().all(|t| t.to_bits() == tmins[0].to_bits()) {
+            self.meshes.tlas.any_hits_filtered(
+                &self.meshes.blas,
+                rays,
+                tmins[0],
+                limits,
+                &mut blocked,
+                &self.meshes.alpha_test(&self.scene.meshes),
+            );
+        } else {
+            for (k, b) in blocked.iter_mut().enumerate() {
+                *b = self.mesh_blocks(&rays[k], tmins[k], limits[k]);
+            }
+        }
+        blocked
+    }
+
     fn mesh_blocks(&self, ray: &Ray, tmin: f32, tmax: f32) -> bool {
         !self.meshes.is_empty()
             && self.meshes.tlas.any_hit_filtered(
