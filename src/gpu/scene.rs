@@ -590,19 +590,6 @@ fn material_record(
     r
 }
 
-/// `MaterialRecord::alpha_mode` of `AlphaMode::Opaque` (and of scene materials).
-pub const ALPHA_OPAQUE: u32 = 0;
-/// `MaterialRecord::alpha_mode` of `AlphaMode::Mask`.
-pub const ALPHA_MASK: u32 = 1;
-/// `MaterialRecord::alpha_mode` of `AlphaMode::Blend`.
-pub const ALPHA_BLEND: u32 = 2;
-
-/// `TextureRecord::wrap` bit: one `u32` per texel, RGBA bytes from the lowest
-/// (`Texture::packed8`); without it, four (the f32 bits of R, G, B, A).
-pub const TEXELS_PACKED8: u32 = 1 << 8;
-/// `TextureRecord::wrap` bit: packed colour bytes are sRGB-encoded (decoded on sampling).
-pub const TEXELS_SRGB: u32 = 1 << 9;
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -354,11 +354,11 @@ pub fn wgsl_prelude() -> String {
     s += &u("WRAP_REPEAT", wrap_code(Wrap::Repeat));
     s += &u("WRAP_CLAMP_TO_EDGE", wrap_code(Wrap::ClampToEdge));
     s += &u("WRAP_MIRRORED_REPEAT", wrap_code(Wrap::MirroredRepeat));
-    s += &u("TEXELS_PACKED8", crate::gpu::scene::TEXELS_PACKED8);
-    s += &u("TEXELS_SRGB", crate::gpu::scene::TEXELS_SRGB);
-    s += &u("ALPHA_OPAQUE", crate::gpu::scene::ALPHA_OPAQUE);
-    s += &u("ALPHA_MASK", crate::gpu::scene::ALPHA_MASK);
-    s += &u("ALPHA_BLEND", crate::gpu::scene::ALPHA_BLEND);
+    s += &u("TEXELS_PACKED8", crate::gpu::records::TEXELS_PACKED8);
+    s += &u("TEXELS_SRGB", crate::gpu::records::TEXELS_SRGB);
+    s += &u("ALPHA_OPAQUE", crate::gpu::records::ALPHA_OPAQUE);
+    s += &u("ALPHA_MASK", crate::gpu::records::ALPHA_MASK);
+    s += &u("ALPHA_BLEND", crate::gpu::records::ALPHA_BLEND);
     s += &u("VERDICT_EMPTY", verdict_code(Verdict::Empty));
     s += &u("VERDICT_FULL", verdict_code(Verdict::Full));
     s += &u("VERDICT_SURFACE", verdict_code(Verdict::Surface));
