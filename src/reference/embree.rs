@@ -1177,9 +1177,15 @@ impl EmbreeScene {
     }
 }
 
+/// Whether `[tmin, tmax]` (tmin clamped at 0) holds anything to find: the interval every
+/// query, single ray or packet lane, traces.
+fn live(tmin: f32, tmax: f32) -> bool {
+    !(tmax.is_nan() || tmin.max(0.0) > tmax)
+}
+
 impl RayQuery for EmbreeScene {
     fn closest_hit(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<QueryHit> {
-        if tmax.is_nan() || tmin.max(0.0) > tmax {
+        if !live(tmin, tmax) {
             return None;
         }
         let mut slot = RayHit {
@@ -1203,7 +1209,7 @@ impl RayQuery for EmbreeScene {
     }
 
     fn occluded(&self, ray: &Ray, tmin: f32, tmax: f32) -> bool {
-        if tmax.is_nan() || tmin.max(0.0) > tmax {
+        if !live(tmin, tmax) {
             return false;
         }
         let mut r = Self::rtc_ray(ray, tmin, tmax);

@@ -168,10 +168,10 @@ pub fn field(source: &str, path: &[&str]) -> Option<usize> {
             }
             // A struct field `name:` or a map key `"name":` (compared without its quotes).
             Kind::Ident | Kind::Str if toks.get(i + 1).map(|n| n.kind) == Some(Kind::Colon) => {
-                let name = if t.kind == Kind::Str {
-                    &source[t.start + 1..t.end.saturating_sub(1).max(t.start + 1)]
-                } else {
-                    &source[t.start..t.end]
+                let text = &source[t.start..t.end];
+                let name = match t.kind {
+                    Kind::Str => text.trim_start_matches('"').trim_end_matches('"'),
+                    _ => text,
                 };
                 keys[depth] = Some(name);
                 if depth == path.len()

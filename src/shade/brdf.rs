@@ -16,6 +16,7 @@
 //! irradiance E shows E (the Phong model has no 1/π), so [`reflected`] returns π·f·(n·l): the
 //! two models agree on a rough dielectric's diffuse part.
 
+use crate::scene::material::MaterialParams;
 use glam::Vec3;
 use std::f32::consts::PI;
 
@@ -34,6 +35,15 @@ pub struct MetallicRoughness {
 }
 
 impl MetallicRoughness {
+    /// The BRDF's inputs of a material's metallic-roughness lanes.
+    pub fn of(m: &MaterialParams) -> Self {
+        MetallicRoughness {
+            base_color: m.color,
+            metallic: m.metallic,
+            roughness: m.roughness,
+        }
+    }
+
     /// Specular reflectance at normal incidence, f₀.
     pub fn f0(&self) -> Vec3 {
         Vec3::splat(DIELECTRIC_F0).lerp(self.base_color, self.metallic)

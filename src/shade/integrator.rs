@@ -110,16 +110,11 @@ pub fn mirror_reflectance(m: &MaterialParams, cos_i: f32) -> (Vec3, f32) {
         return (Vec3::ZERO, 1.0);
     }
     let grazing = (1.0 - cos_i).powi(5);
-    let phong = Vec3::splat(m.reflectivity + (1.0 - m.reflectivity) * grazing);
-    let f0 = MetallicRoughness {
-        base_color: m.color,
-        metallic: m.metallic,
-        roughness: m.roughness,
-    }
-    .f0();
+    let phong = m.reflectivity + (1.0 - m.reflectivity) * grazing;
+    let f0 = MetallicRoughness::of(m).f0();
     let pbr = m.reflectivity * (f0 + (1.0 - f0) * grazing);
-    let local = 1.0 - (1.0 - pbr_weight) * phong.x;
-    (phong.lerp(pbr, pbr_weight), local)
+    let local = 1.0 - (1.0 - pbr_weight) * phong;
+    (Vec3::splat(phong).lerp(pbr, pbr_weight), local)
 }
 
 /// What the integrator computes at a hit of `ray`.

@@ -206,11 +206,7 @@ pub fn shade_with<T: ShadingTracer + ?Sized>(
     let m = &sp.material;
     let n = sp.normal;
     let pbr = m.pbr.clamp(0.0, 1.0);
-    let brdf = MetallicRoughness {
-        base_color: m.color,
-        metallic: m.metallic,
-        roughness: m.roughness,
-    };
+    let brdf = MetallicRoughness::of(m);
     // The ambient light each model reflects: Lambert's albedo·kd, or the metallic-roughness
     // albedo at normal incidence (see `brdf`) less the specular share r·f₀ that the traced
     // mirror reflection brings instead (see `integrator::mirror_reflectance`); the material's

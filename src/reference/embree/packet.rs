@@ -5,7 +5,7 @@
 //! Embree 4 has no stream queries (`rtcIntersect1M`/`NM`/`NP` were removed in 4.0), so
 //! packets are its only batched form.
 
-use super::{EmbreeScene, RTC_INVALID_GEOMETRY_ID};
+use super::{EmbreeScene, RTC_INVALID_GEOMETRY_ID, live};
 use crate::geom::Ray;
 use crate::trace::query::{QueryHit, RayQuery};
 use embree4_sys::{RTCDeviceProperty, RTCRay8, RTCRay16, RTCRayHit8, RTCRayHit16};
@@ -50,11 +50,6 @@ const _: () = assert!(std::mem::offset_of!(Padded<RTCRayHit16, 16>, inst_prim_id
 /// packet's size in bytes).
 #[repr(C, align(64))]
 struct Valid<const N: usize>([i32; N]);
-
-/// Whether `[tmin, tmax]` is a non-empty interval, as the single-ray queries decide it.
-fn live(tmin: f32, tmax: f32) -> bool {
-    !(tmax.is_nan() || tmin.max(0.0) > tmax)
-}
 
 /// Writes one packet's rays (lane k from `rays[k]`) and valid mask; lanes past the rays stay
 /// invalid. `$r` is an `RTCRayN`.
