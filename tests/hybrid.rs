@@ -8,7 +8,7 @@ use hytrace::geom::Ray;
 use hytrace::render::{Framebuffer, RenderOptions};
 use hytrace::scene::Scene;
 use hytrace::scene::generate::many_objects;
-use hytrace::shade::integrator::trace_camera_ray;
+use hytrace::shade::integrator::{self, trace_camera_ray};
 use hytrace::trace::{AccelOptions, SceneTracer, Surface};
 use std::path::{Path, PathBuf};
 
@@ -268,59 +268,80 @@ fn the_binary_renders_the_hybrid_showcase_from_the_repository_root_without_the_v
 
 #[test]
 fn cpu_render_traces_tile_rows_as_each_ray_alone() {
-    // The CPU renderer finds a tile row's camera hits together (mesh packets); every pixel
-    // must be what tracing its samples' rays one by one gives, bit for bit. 70×45 has partial
-    // tiles on both edges; 3 samples jitter the rays inside the pixels.
+    // The CPU renderer finds a tile row's camera hits together (mesh packets and SDF
+    // bundles), and the mirror reflections of those hits together; every pixel must be what
+    // tracing its samples' rays one by one gives, bit for bit. 70×45 has partial tiles on
+    // both edges; 3 samples jitter the rays inside the pixels. hybrid.ron has meshes and a
+    // Phong mirror, pbr.ron metals whose reflections take their colour, glass.ron
+    // dielectrics that reflect part of the light.
     if assets().is_none() {
         return;
     }
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/scenes/hybrid.ron");
-    let scene = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
-    let opts = RenderOptions {
-        width: 70,
-        height: 45,
-        samples: 3,
-        threads: Some(2),
-        progress: false,
-    };
-    let fb = hytrace::render::cpu::render(&scene, &opts).expect("renders");
-    let tracer = SceneTracer::new(&scene);
-    let materials = scene.material_table();
-    let mut alone = Framebuffer::new(opts.width, opts.height);
-    let mut mesh_pixels = 0;
-    for y in 0..opts.height {
-        for x in 0..opts.width {
-            let samples: Vec<_> = (0..opts.samples)
-                .map(|s| {
-                    let (dx, dy) = hytrace::render::sample_offset(x, y, s, opts.samples);
-                    let ray = scene.camera.ray(
-                        (x as f32 + dx) / opts.width as f32,
-                        (y as f32 + dy) / opts.height as f32,
-                        opts.width as f32 / opts.height as f32,
-                    );
-                    if let Some(Surface::Mesh { .. }) = tracer
-                        .closest_hit(&ray, 0.0, f32::INFINITY)
-                        .map(|h| h.surface)
-                    {
-                        mesh_pixels += 1;
-                    }
-                    trace_camera_ray(&tracer, &materials, ray)
-                })
-                .collect();
-            alone.set(x, y, &samples);
+    for name in ["hybrid.ron", "pbr.ron", "glass.ron"] {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("assets/scenes")
+            .join(name);
+        let scene = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
+        let opts = RenderOptions {
+            width: 70,
+            height: 45,
+            samples: 3,
+            threads: Some(2),
+            progress: false,
+        };
+        let fb = hytrace::render::cpu::render(&scene, &opts).expect("renders");
+        let tracer = SceneTracer::new(&scene);
+        let materials = scene.material_table();
+        let mut alone = Framebuffer::new(opts.width, opts.height);
+        let (mut mesh_pixels, mut mirrored) = (0, 0);
+        for y in 0..opts.height {
+            for x in 0..opts.width {
+                let samples: Vec<_> = (0..opts.samples)
+                    .map(|s| {
+                        let (dx, dy) = hytrace::render::sample_offset(x, y, s, opts.samples);
+                        let ray = scene.camera.ray(
+                            (x as f32 + dx) / opts.width as f32,
+                            (y as f32 + dy) / opts.height as f32,
+                            opts.width as f32 / opts.height as f32,
+                        );
+                        if let Some(hit) = tracer.closest_hit(&ray, 0.0, f32::INFINITY) {
+                            if let Surface::Mesh { .. } = hit.surface {
+                                mesh_pixels += 1;
+                            }
+                            let surf = integrator::surfaced(&tracer, &materials, &ray, &hit);
+                            if integrator::first_reflection(&tracer, &surf, ray.direction).is_some()
+                            {
+                                mirrored += 1;
+                            }
+                        }
+                        trace_camera_ray(&tracer, &materials, ray)
+                    })
+                    .collect();
+                alone.set(x, y, &samples);
+            }
         }
-    }
-    assert!(
-        mesh_pixels > 200,
-        "the view should show the meshes: {mesh_pixels}"
-    );
-    for (i, (a, b)) in fb.pixels.iter().zip(&alone.pixels).enumerate() {
-        assert_eq!(
-            a.to_array().map(f32::to_bits),
-            b.to_array().map(f32::to_bits),
-            "pixel {i}"
+        if name == "hybrid.ron" {
+            assert!(
+                mesh_pixels > 200,
+                "the view should show the meshes: {mesh_pixels}"
+            );
+        }
+        assert!(
+            mirrored > 100,
+            "{name}: the view should show mirror reflections: {mirrored} samples"
         );
-        assert_eq!(fb.depth[i].to_bits(), alone.depth[i].to_bits(), "depth {i}");
+        for (i, (a, b)) in fb.pixels.iter().zip(&alone.pixels).enumerate() {
+            assert_eq!(
+                a.to_array().map(f32::to_bits),
+                b.to_array().map(f32::to_bits),
+                "{name}: pixel {i}"
+            );
+            assert_eq!(
+                fb.depth[i].to_bits(),
+                alone.depth[i].to_bits(),
+                "{name}: depth {i}"
+            );
+        }
     }
 }
 

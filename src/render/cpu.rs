@@ -130,7 +130,9 @@ const BAND_ROWS: u32 = 4;
 /// camera rays are traced a band of [`BAND_ROWS`] tile rows at a time: the band's closest hits
 /// come from one [`ShadingTracer::closest_hits`] call and the shadow rays of their local
 /// shading from one [`ShadingTracer::visibilities`] call (on our tracer, ray bundles:
-/// [`SceneTracer::closest_hits`]), then each ray's path is followed on its own. The answers are those of tracing every ray alone, so the image does not depend on
+/// [`SceneTracer::closest_hits`]), and so do the mirror reflections the paths follow from
+/// those hits ([`integrator::first_reflection`]); then each ray's path is followed on its
+/// own. The answers are those of tracing every ray alone, so the image does not depend on
 /// this grouping.
 fn render_tile<T: ShadingTracer + Sync + ?Sized>(
     tracer: &T,
@@ -150,6 +152,9 @@ fn render_tile<T: ShadingTracer + Sync + ?Sized>(
     let mut queries = Vec::new();
     let mut owners = Vec::new();
     let mut answers = Vec::new();
+    let mut mirrors = Vec::new();
+    let mut mirror_of = Vec::with_capacity(band);
+    let mut mirror_hits = Vec::new();
     let mut visibility = vec![1.0f32; band * lights];
     for y0 in (tile.y0..tile.y0 + tile.h).step_by(BAND_ROWS as usize) {
         rays.clear();
@@ -165,18 +170,39 @@ fn render_tile<T: ShadingTracer + Sync + ?Sized>(
         // the band's shadow rays, light by light (rays toward one light are coherent)
         surfaces.clear();
         surfaces.extend(rays.iter().zip(&hits).map(|(ray, hit)| {
-            hit.map(|h| integrator::surfaced(tracer, materials, ray, &h))
-                .filter(|s| s.local_weight > 0.0)
+            hit.as_ref()
+                .map(|h| integrator::surfaced(tracer, materials, ray, h))
         }));
         queries.clear();
         owners.clear();
         for light in 0..lights {
             for (i, surf) in surfaces.iter().enumerate() {
-                if let Some(q) = surf.and_then(|s| shadow_query(scene, &s.point, light)) {
+                if let Some(q) = surf
+                    .as_ref()
+                    .filter(|s| s.local_weight > 0.0)
+                    .and_then(|s| shadow_query(scene, &s.point, light))
+                {
                     queries.push(q);
                     owners.push(i * lights + light);
                 }
             }
+        }
+        // the band's mirror reflections, traced together like the camera rays
+        mirrors.clear();
+        mirror_of.clear();
+        for (surf, ray) in surfaces.iter().zip(&rays) {
+            let mirror = surf
+                .as_ref()
+                .and_then(|s| integrator::first_reflection(tracer, s, ray.direction));
+            mirror_of.push(mirror.map(|m| {
+                mirrors.push(m);
+                mirrors.len() - 1
+            }));
+        }
+        mirror_hits.clear();
+        mirror_hits.resize(mirrors.len(), None);
+        if !mirrors.is_empty() {
+            tracer.closest_hits(&mirrors, 0.0, f32::INFINITY, &mut mirror_hits);
         }
         answers.resize(queries.len(), 0.0);
         tracer.visibilities(&queries, &mut answers);
@@ -185,8 +211,11 @@ fn render_tile<T: ShadingTracer + Sync + ?Sized>(
         }
         for (i, (ray, hit)) in rays.iter().zip(&hits).enumerate() {
             let first = Primary {
-                hit: *hit,
-                shading: surfaces[i].map(|s| (s, &visibility[i * lights..(i + 1) * lights])),
+                hit: hit.as_ref(),
+                shading: surfaces[i]
+                    .as_ref()
+                    .map(|s| (s, &visibility[i * lights..(i + 1) * lights])),
+                reflection: mirror_of[i].map(|m| (mirrors[m], mirror_hits[m].as_ref())),
             };
             out.push(trace_camera_ray_from(tracer, materials, *ray, Some(first)));
         }

@@ -57,6 +57,9 @@ struct PendingRay {
     weight: Vec3,
     bounces: u32,
     inside: Option<(Surface, f32)>,
+    /// The camera ray's mirror reflection, whose hit the caller may have found ahead
+    /// ([`Primary::reflection`]).
+    first_reflection: bool,
 }
 
 /// The pending rays of one camera path, on the stack of the thread that follows it.
@@ -163,12 +166,50 @@ pub fn surfaced<T: ShadingTracer + ?Sized>(
 /// A camera ray's first hit found ahead by the caller, and, where the caller also computed
 /// it, the local shading's surface and the visibility of each light there (indexed by light;
 /// only the entries [`super::shadow_query`] asks for are read).
+///
+/// It borrows what the caller holds: copying a hit and its surface (some 250 bytes) into the
+/// path, field by field after they were written whole, cost a sixth of a frame in `memcpy`.
 #[derive(Debug, Clone, Copy)]
 pub struct Primary<'a> {
     /// The closest hit over [0, ∞), as `tracer.closest_hit` answers it.
-    pub hit: Option<Hit>,
+    pub hit: Option<&'a Hit>,
     /// [`surfaced`] at the hit, with the lights' visibilities.
-    pub shading: Option<(Surfaced, &'a [f32])>,
+    pub shading: Option<(&'a Surfaced, &'a [f32])>,
+    /// The mirror reflection of the hit ([`first_reflection`]) and its closest hit over
+    /// [0, ∞), where the caller traced it ahead with others; used only if the path sends
+    /// exactly that ray.
+    pub reflection: Option<(Ray, Option<&'a Hit>)>,
+}
+
+/// The weight a surface's traced mirror reflection carries (before the path's weight):
+/// coverage·((1 − τ)·F_r + τ·F_t), the opaque part's mirror and a dielectric's reflection.
+#[inline]
+pub fn mirror_weight(surf: &Surfaced) -> Vec3 {
+    let m = &surf.point.material;
+    let coverage = m.opacity.clamp(0.0, 1.0);
+    coverage * ((1.0 - m.transparency) * surf.f_r + m.transparency * surf.f_t)
+}
+
+/// The mirror reflection leaving a surface that a ray along `d` met, from just above it.
+#[inline]
+pub fn mirror_ray<T: ShadingTracer + ?Sized>(tracer: &T, surf: &Surfaced, d: Vec3) -> Ray {
+    let (p, n) = (surf.point.position, surf.point.normal);
+    let offset = surface_offset(tracer, surf.point.t, p);
+    Ray::new(p + n * offset, reflect(d, n))
+}
+
+/// The mirror reflection a camera ray's path follows from its first hit (the camera ray
+/// along `d` met `surf`), or `None` where it follows none: what a caller traces ahead for
+/// [`Primary::reflection`].
+pub fn first_reflection<T: ShadingTracer + ?Sized>(
+    tracer: &T,
+    surf: &Surfaced,
+    d: Vec3,
+) -> Option<Ray> {
+    let max_bounces = tracer.scene().shading.max_bounces.min(MAX_BOUNCES);
+    // the camera ray's weight is 1, so the reflection's is `mirror_weight` (see `spawn`)
+    (max_bounces > 0 && mirror_weight(surf).max_element() >= MIN_WEIGHT)
+        .then(|| mirror_ray(tracer, surf, d))
 }
 
 /// [`trace_camera_ray`] when the caller has already found the camera ray's closest hit
@@ -192,7 +233,9 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
         weight: Vec3::ONE,
         bounces: 0,
         inside: None,
+        first_reflection: false,
     });
+    let mut reflection = first.and_then(|f| f.reflection);
     let mut sample = CameraSample {
         radiance: Vec3::ZERO,
         depth: f32::INFINITY,
@@ -210,6 +253,7 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
                     weight,
                     bounces: item.bounces + 1,
                     inside,
+                    first_reflection: false,
                 });
             }
         };
@@ -239,9 +283,16 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
             );
             continue;
         }
+        let traced;
         let (hit, prepared) = match first.take() {
             Some(f) if primary => (f.hit, f.shading),
-            _ => (tracer.closest_hit(&item.ray, 0.0, f32::INFINITY), None),
+            _ => match reflection.take() {
+                Some((ray, hit)) if item.first_reflection && ray == item.ray => (hit, None),
+                _ => {
+                    traced = tracer.closest_hit(&item.ray, 0.0, f32::INFINITY);
+                    (traced.as_ref(), None)
+                }
+            },
         };
         if primary {
             sample.steps = hit.map_or(0, |h| h.steps);
@@ -251,9 +302,13 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
             primary = false;
             continue;
         };
+        let found;
         let (surf, visibility) = match prepared {
             Some((surf, v)) => (surf, Some(v)),
-            None => (surfaced(tracer, materials, &item.ray, &hit), None),
+            None => {
+                found = surfaced(tracer, materials, &item.ray, hit);
+                (&found, None)
+            }
         };
         let (p, n, m) = (surf.point.position, surf.point.normal, surf.point.material);
         let d = item.ray.direction;
@@ -264,8 +319,7 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
             sample.gradient = hit.gradient;
             primary = false;
         }
-        let (f_r, f_t, local_weight) = (surf.f_r, surf.f_t, surf.local_weight);
-        let opaque = 1.0 - m.transparency;
+        let (f_t, local_weight) = (surf.f_t, surf.local_weight);
         let coverage = m.opacity.clamp(0.0, 1.0);
         let offset = surface_offset(tracer, hit.t, p);
         if m.opacity < 1.0 {
@@ -285,14 +339,18 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
             };
             sample.radiance += item.weight * local_weight * local;
         }
-        let reflect_weight = coverage * (opaque * f_r + m.transparency * f_t);
+        let reflect_weight = mirror_weight(surf);
         if reflect_weight.max_element() > 0.0 {
+            let before = stack.len();
             spawn(
                 &mut stack,
-                Ray::new(p + n * offset, reflect(d, n)),
+                mirror_ray(tracer, surf, d),
                 item.weight * reflect_weight,
                 None,
             );
+            if item.bounces == 0 && stack.len() > before {
+                stack.last_mut().expect("pushed").first_reflection = true;
+            }
         }
         let transmit_weight = coverage * m.transparency * (1.0 - f_t);
         if transmit_weight > 0.0 {

@@ -87,6 +87,7 @@ enum Phase {
 
 impl<'f> Parts<'f> {
     /// The parts of [t0, t1] along `ray` for the field of `cursor`.
+    #[inline]
     pub fn new(cursor: &FieldCursor<'f, '_>, ray: &Ray, t0: f32, t1: f32) -> Self {
         let whole = cursor.whole_tape();
         let mut parts = Parts {
@@ -250,6 +251,7 @@ pub(crate) struct Along<'f> {
 
 impl<'f> Along<'f> {
     /// The tapes along `ray` over [t0, t1] for the field of `field`.
+    #[inline]
     pub fn new(field: &FieldCursor<'f, '_>, ray: &Ray, t0: f32, t1: f32) -> Self {
         Along {
             walk: field.octree().map(|tree| RayWalk::new(tree, ray, t0, t1)),
