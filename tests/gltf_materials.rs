@@ -438,12 +438,22 @@ fn alpha_masked_texels_are_holes_for_camera_and_shadow_rays() {
 
     #[cfg(feature = "embree")]
     {
+        // Embree's distance may differ from the exact one in its last bit (it did by one ulp
+        // on one machine's AVX-512 path), so within the tolerance the other backends get
         let embree = hytrace::reference::embree::EmbreeScene::build(&scene).unwrap();
         for x in [-0.9, -0.6, -0.2] {
-            assert_eq!(probe(&embree, x), (6.0, false), "Embree at x = {x}");
+            let (t, occluded) = probe(&embree, x);
+            assert!(
+                (t - 6.0).abs() < 1e-4 && !occluded,
+                "Embree at x = {x}: {t} {occluded}"
+            );
         }
         for x in [0.2, 0.6, 0.9] {
-            assert_eq!(probe(&embree, x), (5.0, true), "Embree at x = {x}");
+            let (t, occluded) = probe(&embree, x);
+            assert!(
+                (t - 5.0).abs() < 1e-4 && occluded,
+                "Embree at x = {x}: {t} {occluded}"
+            );
         }
     }
 }
