@@ -286,13 +286,20 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
         let traced;
         let (hit, prepared) = match first.take() {
             Some(f) if primary => (f.hit, f.shading),
-            _ => match reflection.take() {
-                Some((ray, hit)) if item.first_reflection && ray == item.ray => (hit, None),
-                _ => {
-                    traced = tracer.closest_hit(&item.ray, 0.0, f32::INFINITY);
-                    (traced.as_ref(), None)
+            _ => {
+                let ahead = if item.first_reflection {
+                    reflection.take()
+                } else {
+                    None
+                };
+                match ahead {
+                    Some((ray, hit)) if ray == item.ray => (hit, None),
+                    _ => {
+                        traced = tracer.closest_hit(&item.ray, 0.0, f32::INFINITY);
+                        (traced.as_ref(), None)
+                    }
                 }
-            },
+            }
         };
         if primary {
             sample.steps = hit.map_or(0, |h| h.steps);
