@@ -345,16 +345,47 @@ fn tree_agrees_with_the_referee(
     Ok(())
 }
 
-/// A tree the property test once drew (seed 134): a camera ray skims the carved surface at
-/// 10⁻⁴ for a stretch before crossing it cleanly, and Hart's steps, each the field's value,
-/// spent 256 evaluations there; the default budget (512 since) reaches the crossing.
+/// Trees the property test once drew where a ray skims a surface before crossing it cleanly,
+/// and Hart's steps, each the field's value, ran out of the budget (256 then) on the way: a
+/// pass at 10⁻⁴ from a carved surface (seed 134, 267 steps), and two rays along a channel
+/// about 10⁻³ wide between a rounded box and a smoothly carved hexagonal prism (seed 495,
+/// 563 and 589 steps). The default budget (1,024 since) reaches the crossings.
 #[test]
-fn a_ray_that_skims_a_surface_before_crossing_it_within_the_default_budget() {
-    let shape = "SmoothSubtraction(k: 0.17347813, base: SmoothSubtraction(k: 0.01, \
-                 base: Cylinder(half_height: 0.20188984, radius: 0.2600777), \
-                 cut: Capsule(a: (0.2642364, 0, 0), b: (0, 0, 0.2642364), radius: 0.04)), \
-                 cut: Octahedron(size: 0.21925102))";
-    tree_agrees_with_the_referee(shape, (0.0, 0.0, 0.0), 134).unwrap_or_else(|e| panic!("{e}"));
+fn rays_that_skim_a_surface_before_crossing_it_within_the_default_budget() {
+    let cases = [
+        (
+            "SmoothSubtraction(k: 0.17347813, base: SmoothSubtraction(k: 0.01, \
+             base: Cylinder(half_height: 0.20188984, radius: 0.2600777), \
+             cut: Capsule(a: (0.2642364, 0, 0), b: (0, 0, 0.2642364), radius: 0.04)), \
+             cut: Octahedron(size: 0.21925102))",
+            134,
+        ),
+        (
+            "SmoothSubtraction(k: 0.109066434, \
+             base: RoundBox(half_extents: (0.08, 0.27699035, 0.23434132), radius: 0.024), \
+             cut: HexPrism(radius: 0.21291044, half_length: 0.18005106))",
+            495,
+        ),
+    ];
+    for (shape, seed) in cases {
+        tree_agrees_with_the_referee(shape, (0.0, 0.0, 0.0), seed)
+            .unwrap_or_else(|e| panic!("{e}"));
+    }
+}
+
+/// Another tree the property test drew (seed 409): a random ray crosses a sliver 3·10⁻⁵ deep
+/// (less than ε/2, which our tracer rightly steps over) and the referee's certificate that
+/// nothing deeper lies before our hit must pass the boundary between two faces of the
+/// octahedron, where the interval enclosure is the union of both faces' formulas however
+/// narrow the stretch: the referee bounds such a stretch by its midpoint and the field's
+/// Lipschitz bound.
+#[test]
+fn a_sliver_before_a_branch_boundary_of_the_octahedron_is_certified() {
+    let shape = "Subtraction(base: Box(half_extents: (0.19383657, 0.17883419, 0.2379706)), \
+                 cut: SmoothUnion(k: 0.17668767, shapes: [\
+                 Cylinder(half_height: 0.15366104, radius: 0.17421606), \
+                 Octahedron(size: 0.22417057)]))";
+    tree_agrees_with_the_referee(shape, (0.0, 0.0, 0.0), 409).unwrap_or_else(|e| panic!("{e}"));
 }
 
 proptest! {

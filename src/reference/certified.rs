@@ -152,9 +152,11 @@ pub fn first_crossing(
 }
 
 /// Whether f ≥ `level` all along o + t·d for t in [t0, t1]: `Some(true)` certified (every
-/// stretch's enclosure is ≥ level), `Some(false)` certified not (a point's enclosure lies
-/// below level), `None` when the search ran out of boxes or only stretches of width ≤ δ
-/// straddle the level. This is the certified minimum of f along the ray, asked as a decision.
+/// stretch's enclosure is ≥ level, or for a stretch of width ≤ δ its midpoint's enclosure
+/// less half the width, f being 1-Lipschitz), `Some(false)` certified not (a point's
+/// enclosure lies below level), `None` when the search ran out of boxes or a stretch of
+/// width ≤ δ is left undecided. This is the certified minimum of f along the ray, asked as a
+/// decision.
 pub fn stays_above(
     program: &Program,
     o: DVec3,
@@ -185,11 +187,20 @@ pub fn stays_above(
         }
         let m = 0.5 * (a + b);
         let [x, y, z] = sweep(o, d, m, m);
-        if arena.get(k).eval(x, y, z, regs).hi < level {
+        let at_m = arena.get(k).eval(x, y, z, regs);
+        if at_m.hi < level {
             return Some(false);
         }
         if b - a <= search.delta || m <= a || m >= b {
-            undecided = true;
+            // A stretch this narrow whose enclosure still reaches below the level: where a
+            // branch boundary lies inside it (a `Select` whose condition changes sign, as
+            // between the faces of Quilez's exact octahedron), the enclosure is the union of
+            // both branches' however narrow the stretch, and bisection cannot settle it. The
+            // field is 1-Lipschitz along the unit ray, so on the stretch it is at least the
+            // midpoint's value less half the width; a point's enclosure decides its branch.
+            if at_m.lo - 0.5 * (b - a) < level {
+                undecided = true;
+            }
             continue;
         }
         stack.push((m, b, k));

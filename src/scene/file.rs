@@ -501,7 +501,7 @@ impl Default for TracerDesc {
             epsilon: Positive(1e-4),
             epsilon_per_unit: NonNegative(1e-4),
             max_distance: Positive(100.0),
-            max_steps: 512,
+            max_steps: 1024,
             normals: NormalMethod::Central,
             shadows: true,
             bvh: BuildQuality::Medium,
