@@ -57,9 +57,6 @@ struct PendingRay {
     weight: Vec3,
     bounces: u32,
     inside: Option<(Surface, f32)>,
-    /// The camera ray's mirror reflection, whose hit the caller may have found ahead
-    /// ([`Primary::reflection`]).
-    first_reflection: bool,
 }
 
 /// The pending rays of one camera path, on the stack of the thread that follows it.
@@ -67,6 +64,14 @@ type PathStack = ArrayVec<PendingRay, { MAX_BOUNCES as usize + 2 }>;
 
 /// Paths lighter than this are not followed.
 const MIN_WEIGHT: f32 = 1e-3;
+
+/// Whether a path follows a ray it spawns with `weight` after `bounces` bounces (of at most
+/// `max_bounces`): the one rule for what the integrator traces and what a caller may trace
+/// ahead for it ([`first_reflection`]).
+#[inline]
+fn follows(bounces: u32, max_bounces: u32, weight: Vec3) -> bool {
+    bounces < max_bounces && weight.max_element() >= MIN_WEIGHT
+}
 
 /// Follows the camera ray `ray` and everything it spawns. `materials` is the scene's material
 /// table as the shading tapes expect it.
@@ -207,9 +212,8 @@ pub fn first_reflection<T: ShadingTracer + ?Sized>(
     d: Vec3,
 ) -> Option<Ray> {
     let max_bounces = tracer.scene().shading.max_bounces.min(MAX_BOUNCES);
-    // the camera ray's weight is 1, so the reflection's is `mirror_weight` (see `spawn`)
-    (max_bounces > 0 && mirror_weight(surf).max_element() >= MIN_WEIGHT)
-        .then(|| mirror_ray(tracer, surf, d))
+    // the camera ray's weight is 1, so the reflection's is `mirror_weight`
+    follows(0, max_bounces, mirror_weight(surf)).then(|| mirror_ray(tracer, surf, d))
 }
 
 /// [`trace_camera_ray`] when the caller has already found the camera ray's closest hit
@@ -233,7 +237,6 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
         weight: Vec3::ONE,
         bounces: 0,
         inside: None,
-        first_reflection: false,
     });
     let mut reflection = first.and_then(|f| f.reflection);
     let mut sample = CameraSample {
@@ -247,13 +250,12 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
     let mut primary = true;
     while let Some(item) = stack.pop() {
         let spawn = |stack: &mut PathStack, ray: Ray, weight: Vec3, inside| {
-            if item.bounces < max_bounces && weight.max_element() >= MIN_WEIGHT {
+            if follows(item.bounces, max_bounces, weight) {
                 stack.push(PendingRay {
                     ray,
                     weight,
                     bounces: item.bounces + 1,
                     inside,
-                    first_reflection: false,
                 });
             }
         };
@@ -286,20 +288,17 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
         let traced;
         let (hit, prepared) = match first.take() {
             Some(f) if primary => (f.hit, f.shading),
-            _ => {
-                let ahead = if item.first_reflection {
-                    reflection.take()
-                } else {
-                    None
-                };
-                match ahead {
-                    Some((ray, hit)) if ray == item.ray => (hit, None),
-                    _ => {
-                        traced = tracer.closest_hit(&item.ray, 0.0, f32::INFINITY);
-                        (traced.as_ref(), None)
-                    }
+            // the ray traced ahead, if this is it (the same ray has the same closest hit)
+            _ => match reflection {
+                Some((ray, hit)) if ray == item.ray => {
+                    reflection = None;
+                    (hit, None)
                 }
-            }
+                _ => {
+                    traced = tracer.closest_hit(&item.ray, 0.0, f32::INFINITY);
+                    (traced.as_ref(), None)
+                }
+            },
         };
         if primary {
             sample.steps = hit.map_or(0, |h| h.steps);
@@ -348,16 +347,12 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
         }
         let reflect_weight = mirror_weight(surf);
         if reflect_weight.max_element() > 0.0 {
-            let before = stack.len();
             spawn(
                 &mut stack,
                 mirror_ray(tracer, surf, d),
                 item.weight * reflect_weight,
                 None,
             );
-            if item.bounces == 0 && stack.len() > before {
-                stack.last_mut().expect("pushed").first_reflection = true;
-            }
         }
         let transmit_weight = coverage * m.transparency * (1.0 - f_t);
         if transmit_weight > 0.0 {
