@@ -388,6 +388,17 @@ fn a_sliver_before_a_branch_boundary_of_the_octahedron_is_certified() {
     tree_agrees_with_the_referee(shape, (0.0, 0.0, 0.0), 409).unwrap_or_else(|e| panic!("{e}"));
 }
 
+/// Another tree the property test drew (seed 453): a rounded flat ellipsoid, whose field (a
+/// distance bound) stays below the rounding radius beyond its half-extents + radius along
+/// the short axes. Its box was too small, so the tracer clipped the surface flat at the box
+/// and the referee, starting inside the solid at the box's face, reported the far side.
+#[test]
+fn a_rounded_ellipsoid_is_not_clipped_by_its_bounds() {
+    let shape = "Round(radius: 0.079884045, \
+                 shape: Intersection([Ellipsoid(radii: (0.08156791, 0.1255945, 0.15297))]))";
+    tree_agrees_with_the_referee(shape, (0.0, 0.0, 0.0), 453).unwrap_or_else(|e| panic!("{e}"));
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
 

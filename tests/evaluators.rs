@@ -306,6 +306,40 @@ proptest! {
     }
 }
 
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    /// Random trees of every node kind: the field is positive just outside the object's
+    /// bounds (on a grid over each face), so the box the tracer, the octree and the referee
+    /// clip the object to holds its whole surface — also where a parent keeps a child's field
+    /// below a positive level (rounding, shells, smooth unions of distance bounds).
+    #[test]
+    fn random_trees_lie_inside_their_bounds(src in tree(3)) {
+        let node = parse_node(&src);
+        let Ok(l) = lower(&node, &|_| Some(0), 0) else {
+            return Ok(());
+        };
+        prop_assume!(l.bounds.is_finite());
+        let b = l.bounds.expand(1e-4 * (1.0 + (l.bounds.max - l.bounds.min).max_element()));
+        const N: usize = 32;
+        for axis in 0..3 {
+            let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+            for side in [b.min[axis], b.max[axis]] {
+                for i in 0..=N {
+                    for j in 0..=N {
+                        let mut p = Vec3::ZERO;
+                        p[axis] = side;
+                        p[u] = b.min[u] + (b.max[u] - b.min[u]) * i as f32 / N as f32;
+                        p[v] = b.min[v] + (b.max[v] - b.min[v]) * j as f32 / N as f32;
+                        let f = l.distance.eval(p);
+                        prop_assert!(f > 0.0, "{src}: f = {f} at {p}, outside {:?}", l.bounds);
+                    }
+                }
+            }
+        }
+    }
+}
+
 #[test]
 fn a_simplifier_that_keeps_the_wrong_branch_is_caught() {
     // The check above has teeth: the same sweep over the shipped objects with every decided
