@@ -399,6 +399,21 @@ fn a_rounded_ellipsoid_is_not_clipped_by_its_bounds() {
     tree_agrees_with_the_referee(shape, (0.0, 0.0, 0.0), 453).unwrap_or_else(|e| panic!("{e}"));
 }
 
+/// Another tree the property test drew (seed 0): a shadow ray leaving a smoothly blended
+/// shell skims it within 4·10⁻³ for a tenth of a unit, where the referee's interval
+/// enclosures stay loose and bisection alone ran out of boxes; the field's Lipschitz bound
+/// certifies it.
+#[test]
+fn a_shadow_ray_skimming_a_blended_shell_is_certified() {
+    let shape = "Onion(thickness: 0.046525143, shape: SmoothUnion(k: 0.13847673, shapes: [\
+                 Octahedron(size: 0.14286256), \
+                 HexPrism(radius: 0.22602104, half_length: 0.11174729), \
+                 Capsule(a: (0.16238219, 0.29012597, 0), b: (0.29012597, 0, 0.16238219), \
+                 radius: 0.09046889)]))";
+    tree_agrees_with_the_referee(shape, (-0.21303546, -0.027553627, -0.09540652), 0)
+        .unwrap_or_else(|e| panic!("{e}"));
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
 

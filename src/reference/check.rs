@@ -21,6 +21,9 @@ pub enum SdfCheck {
         delta: f64,
         /// Most interval evaluations per ray and object.
         max_boxes: u32,
+        /// The field's Lipschitz bound the search prunes stretches with, where the lowering
+        /// guarantees one.
+        lipschitz: Option<f64>,
     },
     /// A triangle mesh extracted from the field by our mesher.
     Meshed {
@@ -50,9 +53,17 @@ impl SdfCheck {
     pub fn describe(&self) -> String {
         match self {
             SdfCheck::Analytic => "analytic (closed-form intersection)".into(),
-            SdfCheck::Certified { delta, max_boxes } => format!(
-                "certified: first root of the tape by f64 interval bisection, enclosed within \
-                 δ = {delta:.1e} (at most {max_boxes} interval evaluations per ray)"
+            SdfCheck::Certified {
+                delta,
+                max_boxes,
+                lipschitz,
+            } => format!(
+                "certified: first root of the tape by f64 interval bisection{}, enclosed \
+                 within δ = {delta:.1e} (at most {max_boxes} interval evaluations per ray)",
+                match lipschitz {
+                    Some(l) => format!(" and the field's Lipschitz bound {l}"),
+                    None => String::new(),
+                }
             ),
             SdfCheck::Meshed {
                 resolution,

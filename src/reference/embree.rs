@@ -846,7 +846,19 @@ pub fn certified_search(settings: &crate::scene::TracerSettings) -> Search {
     Search {
         delta: settings.epsilon as f64 / 64.0,
         max_boxes: MAX_BOXES,
+        lipschitz: Some(1.0),
     }
+}
+
+/// The Lipschitz bound the lowering guarantees for a node's field: 1 (every node is lowered
+/// to λ ≤ 1, see [`crate::sdf::SdfNode`]), except where an implicit surface's λ is only an
+/// estimate (or the user's word): `None` there, and the search relies on enclosures alone.
+pub fn guaranteed_lipschitz(node: &crate::sdf::SdfNode) -> Option<f64> {
+    fn has_implicit(node: &crate::sdf::SdfNode) -> bool {
+        matches!(node, crate::sdf::SdfNode::Implicit { .. })
+            || node.children().into_iter().any(has_implicit)
+    }
+    (!has_implicit(node)).then_some(1.0)
 }
 
 /// The work bound of [`certified_search`]: a bisection to δ takes about log₂(length/δ) ≈ 30
@@ -1017,12 +1029,16 @@ impl EmbreeScene {
                     } else {
                         bounds.intersection(&clip)
                     };
-                    let search = options
+                    let mut search = options
                         .search
                         .unwrap_or_else(|| certified_search(&scene.tracer));
+                    if guaranteed_lipschitz(&object.node).is_none() {
+                        search.lipschitz = None;
+                    }
                     checks.push(SdfCheck::Certified {
                         delta: search.delta,
                         max_boxes: search.max_boxes,
+                        lipschitz: search.lipschitz,
                     });
                     if b.is_empty() || !b.is_finite() {
                         // no surface inside the box any ray can reach

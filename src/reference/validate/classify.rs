@@ -143,9 +143,17 @@ where
             .iter()
             .zip(&scene.objects)
             .map(|(c, o)| match *c {
-                SdfCheck::Certified { delta, max_boxes } => Some((
+                SdfCheck::Certified {
+                    delta,
+                    max_boxes,
+                    lipschitz,
+                } => Some((
                     Program::new(&o.lowered.distance),
-                    Search { delta, max_boxes },
+                    Search {
+                        delta,
+                        max_boxes,
+                        lipschitz,
+                    },
                 )),
                 _ => None,
             })
