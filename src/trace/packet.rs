@@ -295,7 +295,7 @@ pub fn penumbra_packet(
     let cursor = field.cursor(regs);
     let mut walks: Vec<Along> = lanes
         .iter()
-        .map(|l| Along::new(&cursor, &l.ray, l.t0, l.t1))
+        .map(|l| Along::for_penumbra(&cursor, &l.ray, l.t0, l.t1))
         .collect();
     let mut states: Vec<Shadowed> = lanes
         .iter()
