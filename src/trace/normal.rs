@@ -20,7 +20,10 @@ thread_local! {
 /// the values are those of [`FieldCursor::eval`] at each point.
 fn values<const N: usize>(field: &mut FieldCursor, points: [Vec3; N]) -> [f32; N] {
     const { assert!(N <= 8) };
-    let tapes = points.map(|q| field.region(q).tape);
+    let tapes = match field.short_whole_tape() {
+        Some(whole) => [whole; N],
+        None => points.map(|q| field.region(q).tape),
+    };
     let mut xyz = [[0.0f32; 8]; 3];
     for i in 0..8 {
         let q = points[i.min(N - 1)];

@@ -193,7 +193,11 @@ pub fn trace_hart_packet(
             if let Some(c) = &st.confirming {
                 // The tape at the confirmation's point: that of the leaf holding it.
                 let p = lanes[i].ray.at(c.at());
-                round.add(i, p, cursor.region_cached(p, &mut cells[i]).tape);
+                let tape = match cursor.short_whole_tape() {
+                    Some(whole) => whole,
+                    None => cursor.region_cached(p, &mut cells[i]).tape,
+                };
+                round.add(i, p, tape);
                 continue;
             }
             // The part that holds the lane's t (the next one once past it).

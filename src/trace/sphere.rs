@@ -249,16 +249,6 @@ pub(crate) struct Along<'f> {
     whole: &'f Tape,
 }
 
-/// Whole tapes at most this long are sampled as they are by penumbra marches, without the
-/// octree's leaves: a leaf's tape equals the whole tape at every point of the leaf, and a
-/// penumbra march takes a few samples per object (two, through a convex one), so setting up a
-/// walk per ray and finding each sample's leaf costs more than the instructions the leaves
-/// drop. Measured on 640×360 CPU frames (`examples/frame_time`): a 16-instruction ground 7 % of
-/// a hybrid.ron frame, a 235-instruction union of 40 spheres 12 % of its frame, at 900
-/// instructions even, at 2,300 the leaves 15 % faster. Hart's march keeps the leaves whatever
-/// the length: their bound on the field's fall lengthens its steps along planes.
-pub const PENUMBRA_WHOLE_TAPE: usize = 256;
-
 impl<'f> Along<'f> {
     /// The tapes along `ray` over [t0, t1] for the field of `field`.
     #[inline]
@@ -271,17 +261,16 @@ impl<'f> Along<'f> {
     }
 
     /// [`Self::new`] for a penumbra march: the whole tape alone where it is short (see
-    /// [`PENUMBRA_WHOLE_TAPE`]); the values are the same.
+    /// [`crate::accel::field::SHORT_TAPE`]); the values are the same.
     #[inline]
     pub fn for_penumbra(field: &FieldCursor<'f, '_>, ray: &Ray, t0: f32, t1: f32) -> Self {
-        if field.whole_tape().len() <= PENUMBRA_WHOLE_TAPE {
-            Along {
+        match field.short_whole_tape() {
+            Some(whole) => Along {
                 walk: None,
                 current: None,
-                whole: field.whole_tape(),
-            }
-        } else {
-            Self::new(field, ray, t0, t1)
+                whole,
+            },
+            None => Self::new(field, ray, t0, t1),
         }
     }
 
