@@ -138,7 +138,20 @@ pub fn shadow_query(scene: &Scene, sp: &SurfacePoint, light: usize) -> Option<Sh
         return None;
     }
     let (l, dist, _, shadow) = light_at(&scene.lights[light], sp.position)?;
-    if sp.normal.dot(l) <= 0.0 {
+    shadow_query_toward(scene, sp, l, dist, shadow)
+}
+
+/// [`shadow_query`] once the light's direction `l`, distance and shadow kind at `sp` are
+/// known ([`light_at`]).
+#[inline]
+fn shadow_query_toward(
+    scene: &Scene,
+    sp: &SurfacePoint,
+    l: Vec3,
+    dist: f32,
+    shadow: Shadow,
+) -> Option<ShadowQuery> {
+    if !scene.tracer.shadows || sp.normal.dot(l) <= 0.0 {
         return None;
     }
     let offset = offset_from_surface(&scene.tracer, sp.t, sp.position);
@@ -153,6 +166,7 @@ pub fn shadow_query(scene: &Scene, sp: &SurfacePoint, light: usize) -> Option<Sh
 /// Direction to a light from p, its distance, the irradiance it brings (with a spot light's
 /// cone and a light's range window applied) and its shadow kind; `None` for ambient lights, a
 /// light at p, and points outside a spot light's cone or beyond a light's range.
+#[inline]
 pub fn light_at(light: &Light, p: Vec3) -> Option<(Vec3, f32, Vec3, Shadow)> {
     match *light {
         Light::Ambient { .. } => None,
@@ -223,14 +237,14 @@ pub fn shade_with<T: ShadingTracer + ?Sized>(
             out += ambient_reflectance * radiance * ao;
             continue;
         }
-        let Some((l, _, irradiance, _)) = light_at(light, sp.position) else {
+        let Some((l, dist, irradiance, shadow)) = light_at(light, sp.position) else {
             continue;
         };
         let ndl = n.dot(l);
         if ndl <= 0.0 {
             continue;
         }
-        let visibility = match shadow_query(scene, sp, i) {
+        let visibility = match shadow_query_toward(scene, sp, l, dist, shadow) {
             Some(q) => visibility(i, &q),
             None => 1.0,
         };
