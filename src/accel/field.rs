@@ -1434,6 +1434,31 @@ pub(crate) mod tests {
     }
 
     #[test]
+    fn a_short_whole_tape_stands_for_its_leaves_and_a_long_one_does_not() {
+        // four tiles: a short tape, evaluated whole; 64 tiles: past SHORT_TAPE, by leaf
+        let mut rng = Rng::new(4);
+        for (n, short) in [(2, true), (8, false)] {
+            let lowered = tiles(n, n);
+            let field = ObjectField::build(&lowered, lowered.bounds);
+            assert!(field.octree.is_some(), "{n}×{n} tiles have an octree");
+            assert_eq!(
+                field.whole.len() <= SHORT_TAPE,
+                short,
+                "{}",
+                field.whole.len()
+            );
+            let (mut regs, mut alone) = (Registers::new(), Registers::new());
+            let mut cursor = field.cursor(&mut regs);
+            assert_eq!(cursor.short_whole_tape().is_some(), short);
+            for _ in 0..2000 {
+                let p = rng.vec3_in(-1.0, 1.0) * Vec3::new(1.0, 1.0, 0.2);
+                let leaf = field.cursor(&mut alone).region(p).tape.eval(p);
+                assert_eq!(cursor.eval(p).to_bits(), leaf.to_bits(), "at {p}");
+            }
+        }
+    }
+
+    #[test]
     fn fall_gives_the_bits_of_the_formula_as_written() {
         let mut rng = Rng::new(11);
         for i in 0..400_000 {
