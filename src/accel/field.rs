@@ -1021,11 +1021,12 @@ impl RoundingModel {
 /// few points per ray is wanted — penumbra samples, the normal's stencil, a candidate hit's
 /// confirmation, ambient occlusion — without finding each point's leaf: a leaf's tape equals
 /// the whole tape at every point of the leaf, bit for bit (tests/evaluators.rs), and a walk
-/// set up per ray, or a descent per point, costs more than the instructions the leaf drops. Measured on 640×360 CPU frames
-/// (`examples/frame_time`, penumbra samples alone): a 16-instruction ground 7 % of a
-/// hybrid.ron frame, a 235-instruction union of 40 spheres 12 % of its frame, 900 instructions
-/// even, 2,300 the leaves 15 % faster. Hart's march keeps the leaves whatever the length:
-/// their bound on the field's fall lengthens its steps along planes.
+/// set up per ray, or a descent per point, costs more than the instructions the leaf drops.
+/// Measured on 640×360 CPU frames (`examples/frame_time`, penumbra samples alone): a
+/// 16-instruction ground 7 % of a hybrid.ron frame, a 235-instruction union of 40 spheres
+/// 12 % of its frame, 900 instructions even, 2,300 the leaves 15 % faster. Hart's march keeps
+/// the leaves whatever the length: their bound on the field's fall lengthens its steps along
+/// planes.
 pub const SHORT_TAPE: usize = 256;
 
 /// An evaluation cursor over an object's field: the last leaf found, so that consecutive

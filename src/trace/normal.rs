@@ -13,7 +13,8 @@ thread_local! {
     static STENCIL: RefCell<PacketRegisters> = RefCell::new(PacketRegisters::new());
 }
 
-/// The field at up to 8 points, each with the tape of the leaf holding it, on SIMD lanes:
+/// The field at up to 8 points, each with the tape of the leaf holding it (or all with a short
+/// whole tape, [`crate::accel::field::SHORT_TAPE`], equal there), on SIMD lanes:
 /// one pass per distinct tape (the stencil around a hit mostly lies in one leaf; over a large
 /// union's small leaves it often straddles two or three, and evaluating those points one by
 /// one was about a fifth of a 1,000-box frame). The lanes give the scalar interpreter's bits, so

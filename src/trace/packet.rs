@@ -191,7 +191,8 @@ pub fn trace_hart_packet(
                 continue;
             }
             if let Some(c) = &st.confirming {
-                // The tape at the confirmation's point: that of the leaf holding it.
+                // The tape at the confirmation's point: that of the leaf holding it (a short
+                // whole tape has the same value there).
                 let p = lanes[i].ray.at(c.at());
                 let tape = match cursor.short_whole_tape() {
                     Some(whole) => whole,
