@@ -316,7 +316,7 @@ fn field_report(
     object: usize,
     rays: &[(Ray, f32, f32)],
 ) -> FieldReport {
-    use hytrace::accel::field::{Leaf, RayWalk};
+    use hytrace::accel::field::{Leaf, RayWalk, WalkStack};
     use hytrace::gpu::records::{FIELD_PROBE_LEAVES, NONE, QueryRay};
     use hytrace::sdf::simplify::Verdict;
     let field = &fields[object];
@@ -362,7 +362,8 @@ fn field_report(
         if dv > 1e-4 * v.abs().max(1.0) {
             r.value_over += 1;
         }
-        let mut walk = RayWalk::new(tree, ray, *tmin, *tmax);
+        let mut stack = WalkStack::new();
+        let mut walk = RayWalk::new(tree, ray, *tmin, *tmax, &mut stack);
         let mut leaves = Vec::new();
         let mut first = None;
         while let Some(x) = walk.next_leaf() {

@@ -1220,7 +1220,7 @@ pub struct Crossed<'a> {
 }
 
 /// One level of the walk: a node's slab parameters and the next child to visit (32 bytes:
-/// a walk is copied with the march that owns it, so it is kept small; boxes are not needed).
+/// a bundle keeps a stack of them per lane, so it is kept small; boxes are not needed).
 #[derive(Debug, Clone, Copy)]
 struct Frame {
     node: Node,
@@ -1235,27 +1235,51 @@ struct Frame {
 /// with it), each node's slab parameters are halved into its children's, and the next child
 /// is the one across the nearest exit plane: every node on the ray's path is visited once,
 /// with a few additions and comparisons, and no point is ever located.
-#[derive(Clone)]
-pub struct RayWalk<'a> {
+pub struct RayWalk<'a, 's> {
     tree: &'a FieldOctree,
     mirror: u8,
     len: u8,
     from: f32,
     to: f32,
-    /// Frames below `len` are written; the rest are not (a walk is made for every ray and
-    /// object a march starts through, and filling nine frames it may never use showed as a
-    /// tenth of a frame's time in copies).
-    stack: [MaybeUninit<Frame>; MAX_DEPTH as usize + 1],
+    /// The caller's stack: frames below `len` are written by this walk, the rest are not.
+    stack: &'s mut WalkStack,
+}
+
+/// The frames of a [`RayWalk`], kept by its caller: a walk is made for every ray and object a
+/// march starts through, and its nine frames (288 bytes) inside the walk were copied with it
+/// into every lane of a bundle — a tenth of a showcase frame in copies, most of them of frames
+/// never written. A bundle keeps one stack per lane for all its walks instead; a stack is
+/// never read above the depth its current walk wrote.
+pub struct WalkStack([MaybeUninit<Frame>; MAX_DEPTH as usize + 1]);
+
+impl WalkStack {
+    /// An unwritten stack.
+    #[inline]
+    pub fn new() -> Self {
+        WalkStack([MaybeUninit::uninit(); MAX_DEPTH as usize + 1])
+    }
+}
+
+impl Default for WalkStack {
+    fn default() -> Self {
+        Self::new()
+    }
 }
 
 /// A direction component this small counts as this (after mirroring, so positive): the slab
 /// parameters of a ray parallel to a slab stay finite, and their midpoints defined.
 pub const TINY_DIRECTION: f32 = 1e-20;
 
-impl<'a> RayWalk<'a> {
-    /// The walk over the leaves the ray crosses within [from, to].
+impl<'a, 's> RayWalk<'a, 's> {
+    /// The walk over the leaves the ray crosses within [from, to], its frames on `stack`.
     #[inline]
-    pub fn new(tree: &'a FieldOctree, ray: &Ray, from: f32, to: f32) -> Self {
+    pub fn new(
+        tree: &'a FieldOctree,
+        ray: &Ray,
+        from: f32,
+        to: f32,
+        stack: &'s mut WalkStack,
+    ) -> Self {
         let mut mirror = 0u8;
         let mut o = ray.origin;
         let mut d = ray.direction;
@@ -1276,7 +1300,7 @@ impl<'a> RayWalk<'a> {
             len: 0,
             from,
             to,
-            stack: [MaybeUninit::uninit(); MAX_DEPTH as usize + 1],
+            stack,
         };
         if t0.max_element() < t1.min_element() && t1.min_element() >= from {
             walk.push(tree.nodes[0], t0, t1);
@@ -1289,7 +1313,7 @@ impl<'a> RayWalk<'a> {
     fn frame(&self) -> Frame {
         // SAFETY: frames are written at `len` before `len` grows past them (`push` and
         // `next_leaf` are the only writers of `len`), and this reads one below a former `len`.
-        unsafe { self.stack[self.len as usize].assume_init() }
+        unsafe { self.stack.0[self.len as usize].assume_init() }
     }
 
     #[inline]
@@ -1299,7 +1323,7 @@ impl<'a> RayWalk<'a> {
         } else {
             first_child(t0, 0.5 * (t0 + t1))
         };
-        self.stack[self.len as usize] = MaybeUninit::new(Frame { node, t0, t1, next });
+        self.stack.0[self.len as usize] = MaybeUninit::new(Frame { node, t0, t1, next });
         self.len += 1;
     }
 
@@ -1380,7 +1404,7 @@ impl<'a> RayWalk<'a> {
             let node = self.tree.nodes[f.node.0 as usize + real];
             if f.next < 8 {
                 // siblings are left: this frame is needed again
-                self.stack[self.len as usize] = MaybeUninit::new(f);
+                self.stack.0[self.len as usize] = MaybeUninit::new(f);
                 self.len += 1;
             }
             let next = if node.0 & LEAF_BIT != 0 {

@@ -20,7 +20,7 @@
 use super::crossing::{Candidate, Confirmation, Progress};
 use super::sphere::{Along, ConvexBound, Part, Parts, hart_step, penumbra_estimate};
 use super::step::{TraceResult, epsilon_at};
-use crate::accel::field::{Cell, ObjectField};
+use crate::accel::field::{Cell, ObjectField, WalkStack};
 use crate::geom::Ray;
 use crate::scene::TracerSettings;
 use crate::sdf::simd::{PacketRegisters, SimdLevel, eval8};
@@ -54,6 +54,8 @@ pub struct PacketScratch {
     simd: PacketRegisters,
     regs: Registers,
     level: SimdLevel,
+    /// One octree walk's frames per lane, kept across bundles.
+    stacks: Vec<WalkStack>,
 }
 
 impl PacketScratch {
@@ -68,6 +70,7 @@ impl PacketScratch {
             simd: PacketRegisters::new(),
             regs: Registers::new(),
             level,
+            stacks: (0..BUNDLE).map(|_| WalkStack::new()).collect(),
         }
     }
 }
@@ -165,7 +168,12 @@ pub fn trace_hart_packet(
     out: &mut [TraceResult],
 ) {
     assert!(lanes.len() <= BUNDLE && out.len() == lanes.len());
-    let PacketScratch { simd, regs, level } = scratch;
+    let PacketScratch {
+        simd,
+        regs,
+        level,
+        stacks,
+    } = scratch;
     let mut cursor = field.cursor(regs);
     let mut states: Vec<State> = lanes
         .iter()
@@ -179,7 +187,8 @@ pub fn trace_hart_packet(
         .collect();
     let mut walks: Vec<Parts> = lanes
         .iter()
-        .map(|l| Parts::new(&cursor, &l.ray, l.t0, l.t1))
+        .zip(stacks.iter_mut())
+        .map(|(l, stack)| Parts::new(&cursor, &l.ray, l.t0, l.t1, stack))
         .collect();
     // The leaf each lane last looked a confirmation's point up in.
     let mut cells: Vec<Option<Cell>> = vec![None; lanes.len()];
@@ -296,11 +305,17 @@ pub fn penumbra_packet(
     out: &mut [f32],
 ) {
     assert!(lanes.len() <= BUNDLE && out.len() == lanes.len());
-    let PacketScratch { simd, regs, level } = scratch;
+    let PacketScratch {
+        simd,
+        regs,
+        level,
+        stacks,
+    } = scratch;
     let cursor = field.cursor(regs);
     let mut walks: Vec<Along> = lanes
         .iter()
-        .map(|l| Along::for_penumbra(&cursor, &l.ray, l.t0, l.t1))
+        .zip(stacks.iter_mut())
+        .map(|(l, stack)| Along::for_penumbra(&cursor, &l.ray, l.t0, l.t1, stack))
         .collect();
     let mut states: Vec<Shadowed> = lanes
         .iter()

@@ -7,7 +7,7 @@
 
 use super::crossing::{self, Candidate};
 use super::step::{MAX_SKIPS, Marching, TraceResult, epsilon_at, is, region_at};
-use crate::accel::field::{Crossed, FieldCursor, RayWalk, RoundingModel};
+use crate::accel::field::{Crossed, FieldCursor, RayWalk, RoundingModel, WalkStack};
 use crate::geom::Ray;
 use crate::scene::TracerSettings;
 use crate::sdf::simplify::Verdict;
@@ -61,10 +61,10 @@ pub(crate) struct Part<'f> {
 /// The parts of [t0, t1] a ray is marched over, in order, given the march's current t: the
 /// whole tape before the tree's box (an unbounded object clipped to the scene), the leaves of
 /// the walk that are not empty, the whole tape beyond the box.
-pub(crate) struct Parts<'f> {
+pub(crate) struct Parts<'f, 's> {
     whole: &'f Tape,
     direction: Vec3,
-    walk: Option<RayWalk<'f>>,
+    walk: Option<RayWalk<'f, 's>>,
     phase: Phase,
     t1: f32,
     enter: f32,
@@ -85,10 +85,17 @@ enum Phase {
     Done,
 }
 
-impl<'f> Parts<'f> {
-    /// The parts of [t0, t1] along `ray` for the field of `cursor`.
+impl<'f, 's> Parts<'f, 's> {
+    /// The parts of [t0, t1] along `ray` for the field of `cursor`, the walk's frames on
+    /// `stack`.
     #[inline]
-    pub fn new(cursor: &FieldCursor<'f, '_>, ray: &Ray, t0: f32, t1: f32) -> Self {
+    pub fn new(
+        cursor: &FieldCursor<'f, '_>,
+        ray: &Ray,
+        t0: f32,
+        t1: f32,
+        stack: &'s mut WalkStack,
+    ) -> Self {
         let whole = cursor.whole_tape();
         let mut parts = Parts {
             whole,
@@ -101,7 +108,7 @@ impl<'f> Parts<'f> {
         };
         if let Some(tree) = cursor.octree() {
             if let Some((enter, leave)) = tree.bounds().ray_interval(ray, t0, t1) {
-                parts.walk = Some(RayWalk::new(tree, ray, t0, leave));
+                parts.walk = Some(RayWalk::new(tree, ray, t0, leave, stack));
                 parts.phase = if t0 < enter {
                     Phase::Before
                 } else {
@@ -220,7 +227,8 @@ fn hart(
     s: &TracerSettings,
     steps: &mut u32,
 ) -> Option<f32> {
-    let mut parts = Parts::new(field, ray, t0, t1);
+    let mut stack = WalkStack::new();
+    let mut parts = Parts::new(field, ray, t0, t1, &mut stack);
     let mut t = t0;
     while let Some(part) = parts.next(t) {
         match march_part(field, &part, ray, t1, s, steps) {
@@ -243,18 +251,27 @@ pub(crate) fn next_up(x: f32) -> f32 {
 
 /// The tape valid at increasing parameters t along a ray: the leaves of the walk, the whole
 /// tape outside the tree's box.
-pub(crate) struct Along<'f> {
-    walk: Option<RayWalk<'f>>,
+pub(crate) struct Along<'f, 's> {
+    walk: Option<RayWalk<'f, 's>>,
     current: Option<Crossed<'f>>,
     whole: &'f Tape,
 }
 
-impl<'f> Along<'f> {
-    /// The tapes along `ray` over [t0, t1] for the field of `field`.
+impl<'f, 's> Along<'f, 's> {
+    /// The tapes along `ray` over [t0, t1] for the field of `field`, the walk's frames on
+    /// `stack`.
     #[inline]
-    pub fn new(field: &FieldCursor<'f, '_>, ray: &Ray, t0: f32, t1: f32) -> Self {
+    pub fn new(
+        field: &FieldCursor<'f, '_>,
+        ray: &Ray,
+        t0: f32,
+        t1: f32,
+        stack: &'s mut WalkStack,
+    ) -> Self {
         Along {
-            walk: field.octree().map(|tree| RayWalk::new(tree, ray, t0, t1)),
+            walk: field
+                .octree()
+                .map(|tree| RayWalk::new(tree, ray, t0, t1, stack)),
             current: None,
             whole: field.whole_tape(),
         }
@@ -263,14 +280,20 @@ impl<'f> Along<'f> {
     /// [`Self::new`] for a penumbra march: the whole tape alone where it is short (see
     /// [`crate::accel::field::SHORT_TAPE`]); the values are the same.
     #[inline]
-    pub fn for_penumbra(field: &FieldCursor<'f, '_>, ray: &Ray, t0: f32, t1: f32) -> Self {
+    pub fn for_penumbra(
+        field: &FieldCursor<'f, '_>,
+        ray: &Ray,
+        t0: f32,
+        t1: f32,
+        stack: &'s mut WalkStack,
+    ) -> Self {
         match field.short_whole_tape() {
             Some(whole) => Along {
                 walk: None,
                 current: None,
                 whole,
             },
-            None => Self::new(field, ray, t0, t1),
+            None => Self::new(field, ray, t0, t1, stack),
         }
     }
 
@@ -464,7 +487,8 @@ pub fn penumbra(
     k: f32,
     improved: bool,
 ) -> f32 {
-    let mut along = Along::for_penumbra(field, ray, t0, t1);
+    let mut stack = WalkStack::new();
+    let mut along = Along::for_penumbra(field, ray, t0, t1, &mut stack);
     let bound = field
         .convex()
         .map(|model| ConvexBound::new(model, ray, t0, t1));
@@ -578,7 +602,8 @@ pub fn exit(
     t1: f32,
     s: &TracerSettings,
 ) -> Option<f32> {
-    let mut along = Along::new(field, ray, t0, t1);
+    let mut stack = WalkStack::new();
+    let mut along = Along::new(field, ray, t0, t1, &mut stack);
     let mut t = t0;
     let (mut steps, mut skips) = (0, 0);
     while steps < s.max_steps && skips < MAX_SKIPS {
