@@ -8,7 +8,7 @@ use glam::Vec3;
 use hytrace::accel::field::FieldOctree;
 use hytrace::rng::Rng;
 use hytrace::scene::{Scene, scene_files};
-use hytrace::sdf::conformance::{CASES, parse_node};
+use hytrace::sdf::conformance::{CASES, parse_node, points_on_faces};
 use hytrace::sdf::interval::{IntervalRegisters, eval_box};
 use hytrace::sdf::simd::{PacketRegisters, SimdLevel, eval8};
 use hytrace::sdf::simplify::{Fault, Simplifier, Verdict};
@@ -321,21 +321,9 @@ proptest! {
         };
         prop_assume!(l.bounds.is_finite());
         let b = l.bounds.expand(1e-4 * (1.0 + (l.bounds.max - l.bounds.min).max_element()));
-        const N: usize = 32;
-        for axis in 0..3 {
-            let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
-            for side in [b.min[axis], b.max[axis]] {
-                for i in 0..=N {
-                    for j in 0..=N {
-                        let mut p = Vec3::ZERO;
-                        p[axis] = side;
-                        p[u] = b.min[u] + (b.max[u] - b.min[u]) * i as f32 / N as f32;
-                        p[v] = b.min[v] + (b.max[v] - b.min[v]) * j as f32 / N as f32;
-                        let f = l.distance.eval(p);
-                        prop_assert!(f > 0.0, "{src}: f = {f} at {p}, outside {:?}", l.bounds);
-                    }
-                }
-            }
+        for p in points_on_faces(b, 32) {
+            let f = l.distance.eval(p);
+            prop_assert!(f > 0.0, "{src}: f = {f} at {p}, outside {:?}", l.bounds);
         }
     }
 }

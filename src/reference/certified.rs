@@ -40,6 +40,14 @@ pub struct Search {
     pub lipschitz: Option<f64>,
 }
 
+impl Search {
+    /// How far f may move from its value at the middle of the stretch [a, b] of a ray along
+    /// `d`: L·|d|·(b − a)/2, where the Lipschitz bound L is known.
+    fn reach(&self, d: DVec3, a: f64, b: f64) -> Option<f64> {
+        self.lipschitz.map(|l| l * d.length() * 0.5 * (b - a))
+    }
+}
+
 /// The first crossing found.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Crossing {
@@ -143,9 +151,7 @@ pub fn first_crossing(
             continue;
         }
         let m = 0.5 * (a + b);
-        if let Some(l) = search.lipschitz {
-            // f stays within L·|d|·(b − a)/2 of its midpoint value on the stretch
-            let reach = l * d.length() * 0.5 * (b - a);
+        if let Some(reach) = search.reach(d, a, b) {
             if signed(at(arena.get(k), o, d, m, regs)).lo > reach {
                 continue;
             }
@@ -208,8 +214,8 @@ pub fn stays_above(
         if at_m.hi < level {
             return Some(false);
         }
-        if let Some(l) = search.lipschitz {
-            if at_m.lo - l * d.length() * 0.5 * (b - a) >= level {
+        if let Some(reach) = search.reach(d, a, b) {
+            if at_m.lo - reach >= level {
                 continue;
             }
         }

@@ -850,17 +850,6 @@ pub fn certified_search(settings: &crate::scene::TracerSettings) -> Search {
     }
 }
 
-/// The Lipschitz bound the lowering guarantees for a node's field: 1 (every node is lowered
-/// to λ ≤ 1, see [`crate::sdf::SdfNode`]), except where an implicit surface's λ is only an
-/// estimate (or the user's word): `None` there, and the search relies on enclosures alone.
-pub fn guaranteed_lipschitz(node: &crate::sdf::SdfNode) -> Option<f64> {
-    fn has_implicit(node: &crate::sdf::SdfNode) -> bool {
-        matches!(node, crate::sdf::SdfNode::Implicit { .. })
-            || node.children().into_iter().any(has_implicit)
-    }
-    (!has_implicit(node)).then_some(1.0)
-}
-
 /// The work bound of [`certified_search`]: a bisection to δ takes about log₂(length/δ) ≈ 30
 /// levels with a few boxes alive per level near a surface; the bound leaves room for
 /// stretches where the enclosure is loose (a smooth blend of many members).
@@ -1032,7 +1021,7 @@ impl EmbreeScene {
                     let mut search = options
                         .search
                         .unwrap_or_else(|| certified_search(&scene.tracer));
-                    if guaranteed_lipschitz(&object.node).is_none() {
+                    if object.node.guaranteed_lipschitz().is_none() {
                         search.lipschitz = None;
                     }
                     checks.push(SdfCheck::Certified {

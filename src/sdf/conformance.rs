@@ -6,6 +6,7 @@
 //! evaluator tests. The cases cover every node kind: closed-form distances,
 //! sampled Lipschitz bounds, and |∇f| = 1 for exact fields.
 
+use crate::geom::Aabb;
 use crate::sdf::tape::Tape;
 use crate::sdf::{SdfNode, lower};
 use glam::Vec3;
@@ -75,6 +76,27 @@ impl Evaluator for NativeEvaluator {
         assert!(native.is_native(), "no native code was made for the tape");
         SimdEvaluator(crate::sdf::simd::SimdLevel::Avx2).eval(&native, points)
     }
+}
+
+/// Points on an (n + 1) × (n + 1) grid over each of the six faces of `b`: where a test looks
+/// for a surface poking out of a box (a field ≤ 0 there).
+pub fn points_on_faces(b: Aabb, n: usize) -> impl Iterator<Item = Vec3> {
+    (0..3).flat_map(move |axis| {
+        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+        [b.min[axis], b.max[axis]]
+            .into_iter()
+            .flat_map(move |side| {
+                (0..=n).flat_map(move |i| {
+                    (0..=n).map(move |j| {
+                        let mut p = Vec3::ZERO;
+                        p[axis] = side;
+                        p[u] = b.min[u] + (b.max[u] - b.min[u]) * i as f32 / n as f32;
+                        p[v] = b.min[v] + (b.max[v] - b.min[v]) * j as f32 / n as f32;
+                        p
+                    })
+                })
+            })
+    })
 }
 
 /// Parses one SDF node written in scene syntax (for tests and examples).

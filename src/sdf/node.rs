@@ -232,6 +232,17 @@ impl SdfNode {
         }
     }
 
+    /// The Lipschitz bound the lowering guarantees for this node's field: 1, as every node is
+    /// lowered to λ ≤ 1 (see the module docs), except where an implicit surface's λ is only
+    /// an estimate (or the user's word): `None` there.
+    pub fn guaranteed_lipschitz(&self) -> Option<f32> {
+        fn has_implicit(node: &SdfNode) -> bool {
+            matches!(node, SdfNode::Implicit { .. })
+                || node.children().into_iter().any(has_implicit)
+        }
+        (!has_implicit(self)).then_some(1.0)
+    }
+
     /// The direct children of this node.
     pub fn children(&self) -> Vec<&SdfNode> {
         use SdfNode::*;

@@ -190,7 +190,9 @@ pub fn trace_hart_packet(
         .zip(stacks.iter_mut())
         .map(|(l, stack)| Parts::new(&cursor, &l.ray, l.t0, l.t1, stack))
         .collect();
-    // The leaf each lane last looked a confirmation's point up in.
+    // The leaf each lane last looked a confirmation's point up in, unless a short whole tape
+    // has the same value everywhere.
+    let short = cursor.short_whole_tape();
     let mut cells: Vec<Option<Cell>> = vec![None; lanes.len()];
     let mut round = Round::new();
     loop {
@@ -203,7 +205,7 @@ pub fn trace_hart_packet(
                 // The tape at the confirmation's point: that of the leaf holding it (a short
                 // whole tape has the same value there).
                 let p = lanes[i].ray.at(c.at());
-                let tape = match cursor.short_whole_tape() {
+                let tape = match short {
                     Some(whole) => whole,
                     None => cursor.region_cached(p, &mut cells[i]).tape,
                 };

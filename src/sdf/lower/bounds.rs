@@ -199,7 +199,7 @@ pub fn transform_of(node: &SdfNode) -> (Affine3A, f32) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sdf::conformance::{distance_tape, parse_node};
+    use crate::sdf::conformance::{distance_tape, parse_node, points_on_faces};
 
     /// A point just outside the node's bounds where its lowered field is ≤ 0 (the surface
     /// pokes out), from a 64 × 64 grid over each face of the bounds grown by a hair.
@@ -209,24 +209,7 @@ mod tests {
         assert!(b.is_finite(), "{src}: unbounded");
         let b = b.expand(1e-4 * (1.0 + (b.max - b.min).max_element()));
         let tape = distance_tape(&node);
-        const N: usize = 64;
-        for axis in 0..3 {
-            let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
-            for side in [b.min[axis], b.max[axis]] {
-                for i in 0..=N {
-                    for j in 0..=N {
-                        let mut p = Vec3::ZERO;
-                        p[axis] = side;
-                        p[u] = b.min[u] + (b.max[u] - b.min[u]) * i as f32 / N as f32;
-                        p[v] = b.min[v] + (b.max[v] - b.min[v]) * j as f32 / N as f32;
-                        if tape.eval(p) <= 0.0 {
-                            return Some(p);
-                        }
-                    }
-                }
-            }
-        }
-        None
+        points_on_faces(b, 64).find(|&p| tape.eval(p) <= 0.0)
     }
 
     #[test]
