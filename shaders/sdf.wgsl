@@ -127,9 +127,12 @@ fn parts_new(object: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> Parts
     return parts;
 }
 
-// Parts::whole_part.
-fn whole_part(object: u32, start: f32, end: f32) -> Part {
-    return Part(objects[object].distance, 1.0, start, end, true);
+// Parts::whole_part: the whole tape, its fall bounded by the object's gradient enclosure
+// outside the tree (field::ObjectField::outside).
+fn whole_part(object: u32, d: vec3<f32>, start: f32, end: f32) -> Part {
+    let obj = objects[object];
+    let fall = gradient_fall(obj.outside_graded, obj.outside_lo, obj.outside_hi, d);
+    return Part(obj.distance, fall, start, end, true);
 }
 
 // Parts::next: the next part for a march now at t.
@@ -139,11 +142,11 @@ fn parts_next(parts: ptr<function, Parts>, t: f32) -> Part {
         switch (*parts).phase {
             case PHASE_WHOLE: {
                 (*parts).phase = PHASE_DONE;
-                return whole_part(object, t, (*parts).t1);
+                return whole_part(object, (*parts).direction, t, (*parts).t1);
             }
             case PHASE_BEFORE: {
                 (*parts).phase = PHASE_WALK;
-                return whole_part(object, t, (*parts).enter);
+                return whole_part(object, (*parts).direction, t, (*parts).enter);
             }
             case PHASE_WALK: {
                 let x = field_next_leaf();
@@ -159,7 +162,7 @@ fn parts_next(parts: ptr<function, Parts>, t: f32) -> Part {
             case PHASE_AFTER: {
                 (*parts).phase = PHASE_DONE;
                 if (*parts).leave < (*parts).t1 {
-                    return whole_part(object, max(t, next_up((*parts).leave)), (*parts).t1);
+                    return whole_part(object, (*parts).direction, max(t, next_up((*parts).leave)), (*parts).t1);
                 }
             }
             default: {}
@@ -168,13 +171,18 @@ fn parts_next(parts: ptr<function, Parts>, t: f32) -> Part {
     return Part(objects[object].distance, 1.0, 0.0, 0.0, false);
 }
 
-// field::Leaf::fall: the largest −d·g over the leaf's gradient enclosure, at least 0, rounded
-// up (1, the global bound, without an enclosure).
+// field::Leaf::fall.
 fn leaf_fall(leaf: FieldLeafRecord, d: vec3<f32>) -> f32 {
-    if leaf.graded == 0u {
+    return gradient_fall(leaf.graded, leaf.gradient_lo, leaf.gradient_hi, d);
+}
+
+// field::fall_along_reference: the largest −d·g over a gradient enclosure, at least 0,
+// rounded up (1, the global bound, without an enclosure).
+fn gradient_fall(graded: u32, lo: vec3<f32>, hi: vec3<f32>, d: vec3<f32>) -> f32 {
+    if graded == 0u {
         return 1.0;
     }
-    let m = min(leaf.gradient_lo * d, leaf.gradient_hi * d);
+    let m = min(lo * d, hi * d);
     let f = -(m.x + m.y + m.z);
     return max(f + abs(f) * FALL_ROUNDING, 0.0);
 }
@@ -192,14 +200,51 @@ fn hart_step(f: f32, part: Part, t: f32, eps: f32) -> f32 {
 const STRETCH_HIT: u32 = 0u;
 const STRETCH_LEFT: u32 = 1u;
 const STRETCH_SPENT: u32 = 2u;
+const STRETCH_CLEAR: u32 = 3u;
 
 struct Stretch {
     kind: u32,
     t: f32,
 }
 
-// sphere::march_part: Hart's march over one part.
-fn march_part(object: u32, part: Part, o: vec3<f32>, d: vec3<f32>, t1: f32, steps: ptr<function, u32>) -> Stretch {
+// sphere::Sample: a march's last sample, for the convexity bound's chords; NO_SAMPLE stands
+// for Sample::NONE (t = −∞, h = ∞: WGSL has no infinities, and no chord reaches from there).
+struct Sample {
+    t: f32,
+    h: f32,
+}
+const NO_SAMPLE = Sample(-3.4028235e38, 3.4028235e38);
+
+// sphere::ConvexBound::new: the largest rounding error of a convex field's values on the
+// march of o + t·d over [t0, t1] (|p|∞ is largest at an end); negative for a field without
+// the bound.
+fn convex_error(object: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> f32 {
+    let obj = objects[object];
+    if obj.convex == 0u {
+        return -1.0;
+    }
+    let a = abs(o + t0 * d);
+    let b = abs(o + t1 * d);
+    let reach = max(max(max(a.x, a.y), a.z), max(max(b.x, b.y), b.z));
+    return obj.convex_relative * (obj.convex_scale + reach);
+}
+
+// sphere::ConvexBound::stays_off: whether no sample after h at t can come below ε, the chord
+// from `before` rising past ε's growth (with 2⁻¹⁰ to spare) while h − 2e stays above ε(t).
+fn stays_off(error: f32, before: Sample, t: f32, h: f32) -> bool {
+    if error < 0.0 || !(h > before.h) {
+        return false;
+    }
+    let spare = 1.0 + 1.0 / 1024.0;
+    let a = h - 2.0 * error;
+    let rise = h - before.h - 2.0 * error;
+    let run = t - before.t;
+    return a >= spare * epsilon_at(t) && rise >= spare * globals.epsilon_per_unit * run && run > 0.0;
+}
+
+// sphere::march_part: Hart's march over one part; `chord` holds the march's last sample
+// (kept across parts) for the convexity bound of error `error` (negative: none).
+fn march_part(object: u32, part: Part, o: vec3<f32>, d: vec3<f32>, t1: f32, steps: ptr<function, u32>, error: f32, chord: ptr<function, Sample>) -> Stretch {
     var t = part.start;
     while t <= part.end {
         if *steps >= globals.max_steps {
@@ -209,12 +254,17 @@ fn march_part(object: u32, part: Part, o: vec3<f32>, d: vec3<f32>, t1: f32, step
         *steps = *steps + 1u;
         let eps = epsilon_at(t);
         if f < eps {
+            *chord = NO_SAMPLE;
             let c = sdf_confirm(object, o, d, t, f, t1, steps);
             if c.hit {
                 return Stretch(STRETCH_HIT, c.t);
             }
             t = c.t;
         } else {
+            if stays_off(error, *chord, t, f) {
+                return Stretch(STRETCH_CLEAR, t);
+            }
+            *chord = Sample(t, f);
             t = t + hart_step(f, part, t, eps);
         }
     }
@@ -226,6 +276,8 @@ fn march_part(object: u32, part: Part, o: vec3<f32>, d: vec3<f32>, t1: f32, step
 // evaluations.
 fn sdf_trace(object: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> TraceResult {
     var parts = parts_new(object, o, d, t0, t1);
+    let error = convex_error(object, o, d, t0, t1);
+    var chord = NO_SAMPLE;
     var t = t0;
     var steps = 0u;
     loop {
@@ -233,11 +285,11 @@ fn sdf_trace(object: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> Trace
         if !part.valid {
             break;
         }
-        let s = march_part(object, part, o, d, t1, &steps);
+        let s = march_part(object, part, o, d, t1, &steps, error, &chord);
         if s.kind == STRETCH_HIT {
             return TraceResult(true, s.t, steps);
         }
-        if s.kind == STRETCH_SPENT {
+        if s.kind == STRETCH_SPENT || s.kind == STRETCH_CLEAR {
             break;
         }
         t = s.t;

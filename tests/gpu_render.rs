@@ -32,6 +32,9 @@ const MIN_PSNR: f64 = 40.0;
 /// The fraction of pixels whose depths must agree.
 const MIN_DEPTH_AGREEMENT: f64 = 0.999;
 
+/// Pixels whose steps view must agree between the backends (see `steps_agreement`).
+const MIN_STEPS_AGREEMENT: f64 = 0.995;
+
 /// A device and the compiled render kernel.
 struct Gpu {
     ctx: GpuContext,
@@ -150,12 +153,26 @@ fn depth_agreement(scene: &Scene, cpu: &Framebuffer, gpu: &Framebuffer) -> (f64,
     (agree as f64 / (WIDTH * HEIGHT) as f64, first_miss)
 }
 
+/// The fraction of pixels of two 1-sample renders whose steps (the steps view: evaluations of
+/// the camera ray's marches) are the same: the backends march by the same rules
+/// (leaves, falls, the convexity bound), so only rays whose hits round differently differ.
+fn steps_agreement(cpu: &Framebuffer, gpu: &Framebuffer) -> f64 {
+    let agree = cpu
+        .steps
+        .iter()
+        .zip(&gpu.steps)
+        .filter(|(a, b)| a == b)
+        .count();
+    agree as f64 / cpu.steps.len() as f64
+}
+
 /// One scene's comparison: picture PSNR and depth agreement, with both render times.
 struct Outcome {
     name: String,
     spp: u32,
     psnr: f64,
     depth: f64,
+    steps: f64,
     cpu_seconds: f64,
     gpu_seconds: f64,
     problems: Vec<String>,
@@ -179,13 +196,15 @@ fn compare_scene(name: &str, scene: &Scene, gpu: &Gpu) -> Outcome {
             dir.display()
         ));
     }
-    let (depth, first) = if spp == 1 {
-        depth_agreement(scene, &cpu_fb, &gpu_fb)
+    let (one_cpu, one_gpu);
+    let (cpu1, gpu1) = if spp == 1 {
+        (&cpu_fb, &gpu_fb)
     } else {
-        let cpu1 = cpu::render(scene, &options(1)).unwrap();
-        let gpu1 = gpu.render(scene, &options(1));
-        depth_agreement(scene, &cpu1, &gpu1)
+        one_cpu = cpu::render(scene, &options(1)).unwrap();
+        one_gpu = gpu.render(scene, &options(1));
+        (&one_cpu, &one_gpu)
     };
+    let (depth, first) = depth_agreement(scene, cpu1, gpu1);
     if depth < MIN_DEPTH_AGREEMENT {
         problems.push(format!(
             "{name}: depths agree on {:.3} % of pixels < {:.1} % ({first})",
@@ -193,11 +212,20 @@ fn compare_scene(name: &str, scene: &Scene, gpu: &Gpu) -> Outcome {
             100.0 * MIN_DEPTH_AGREEMENT
         ));
     }
+    let steps = steps_agreement(cpu1, gpu1);
+    if steps < MIN_STEPS_AGREEMENT {
+        problems.push(format!(
+            "{name}: the steps view agrees on {:.3} % of pixels < {:.1} %",
+            100.0 * steps,
+            100.0 * MIN_STEPS_AGREEMENT
+        ));
+    }
     Outcome {
         name: name.to_string(),
         spp,
         psnr,
         depth,
+        steps,
         cpu_seconds,
         gpu_seconds,
         problems,
@@ -206,16 +234,17 @@ fn compare_scene(name: &str, scene: &Scene, gpu: &Gpu) -> Outcome {
 
 fn report(outcomes: &[Outcome]) {
     println!(
-        "\n{:<22} {:>4} {:>10} {:>9} {:>9} {:>14}",
-        "scene", "spp", "PSNR (dB)", "depth %", "CPU (s)", "lavapipe* (s)"
+        "\n{:<22} {:>4} {:>10} {:>9} {:>9} {:>9} {:>14}",
+        "scene", "spp", "PSNR (dB)", "depth %", "steps %", "CPU (s)", "lavapipe* (s)"
     );
     for o in outcomes {
         println!(
-            "{:<22} {:>4} {:>10.2} {:>9.3} {:>9.3} {:>14.3}",
+            "{:<22} {:>4} {:>10.2} {:>9.3} {:>9.3} {:>9.3} {:>14.3}",
             o.name,
             o.spp,
             o.psnr,
             100.0 * o.depth,
+            100.0 * o.steps,
             o.cpu_seconds,
             o.gpu_seconds
         );

@@ -77,81 +77,95 @@ pub struct Leaf {
 }
 
 impl Leaf {
-    /// How fast the field may fall along the unit direction d inside the leaf: the largest
-    /// −d·g over its gradient enclosure, at least 0 (1, the global bound, without one).
-    ///
-    /// Computed without arithmetic on subnormal numbers where that gives the same bits: the
-    /// interval enclosures round outward, so an axis along which the field does not vary (a
-    /// plane's tangents) has bounds of ±2⁻¹⁴⁹, and every multiplication or addition with a
-    /// subnormal operand costs the CPU a microcode assist of ~150 cycles — most of a march's
-    /// time on a ground plane. Such an axis's term, below 2⁻¹²⁶ in magnitude, leaves a sum with
-    /// a term above [`NEGLIGIBLE_NEXT_TO`] unchanged ([`Self::fall_reference`] otherwise).
+    /// How fast the field may fall along the unit direction d inside the leaf
+    /// ([`fall_along`] its gradient enclosure).
     #[inline]
     pub fn fall(&self, d: Vec3) -> f32 {
-        if self.gradient[0][0] == f32::NEG_INFINITY {
-            return 1.0;
-        }
-        let [g0, g1] = self.gradient;
-        // an axis whose bounds are subnormal or zero, at least one subnormal
-        let flat = |a: usize| {
-            (g0[a].is_subnormal() || g1[a].is_subnormal())
-                && g0[a].abs() < f32::MIN_POSITIVE
-                && g1[a].abs() < f32::MIN_POSITIVE
-        };
-        let (fx, fy, fz) = (flat(0), flat(1), flat(2));
-        if !(fx || fy || fz) || !d.is_finite() || d.abs().max_element() > MAX_FLAT_DIRECTION {
-            return self.fall_reference(d);
-        }
-        // glam's min, as the reference takes it (it decides the sign of a zero)
-        let term = |a: usize| {
-            let (lo, hi) = (g0[a] * d[a], g1[a] * d[a]);
-            if lo < hi { lo } else { hi }
-        };
-        let big = |v: f32| v.abs() >= NEGLIGIBLE_NEXT_TO;
-        // The reference's (x + y) + z with each sum of a flat term and a big one replaced by
-        // the big one; `None` where that does not settle the bits. A flat term is below 2⁻⁹⁶,
-        // two of them below 2⁻⁹⁵.
-        let sum = match (fx, fy, fz) {
-            (false, false, _) => {
-                let xy = term(0) + term(1);
-                if fz {
-                    big(xy).then_some(xy)
-                } else {
-                    Some(xy + term(2))
-                }
-            }
-            (true, false, _) | (false, true, _) => {
-                let other = if fx { term(1) } else { term(0) };
-                match (big(other), fz) {
-                    (false, _) => None,
-                    (true, false) => Some(other + term(2)),
-                    (true, true) => Some(other),
-                }
-            }
-            (true, true, false) => Some(term(2)).filter(|&z| big(z)),
-            (true, true, true) => None,
-        };
-        match sum {
-            Some(sum) => {
-                let f = -sum;
-                (f + f.abs() * FALL_ROUNDING).max(0.0)
-            }
-            None => self.fall_reference(d),
-        }
+        fall_along(&self.gradient, d)
     }
 
-    /// [`Self::fall`] computed as written: −min over the box of d·g, rounded up so that the
-    /// bound may only grow.
+    /// [`Self::fall`] computed as written ([`fall_along_reference`]).
     #[inline]
     pub fn fall_reference(&self, d: Vec3) -> f32 {
-        if self.gradient[0][0] == f32::NEG_INFINITY {
-            return 1.0;
-        }
-        let lo = Vec3::from_array(self.gradient[0]) * d;
-        let hi = Vec3::from_array(self.gradient[1]) * d;
-        let f = -lo.min(hi).element_sum();
-        (f + f.abs() * FALL_ROUNDING).max(0.0)
+        fall_along_reference(&self.gradient, d)
     }
+}
+
+/// How fast a field may fall along the unit direction d where its gradient lies in the
+/// enclosure `gradient` (lower then upper ends): the largest −d·g over it, at least 0 (1, the
+/// global bound, without one: [`ANY_GRADIENT`]).
+///
+/// Computed without arithmetic on subnormal numbers where that gives the same bits: the
+/// interval enclosures round outward, so an axis along which the field does not vary (a
+/// plane's tangents) has bounds of ±2⁻¹⁴⁹, and every multiplication or addition with a
+/// subnormal operand costs the CPU a microcode assist of ~150 cycles — most of a march's
+/// time on a ground plane. Such an axis's term, below 2⁻¹²⁶ in magnitude, leaves a sum with
+/// a term above [`NEGLIGIBLE_NEXT_TO`] unchanged ([`fall_along_reference`] otherwise).
+#[inline]
+pub fn fall_along(gradient: &[[f32; 3]; 2], d: Vec3) -> f32 {
+    if gradient[0][0] == f32::NEG_INFINITY {
+        return 1.0;
+    }
+    let [g0, g1] = *gradient;
+    // an axis whose bounds are subnormal or zero, at least one subnormal
+    let flat = |a: usize| {
+        (g0[a].is_subnormal() || g1[a].is_subnormal())
+            && g0[a].abs() < f32::MIN_POSITIVE
+            && g1[a].abs() < f32::MIN_POSITIVE
+    };
+    let (fx, fy, fz) = (flat(0), flat(1), flat(2));
+    if !(fx || fy || fz) || !d.is_finite() || d.abs().max_element() > MAX_FLAT_DIRECTION {
+        return fall_along_reference(gradient, d);
+    }
+    // glam's min, as the reference takes it (it decides the sign of a zero)
+    let term = |a: usize| {
+        let (lo, hi) = (g0[a] * d[a], g1[a] * d[a]);
+        if lo < hi { lo } else { hi }
+    };
+    let big = |v: f32| v.abs() >= NEGLIGIBLE_NEXT_TO;
+    // The reference's (x + y) + z with each sum of a flat term and a big one replaced by
+    // the big one; `None` where that does not settle the bits. A flat term is below 2⁻⁹⁶,
+    // two of them below 2⁻⁹⁵.
+    let sum = match (fx, fy, fz) {
+        (false, false, _) => {
+            let xy = term(0) + term(1);
+            if fz {
+                big(xy).then_some(xy)
+            } else {
+                Some(xy + term(2))
+            }
+        }
+        (true, false, _) | (false, true, _) => {
+            let other = if fx { term(1) } else { term(0) };
+            match (big(other), fz) {
+                (false, _) => None,
+                (true, false) => Some(other + term(2)),
+                (true, true) => Some(other),
+            }
+        }
+        (true, true, false) => Some(term(2)).filter(|&z| big(z)),
+        (true, true, true) => None,
+    };
+    match sum {
+        Some(sum) => {
+            let f = -sum;
+            (f + f.abs() * FALL_ROUNDING).max(0.0)
+        }
+        None => fall_along_reference(gradient, d),
+    }
+}
+
+/// [`fall_along`] computed as written: −min over the enclosure of d·g, rounded up so that the
+/// bound may only grow.
+#[inline]
+pub fn fall_along_reference(gradient: &[[f32; 3]; 2], d: Vec3) -> f32 {
+    if gradient[0][0] == f32::NEG_INFINITY {
+        return 1.0;
+    }
+    let lo = Vec3::from_array(gradient[0]) * d;
+    let hi = Vec3::from_array(gradient[1]) * d;
+    let f = -lo.min(hi).element_sum();
+    (f + f.abs() * FALL_ROUNDING).max(0.0)
 }
 
 /// Largest direction component for which [`Leaf::fall`] drops flat axes: their terms are then
@@ -700,6 +714,14 @@ fn child_box(lo: Vec3, hi: Vec3, i: usize) -> (Vec3, Vec3) {
 /// A gradient enclosure that says nothing.
 pub const ANY_GRADIENT: [[f32; 3]; 2] = [[f32::NEG_INFINITY; 3], [f32::INFINITY; 3]];
 
+/// The gradient enclosure of `program`'s field over all of space (intervals of ±∞ for the
+/// coordinates; 0·∞ counts as 0, so a linear field's constant gradient comes out exact).
+pub fn gradient_everywhere(program: &SsaTape) -> [[f32; 3]; 2] {
+    Simplifier::new()
+        .gradient(program, Vec3::NEG_INFINITY, Vec3::INFINITY)
+        .map_or(ANY_GRADIENT, |g| [g.map(|d| d.lo), g.map(|d| d.hi)])
+}
+
 /// A leaf for a box whose program is specialised.
 fn make_leaf(simplifier: &mut Simplifier, sp: &Specialised, lo: Vec3, hi: Vec3) -> LeafBuild {
     let surface = sp.verdict == Verdict::Surface;
@@ -1037,6 +1059,7 @@ pub struct FieldCursor<'f, 'r> {
     cell: Option<Cell<'f>>,
     path: Path,
     convex: Option<RoundingModel>,
+    outside: &'f [[f32; 3]; 2],
     /// Scalar registers.
     pub regs: &'r mut Registers,
 }
@@ -1053,6 +1076,12 @@ pub struct ObjectField {
     /// For a convex field ([`crate::sdf::SdfNode::is_convex`]), the error model of its whole
     /// tape's values (the leaves' tapes compute the same values); `None` otherwise.
     pub convex: Option<RoundingModel>,
+    /// Enclosures of the field's gradient everywhere, for the steps outside the octree
+    /// ([`fall_along`]): exact on a plane, whose field falls along a ray by the cosine of its
+    /// angle to the normal, so that a camera ray reaches the ground beyond the tree in one
+    /// step where Hart's steps shrink geometrically towards it; [`ANY_GRADIENT`] where
+    /// intervals over all of space say nothing.
+    pub outside: [[f32; 3]; 2],
 }
 
 /// What the tracer needs to know about the region around a point.
@@ -1073,6 +1102,7 @@ impl ObjectField {
             whole: lowered.distance.clone(),
             whole_shading: lowered.shading.clone(),
             convex: lowered.convex.then(|| RoundingModel::of(&lowered.distance)),
+            outside: gradient_everywhere(&lowered.program),
         }
     }
 
@@ -1095,6 +1125,7 @@ impl ObjectField {
             whole: whole.clone(),
             whole_shading: whole_shading.clone(),
             convex: None,
+            outside: ANY_GRADIENT,
         }
     }
 
@@ -1114,6 +1145,7 @@ impl ObjectField {
             cell: None,
             path: Path::default(),
             convex: self.convex,
+            outside: &self.outside,
             regs,
         }
     }
@@ -1128,6 +1160,7 @@ impl<'f, 'r> FieldCursor<'f, 'r> {
             cell: None,
             path: Path::default(),
             convex: None,
+            outside: &ANY_GRADIENT,
             regs,
         }
     }
@@ -1141,6 +1174,13 @@ impl<'f, 'r> FieldCursor<'f, 'r> {
     /// The whole tape.
     pub fn whole_tape(&self) -> &'f Tape {
         self.whole
+    }
+
+    /// How fast the field may fall along the unit direction d outside the octree
+    /// ([`ObjectField::outside`]).
+    #[inline]
+    pub fn fall_outside(&self, d: Vec3) -> f32 {
+        fall_along(self.outside, d)
     }
 
     /// The whole tape where it is short enough ([`SHORT_TAPE`]) to evaluate at any point
@@ -1627,6 +1667,7 @@ pub(crate) mod tests {
             whole: Tape::default(),
             whole_shading: Tape::default(),
             convex: None,
+            outside: ANY_GRADIENT,
         };
         let mut rng = Rng::new(3);
         let mut regs = Registers::new();

@@ -65,7 +65,7 @@ pub fn instr_records(instrs: &[crate::sdf::tape::Instr]) -> &[InstrRecord] {
 
 gpu_struct! {
     /// One SDF object: world bounds, its field octree and its two whole tapes.
-    pub struct SdfObjectRecord(96) {
+    pub struct SdfObjectRecord(128) {
         /// Bounds minimum (infinite coordinates stored as ∓`f32::MAX`).
         pub lo: [f32; 3],
         /// 1 when the bounds are NaN (unknown: the whole ray is visited), else 0.
@@ -76,12 +76,24 @@ gpu_struct! {
         pub field_root: u32,
         /// Minimum of the box the octree covers (`FieldOctree::bounds`).
         pub field_lo: [f32; 3],
-        /// Unused.
-        pub pad0: u32,
+        /// 1 when the gradient enclosure outside the octree (`ObjectField::outside`) is
+        /// known, 0 for the whole line.
+        pub outside_graded: u32,
         /// Maximum of the box the octree covers.
         pub field_hi: [f32; 3],
-        /// Unused.
-        pub pad1: u32,
+        /// 1 for a convex field (`ObjectField::convex`), whose marches end early
+        /// (`sphere::ConvexBound`), else 0.
+        pub convex: u32,
+        /// Lower ends of the gradient enclosure outside the octree (zeros when
+        /// `outside_graded` is 0).
+        pub outside_lo: [f32; 3],
+        /// A convex field's rounding model: error per unit of magnitude
+        /// (`RoundingModel::relative`).
+        pub convex_relative: f32,
+        /// Upper ends of the gradient enclosure outside the octree.
+        pub outside_hi: [f32; 3],
+        /// A convex field's rounding model: 1 + its largest constant (`RoundingModel::scale`).
+        pub convex_scale: f32,
         /// The whole distance tape (outside the octree's box, or without one).
         pub distance: TapeRef,
         /// The whole shading tape (distance and blended material).

@@ -97,6 +97,16 @@ fn halves<T: Copy + Default>(lanes: &[T; 8]) -> [[T; 4]; 2] {
     out
 }
 
+/// A gradient enclosure as the GPU records it: 1 and its ends when every end is finite, else
+/// 0 and zeros (WGSL has no infinities to mark the whole line as the CPU does).
+fn gradient_record(gradient: &[[f32; 3]; 2]) -> (u32, [[f32; 3]; 2]) {
+    if gradient.iter().flatten().all(|g| g.is_finite()) {
+        (1, *gradient)
+    } else {
+        (0, [[0.0; 3]; 2])
+    }
+}
+
 /// Infinite coordinates as ±`f32::MAX` (GPU compilers need not preserve infinities).
 fn finite_or_max(v: Vec3) -> [f32; 3] {
     v.to_array().map(|c| {
@@ -148,6 +158,7 @@ impl SceneData {
             };
             let b: Aabb = object.bounds();
             let nan = b.min.is_nan() || b.max.is_nan();
+            let (outside_graded, [outside_lo, outside_hi]) = gradient_record(&field.outside);
             data.objects.push(SdfObjectRecord {
                 lo: finite_or_max(b.min),
                 nan_bounds: nan as u32,
@@ -155,9 +166,14 @@ impl SceneData {
                 field_root,
                 field_lo: field_box.min.to_array(),
                 field_hi: field_box.max.to_array(),
+                outside_graded,
+                outside_lo,
+                outside_hi,
+                convex: field.convex.is_some() as u32,
+                convex_relative: field.convex.map_or(0.0, |m| m.relative),
+                convex_scale: field.convex.map_or(0.0, |m| m.scale),
                 distance,
                 shading,
-                ..Default::default()
             });
         }
         // A tracer made with the linear scan (a check of the BVH) has no tree to share: the
@@ -362,8 +378,7 @@ impl SceneData {
             self.field_tapes.push(r);
         }
         self.field_leaves.extend(tree.leaves().iter().map(|l| {
-            let graded = l.gradient.iter().flatten().all(|g| g.is_finite());
-            let [lo, hi] = if graded { l.gradient } else { [[0.0; 3]; 2] };
+            let (graded, [lo, hi]) = gradient_record(&l.gradient);
             FieldLeafRecord {
                 gradient_lo: lo,
                 tape: tape_base + l.tape,
@@ -371,7 +386,7 @@ impl SceneData {
                 shading: shading_base + l.shading,
                 verdict: verdict_code(l.verdict),
                 min_value: l.min_value,
-                graded: graded as u32,
+                graded,
                 pad: 0,
             }
         }));

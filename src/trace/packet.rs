@@ -18,7 +18,7 @@
 //! the interpreter waiting on its register file; eight keep it busy).
 
 use super::crossing::{Candidate, Confirmation, Progress};
-use super::sphere::{Along, ConvexBound, Part, Parts, hart_step, penumbra_estimate};
+use super::sphere::{Along, ConvexBound, Part, Parts, Sample, hart_step, penumbra_estimate};
 use super::step::{TraceResult, epsilon_at};
 use crate::accel::field::{Cell, ObjectField, WalkStack};
 use crate::geom::Ray;
@@ -154,6 +154,8 @@ struct State<'f> {
     /// A candidate hit being confirmed: the lane's next point is the confirmation's.
     confirming: Option<Confirmation>,
     done: Option<Option<f32>>,
+    /// The last sample of the march, for the convexity bound.
+    chord: Sample,
 }
 
 /// Hart's march of up to [`BUNDLE`] rays through one object's field; `out[i]` is what
@@ -183,6 +185,15 @@ pub fn trace_hart_packet(
             steps: 0,
             confirming: None,
             done: None,
+            chord: Sample::NONE,
+        })
+        .collect();
+    let bounds: Vec<Option<ConvexBound>> = lanes
+        .iter()
+        .map(|l| {
+            field
+                .convex
+                .map(|model| ConvexBound::new(model, &l.ray, l.t0, l.t1))
         })
         .collect();
     let mut walks: Vec<Parts> = lanes
@@ -247,7 +258,7 @@ pub fn trace_hart_packet(
         for (tape, pass, xyz) in round.passes() {
             let d = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
             for (k, &i) in pass.iter().enumerate() {
-                march_step(&mut states[i], &lanes[i], d[k], s);
+                march_step(&mut states[i], &lanes[i], bounds[i], d[k], s);
             }
         }
     }
@@ -257,9 +268,9 @@ pub fn trace_hart_packet(
 }
 
 /// One lane's step from the field value `d` at its point: the next point of a confirmation,
-/// a hit confirmed or refuted, or Hart's step.
+/// a hit confirmed or refuted, a miss the convexity bound settles, or Hart's step.
 #[inline]
-fn march_step(st: &mut State, lane: &Lane, d: f32, s: &TracerSettings) {
+fn march_step(st: &mut State, lane: &Lane, bound: Option<ConvexBound>, d: f32, s: &TracerSettings) {
     st.steps += 1;
     let progress = match st.confirming.take() {
         Some(c) => c.feed(d, lane.t1, s),
@@ -267,10 +278,16 @@ fn march_step(st: &mut State, lane: &Lane, d: f32, s: &TracerSettings) {
             let t = st.t;
             let eps = epsilon_at(s, t);
             if d >= eps {
+                if bound.is_some_and(|b| b.stays_off(st.chord, t, d, s)) {
+                    st.done = Some(None);
+                    return;
+                }
+                st.chord = Sample { t, h: d };
                 let part = st.part.expect("active");
                 st.t = t + hart_step(d, &part, t, eps);
                 return;
             }
+            st.chord = Sample::NONE;
             Confirmation::start(t, d, lane.t1, s)
         }
     };
@@ -285,8 +302,7 @@ fn march_step(st: &mut State, lane: &Lane, d: f32, s: &TracerSettings) {
 /// [`State`]'s).
 struct Shadowed {
     res: f32,
-    previous: f32,
-    previous_t: f32,
+    previous: Sample,
     t: f32,
     samples: u32,
     done: bool,
@@ -323,8 +339,7 @@ pub fn penumbra_packet(
         .iter()
         .map(|l| Shadowed {
             res: 1.0,
-            previous: f32::INFINITY,
-            previous_t: f32::NEG_INFINITY,
+            previous: Sample::NONE,
             t: l.t0,
             samples: 0,
             done: s.max_steps == 0,
@@ -357,16 +372,15 @@ pub fn penumbra_packet(
                 }
                 st.res = st
                     .res
-                    .min(penumbra_estimate(h[j], st.previous, t, k, improved));
+                    .min(penumbra_estimate(h[j], st.previous.h, t, k, improved));
                 if st
                     .bound
-                    .is_some_and(|b| b.settles(st.previous_t, st.previous, t, h[j], st.res, k, s))
+                    .is_some_and(|b| b.settles(st.previous, t, h[j], st.res, k, s))
                 {
                     st.done = true;
                     continue;
                 }
-                st.previous = h[j];
-                st.previous_t = t;
+                st.previous = Sample { t, h: h[j] };
                 st.t = t + h[j];
                 if st.t > lanes[i].t1 || st.res < 1e-4 || st.samples >= s.max_steps {
                     st.done = true;
