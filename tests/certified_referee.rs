@@ -414,6 +414,18 @@ fn a_shadow_ray_skimming_a_blended_shell_is_certified() {
         .unwrap_or_else(|e| panic!("{e}"));
 }
 
+/// Another tree the property test drew (seed 638): a random ray clips the rim of a cone,
+/// head on to its base, 4·10⁻⁶ deep (ε/2 is 7·10⁻⁵ there): our tracer rightly steps over it,
+/// and the closed form's crossing is excused as the sliver it is.
+#[test]
+fn a_ray_clipping_a_cone_s_rim_by_less_than_half_epsilon_is_a_sliver() {
+    let shape = "Transform(translate: (0, 0, -0.055736676), rotate: (35.476044, 17.738022, 0), \
+                 scale: 0.76153874, \
+                 shape: Cone(half_height: 0.13792805, bottom_radius: 0.2158532, top_radius: 0))";
+    tree_agrees_with_the_referee(shape, (-0.22303236, 0.11703984, 0.0), 638)
+        .unwrap_or_else(|e| panic!("{e}"));
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
 

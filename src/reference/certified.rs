@@ -40,6 +40,22 @@ pub struct Search {
     pub lipschitz: Option<f64>,
 }
 
+/// The certified search for a scene traced with `settings`: roots enclosed within δ = ε₀/64
+/// (ε₀ the tracer's hit threshold at t = 0, so δ is far below every |Δt| tolerance, which
+/// starts at 10·ε), at most [`MAX_BOXES`] interval evaluations per ray and object.
+pub fn certified_search(settings: &crate::scene::TracerSettings) -> Search {
+    Search {
+        delta: settings.epsilon as f64 / 64.0,
+        max_boxes: MAX_BOXES,
+        lipschitz: Some(1.0),
+    }
+}
+
+/// The work bound of [`certified_search`]: a bisection to δ takes about log₂(length/δ) ≈ 30
+/// levels with a few boxes alive per level near a surface; the bound leaves room for
+/// stretches where the enclosure is loose (a smooth blend of many members).
+pub const MAX_BOXES: u32 = 20_000;
+
 impl Search {
     /// How far f may move from its value at the middle of the stretch [a, b] of a ray along
     /// `d`: L·|d|·(b − a)/2, where the Lipschitz bound L is known.

@@ -124,6 +124,9 @@ pub(super) struct Classifier<'a, A: ?Sized, B: ?Sized> {
     mesh_tol: f32,
     /// Per SDF object checked by the certified search: its program and search bounds.
     certified: Vec<Option<(Program, Search)>>,
+    /// Per SDF object checked in closed form: its program and the certified search's bounds
+    /// (for the depth of a sliver the closed form crosses, which it does not tell).
+    closed_form: Vec<Option<(Program, Search)>>,
 }
 
 impl<'a, A, B> Classifier<'a, A, B>
@@ -158,6 +161,17 @@ where
                 _ => None,
             })
             .collect();
+        let closed_form = checks
+            .iter()
+            .zip(&scene.objects)
+            .map(|(c, o)| {
+                matches!(c, SdfCheck::Analytic).then(|| {
+                    let mut search = certified::certified_search(&scene.tracer);
+                    search.lipschitz = o.node.guaranteed_lipschitz().map(f64::from);
+                    (Program::new(&o.lowered.distance), search)
+                })
+            })
+            .collect();
         Classifier {
             scene,
             ours,
@@ -165,6 +179,7 @@ where
             checks,
             mesh_tol,
             certified,
+            closed_form,
         }
     }
 
@@ -223,6 +238,34 @@ where
         let Some((program, search)) = self.certified_of(y.object) else {
             return false;
         };
+        self.sliver_of(program, search, y, ray, end)
+    }
+
+    /// The closed form's crossing `y`, which our tracer did not report before `end`: a
+    /// sliver by the rule of [`Self::certified_sliver`], the depth certified on the object's
+    /// field (the closed form gives where the ray crosses the surface, not how deep it goes:
+    /// a ray clipping a cone's rim 4·10⁻⁶ deep, head on to the base, was counted as a miss
+    /// of ours away from any silhouette).
+    fn closed_form_sliver(&self, y: &QueryHit, ray: &Ray, end: f32) -> bool {
+        let Some(Some((program, search))) = (match y.object {
+            ObjectId::Sdf(i) => self.closed_form.get(i),
+            ObjectId::MeshInstance(_) => None,
+        }) else {
+            return false;
+        };
+        self.sliver_of(program, search, y, ray, end)
+    }
+
+    /// Whether the ray goes no deeper than ε(t)/2 into the solid of `program` on
+    /// [y.t − δ, end].
+    fn sliver_of(
+        &self,
+        program: &Program,
+        search: &Search,
+        y: &QueryHit,
+        ray: &Ray,
+        end: f32,
+    ) -> bool {
         let e = epsilon_at(&self.scene.tracer, y.t) as f64;
         let (o, d) = (ray.origin.as_dvec3(), ray.direction.as_dvec3());
         let span = ((y.t as f64 - search.delta).max(0.0), end as f64);
@@ -426,7 +469,7 @@ where
     }
 
     /// A hit only the referee has (before ours, if any): in the band when the ray grazes the
-    /// surface or our tracer has a surface within its band.
+    /// surface, our tracer has a surface within its band, or the ray only clips a sliver.
     fn only_referee(&self, y: &QueryHit, ray: &Ray) -> Outcome {
         if self.kind_of(y.object) == Kind::CertifiedSdf {
             let end = self.scene.tracer.max_distance;
@@ -435,9 +478,12 @@ where
                 in_band: self.certified_sliver(y, ray, end),
             };
         }
+        let end = self.scene.tracer.max_distance;
         Outcome::Disagree {
             kind: self.kind_of(y.object),
-            in_band: grazing(y, ray) || self.near(self.ours, y, ray),
+            in_band: grazing(y, ray)
+                || self.near(self.ours, y, ray)
+                || self.closed_form_sliver(y, ray, end),
         }
     }
 
