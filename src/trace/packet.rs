@@ -202,7 +202,8 @@ struct State<'f> {
     /// A candidate hit being confirmed: the lane's next point is the confirmation's.
     confirming: Option<Confirmation>,
     done: Option<Option<f32>>,
-    /// The last sample of the march, for the convexity bound.
+    /// The convexity bound of a convex field, and the march's last sample for its chords.
+    bound: Option<ConvexBound>,
     chord: Sample,
 }
 
@@ -233,15 +234,10 @@ pub fn trace_hart_packet(
             steps: 0,
             confirming: None,
             done: None,
-            chord: Sample::NONE,
-        })
-        .collect();
-    let bounds: Vec<Option<ConvexBound>> = lanes
-        .iter()
-        .map(|l| {
-            field
+            bound: field
                 .convex
-                .map(|model| ConvexBound::new(model, &l.ray, l.t0, l.t1))
+                .map(|model| ConvexBound::new(model, &l.ray, l.t0, l.t1)),
+            chord: Sample::NONE,
         })
         .collect();
     let mut walks: Vec<Parts> = lanes
@@ -306,7 +302,7 @@ pub fn trace_hart_packet(
         for (tape, pass, xyz) in round.passes() {
             let d = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
             for (k, &i) in pass.iter().enumerate() {
-                march_step(&mut states[i], &lanes[i], bounds[i], d[k], s);
+                march_step(&mut states[i], &lanes[i], d[k], s);
             }
         }
     }
@@ -318,7 +314,7 @@ pub fn trace_hart_packet(
 /// One lane's step from the field value `d` at its point: the next point of a confirmation,
 /// a hit confirmed or refuted, a miss the convexity bound settles, or Hart's step.
 #[inline]
-fn march_step(st: &mut State, lane: &Lane, bound: Option<ConvexBound>, d: f32, s: &TracerSettings) {
+fn march_step(st: &mut State, lane: &Lane, d: f32, s: &TracerSettings) {
     st.steps += 1;
     let progress = match st.confirming.take() {
         Some(c) => c.feed(d, lane.t1, s),
@@ -326,7 +322,7 @@ fn march_step(st: &mut State, lane: &Lane, bound: Option<ConvexBound>, d: f32, s
             let t = st.t;
             let eps = epsilon_at(s, t);
             if d >= eps {
-                if bound.is_some_and(|b| b.stays_off(st.chord, t, d, s)) {
+                if st.bound.is_some_and(|b| b.stays_off(st.chord, t, d, s)) {
                     st.done = Some(None);
                     return;
                 }
