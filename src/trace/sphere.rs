@@ -593,21 +593,12 @@ impl ConvexBound {
         }
     }
 
-    /// The chord's lower bounds from the sample `before` to h at t: the margin a and the
-    /// slope σ' every later computed sample lies above; `None` before the second sample.
-    #[inline]
-    fn chord(&self, before: Sample, t: f32, h: f32) -> Option<(f32, f32)> {
-        if !(before.t.is_finite() && t > before.t && self.error.is_finite()) {
-            return None;
-        }
-        let a = h - 2.0 * self.error;
-        let slope = (h - before.h - 2.0 * self.error) / (t - before.t);
-        Some((a, slope))
-    }
-
     /// Whether no sample of a march after h at t (the sample before being `before`) can
-    /// come below ε: the march can end with a miss. (Hart's march asks at every step, so
-    /// the slope is compared as rise against run, without a division.)
+    /// come below ε: the march can end with a miss. The chord's margin a = h − 2e and its
+    /// rise over its run bound every later computed sample from below; a ≥ ε(t) and a slope
+    /// of at least ε₁ keep each one above ε, with 2⁻¹⁰ to spare for ε's own rounding. (Hart's
+    /// march asks at every step, so the slope is compared as rise against run, without a
+    /// division.)
     #[inline]
     pub(crate) fn stays_off(&self, before: Sample, t: f32, h: f32, s: &TracerSettings) -> bool {
         // most samples of a march towards a surface fall: one comparison settles those (a
@@ -622,14 +613,10 @@ impl ConvexBound {
         a >= SPARE * epsilon_at(s, t) && rise >= SPARE * s.epsilon_per_unit * run && run > 0.0
     }
 
-    /// a ≥ ε(t) and σ' ≥ ε₁, with 2⁻¹⁰ to spare for ε's own rounding.
-    #[inline]
-    fn off_the_surface(a: f32, slope: f32, t: f32, s: &TracerSettings) -> bool {
-        a >= SPARE * epsilon_at(s, t) && slope >= SPARE * s.epsilon_per_unit
-    }
-
     /// Whether a penumbra march can stop at its sample h at t, the sample before being
-    /// `before`, darkness `res` being reached with its estimate included.
+    /// `before`, darkness `res` being reached with its estimate included: no later sample
+    /// comes below ε ([`Self::stays_off`]), and none lowers the estimate, k·min(a/t, σ') being
+    /// at least 1.5·res.
     #[inline]
     pub(crate) fn settles(
         &self,
@@ -641,11 +628,11 @@ impl ConvexBound {
         s: &TracerSettings,
     ) -> bool {
         // t ≥ 1e-5 keeps the estimates' floor on their denominators (1e-6) out of play
-        t >= 1e-5
-            && self.chord(before, t, h).is_some_and(|(a, slope)| {
-                Self::off_the_surface(a, slope, t, s)
-                    && k * (a / t).min(slope) >= SETTLED_MARGIN * res
-            })
+        t >= 1e-5 && self.stays_off(before, t, h, s) && {
+            let a = h - 2.0 * self.error;
+            let slope = (h - before.h - 2.0 * self.error) / (t - before.t);
+            k * (a / t).min(slope) >= SETTLED_MARGIN * res
+        }
     }
 }
 
