@@ -1082,6 +1082,35 @@ pub struct ObjectField {
     /// step where Hart's steps shrink geometrically towards it; [`ANY_GRADIENT`] where
     /// intervals over all of space say nothing.
     pub outside: [[f32; 3]; 2],
+    /// For a convex field whose gradient enclosure over all of space is at most
+    /// [`NEARLY_LINEAR`] wide (a plane), that enclosure widened to at least [`FLAT_BOUND`] in
+    /// magnitude where it is smaller: a ray's least slope is then computed without subnormal
+    /// products (each one a microcode assist), and it only becomes more cautious. `None`
+    /// otherwise: a wider enclosure (a slab's holds both its normals, a sphere's the unit
+    /// cube) bounds a ray's fall by about its length, which rarely tells a march's answer
+    /// from its first sample, and the sample would cost every ray that asks.
+    pub slopes: Option<[[f32; 3]; 2]>,
+}
+
+/// The widest gradient enclosure, per axis, that [`ObjectField::slopes`] keeps.
+pub const NEARLY_LINEAR: f32 = 1.0 / 1024.0;
+
+/// The magnitude [`ObjectField::slopes`] widens the bounds of a flat axis to.
+pub const FLAT_BOUND: f32 = 1e-30;
+
+/// `gradient` widened outwards past subnormal bounds ([`ObjectField::slopes`]), if it is
+/// finite and narrow.
+fn slopes_of(gradient: [[f32; 3]; 2]) -> Option<[[f32; 3]; 2]> {
+    let narrow = (0..3).all(|a| gradient[1][a] - gradient[0][a] <= NEARLY_LINEAR);
+    let finite = gradient.iter().flatten().all(|g| g.is_finite());
+    (finite && narrow).then(|| {
+        let [lo, hi] = gradient;
+        let tiny = |g: f32| g.abs() < FLAT_BOUND;
+        [
+            lo.map(|g| if tiny(g) { -FLAT_BOUND } else { g }),
+            hi.map(|g| if tiny(g) { FLAT_BOUND } else { g }),
+        ]
+    })
 }
 
 /// What the tracer needs to know about the region around a point.
@@ -1097,12 +1126,14 @@ impl ObjectField {
     /// The field of an object from its lowering: an octree over `region` (the object's
     /// bounds, clipped to a finite box for unbounded objects) when one pays.
     pub fn build(lowered: &LoweredSdf, region: Aabb) -> Self {
+        let outside = gradient_everywhere(&lowered.program);
         ObjectField {
             octree: FieldOctree::build(&lowered.program, region),
             whole: lowered.distance.clone(),
             whole_shading: lowered.shading.clone(),
             convex: lowered.convex.then(|| RoundingModel::of(&lowered.distance)),
-            outside: gradient_everywhere(&lowered.program),
+            outside,
+            slopes: slopes_of(outside).filter(|_| lowered.convex),
         }
     }
 
@@ -1126,6 +1157,7 @@ impl ObjectField {
             whole_shading: whole_shading.clone(),
             convex: None,
             outside: ANY_GRADIENT,
+            slopes: None,
         }
     }
 
@@ -1668,6 +1700,7 @@ pub(crate) mod tests {
             whole_shading: Tape::default(),
             convex: None,
             outside: ANY_GRADIENT,
+            slopes: None,
         };
         let mut rng = Rng::new(3);
         let mut regs = Registers::new();

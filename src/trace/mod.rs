@@ -546,7 +546,18 @@ impl<'a> SceneTracer<'a> {
         let s = &self.scene.tracer;
         let (rays, tmins, limits) = gathered(queries, which, s.max_distance);
         let mut blocked = self.meshes_block(&rays, &tmins, &limits);
-        let mut candidates = Candidates::with_tmins(&self.accel, &rays, &tmins, &limits, |_| 0.0);
+        // objects a ray provably passes (a ground plane it leaves) are no lanes
+        let mut regs = Registers::pooled();
+        let mut candidates = Candidates::with_tmins(
+            &self.accel,
+            &rays,
+            &tmins,
+            &limits,
+            |_| 0.0,
+            |r, i, t0, t1| {
+                sphere::misses_from_start(&self.fields[i], &rays[r], t0, t1, s, &mut regs)
+            },
+        );
         let mut results = [TraceResult::of_points(None, 0); packet::BUNDLE];
         candidates.in_packets(
             &rays,
@@ -585,8 +596,19 @@ impl<'a> SceneTracer<'a> {
             .map(|blocked| if blocked { 0.0 } else { 1.0 })
             .collect();
         // k·h/t < 1 only where h < t/k ≤ limit/k: objects farther than that cannot darken
-        let mut candidates =
-            Candidates::with_tmins(&self.accel, &rays, &tmins, &limits, |r| limits[r] / k);
+        // objects whose penumbra provably leaves a ray lit (a ground plane it leaves) are
+        // no lanes
+        let mut regs = Registers::pooled();
+        let mut candidates = Candidates::with_tmins(
+            &self.accel,
+            &rays,
+            &tmins,
+            &limits,
+            |r| limits[r] / k,
+            |r, i, t0, t1| {
+                sphere::unshaded_from_start(&self.fields[i], &rays[r], t0, t1, k, s, &mut regs)
+            },
+        );
         let mut values = [0.0f32; packet::BUNDLE];
         candidates.in_packets(
             &rays,
@@ -785,7 +807,8 @@ impl Candidates {
         limits: &[f32],
         margin: impl Fn(usize) -> f32,
     ) -> Self {
-        Self::with_tmins(accel, rays, &vec![tmin; rays.len()], limits, margin)
+        let tmins = vec![tmin; rays.len()];
+        Self::with_tmins(accel, rays, &tmins, limits, margin, |_, _, _, _| false)
     }
 
     fn with_tmins(
@@ -794,6 +817,7 @@ impl Candidates {
         tmins: &[f32],
         limits: &[f32],
         margin: impl Fn(usize) -> f32,
+        mut passed: impl FnMut(usize, usize, f32, f32) -> bool,
     ) -> Self {
         let mut c = Candidates {
             starts: Vec::with_capacity(rays.len() + 1),
@@ -805,7 +829,9 @@ impl Candidates {
             c.next.push(c.items.len());
             let mut limit = limits[r];
             accel.visit_within(ray, tmins[r], &mut limit, margin(r), |i, t0, t1, _| {
-                c.items.push((i, t0, t1));
+                if !passed(r, i, t0, t1) {
+                    c.items.push((i, t0, t1));
+                }
                 ControlFlow::Continue(())
             });
         }
