@@ -595,9 +595,9 @@ impl<'a> SceneTracer<'a> {
             .into_iter()
             .map(|blocked| if blocked { 0.0 } else { 1.0 })
             .collect();
-        // k·h/t < 1 only where h < t/k ≤ limit/k: objects farther than that cannot darken
-        // objects whose penumbra provably leaves a ray lit (a ground plane it leaves) are
-        // no lanes
+        // k·h/t < 1 only where h < t/k ≤ limit/k: objects farther than that cannot darken;
+        // those whose penumbra provably leaves a ray lit (a ground plane it leaves) are no
+        // lanes
         let mut regs = Registers::pooled();
         let mut candidates = Candidates::with_tmins(
             &self.accel,
