@@ -84,6 +84,7 @@ fn next_up(x: f32) -> f32 {
 struct Part {
     tape: TapeRef,
     fall: f32,
+    everywhere: f32,
     start: f32,
     end: f32,
     valid: bool,
@@ -101,6 +102,7 @@ const PHASE_DONE: u32 = 4u;
 struct Parts {
     object: u32,
     direction: vec3<f32>,
+    everywhere: f32,
     phase: u32,
     t1: f32,
     enter: f32,
@@ -109,8 +111,9 @@ struct Parts {
 
 // Parts::new.
 fn parts_new(object: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> Parts {
-    var parts = Parts(object, d, PHASE_WHOLE, t1, t0, t1);
     let obj = objects[object];
+    let everywhere = gradient_fall(obj.outside_graded, obj.outside_lo, obj.outside_hi, d);
+    var parts = Parts(object, d, everywhere, PHASE_WHOLE, t1, t0, t1);
     if obj.field_root != NONE {
         let iv = ray_interval(obj.field_lo, obj.field_hi, o, d, t0, t1);
         if iv.hit {
@@ -132,7 +135,7 @@ fn parts_new(object: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> Parts
 fn whole_part(object: u32, d: vec3<f32>, start: f32, end: f32) -> Part {
     let obj = objects[object];
     let fall = gradient_fall(obj.outside_graded, obj.outside_lo, obj.outside_hi, d);
-    return Part(obj.distance, fall, start, end, true);
+    return Part(obj.distance, fall, fall, start, end, true);
 }
 
 // Parts::next: the next part for a march now at t.
@@ -155,7 +158,7 @@ fn parts_next(parts: ptr<function, Parts>, t: f32) -> Part {
                 } else {
                     let leaf = field_leaves[x.leaf];
                     if !(x.exit < t || leaf.verdict == VERDICT_EMPTY) {
-                        return Part(field_tapes[leaf.tape], leaf_fall(leaf, (*parts).direction), max(t, x.enter), min(x.exit, (*parts).t1), true);
+                        return Part(field_tapes[leaf.tape], leaf_fall(leaf, (*parts).direction), (*parts).everywhere, max(t, x.enter), min(x.exit, (*parts).t1), true);
                     }
                 }
             }
@@ -168,7 +171,7 @@ fn parts_next(parts: ptr<function, Parts>, t: f32) -> Part {
             default: {}
         }
     }
-    return Part(objects[object].distance, 1.0, 0.0, 0.0, false);
+    return Part(objects[object].distance, 1.0, 1.0, 0.0, 0.0, false);
 }
 
 // field::Leaf::fall.
@@ -188,12 +191,20 @@ fn gradient_fall(graded: u32, lo: vec3<f32>, hi: vec3<f32>, d: vec3<f32>) -> f32
 }
 
 // sphere::hart_step: d, or d/fall kept ε/4 short within the part where the field falls by
-// less than 1 per unit along the ray.
+// less than 1 per unit along the ray, or d/everywhere anywhere.
 fn hart_step(f: f32, part: Part, t: f32, eps: f32) -> f32 {
+    var step = f;
     if part.fall < 1.0 {
-        return max(f, min(f / part.fall - HART_STEP_MARGIN * eps, part.end - t));
+        step = max(step, min(f / part.fall - HART_STEP_MARGIN * eps, part.end - t));
     }
-    return f;
+    if part.everywhere < 1.0 {
+        var reach = 3.4028235e38;
+        if part.everywhere > 0.0 {
+            reach = f / part.everywhere - HART_STEP_MARGIN * eps;
+        }
+        step = max(step, reach);
+    }
+    return step;
 }
 
 // sphere::Stretch: how a march over one part ended.
