@@ -547,16 +547,12 @@ impl<'a> SceneTracer<'a> {
         let (rays, tmins, limits) = gathered(queries, which, s.max_distance);
         let mut blocked = self.meshes_block(&rays, &tmins, &limits);
         // objects a ray provably passes (a ground plane it leaves) are no lanes
-        let mut regs = Registers::pooled();
-        let mut candidates = Candidates::with_tmins(
-            &self.accel,
+        let mut candidates = self.shadow_candidates(
             &rays,
             &tmins,
             &limits,
             |_| 0.0,
-            |r, i, t0, t1| {
-                sphere::misses_from_start(&self.fields[i], &rays[r], t0, t1, s, &mut regs)
-            },
+            |field, ray, t0, t1, regs| sphere::misses_from_start(field, ray, t0, t1, s, regs),
         );
         let mut results = [TraceResult::of_points(None, 0); packet::BUNDLE];
         candidates.in_packets(
@@ -574,6 +570,22 @@ impl<'a> SceneTracer<'a> {
         for (k, &i) in which.iter().enumerate() {
             out[i] = if blocked[k] { 0.0 } else { 1.0 };
         }
+    }
+
+    /// The candidates of a batch of shadow rays, leaving out the (ray, object) pairs that
+    /// `told(field, ray, t0, t1, registers)` answers without a march.
+    fn shadow_candidates(
+        &self,
+        rays: &[Ray],
+        tmins: &[f32],
+        limits: &[f32],
+        margin: impl Fn(usize) -> f32,
+        told: impl Fn(&ObjectField, &Ray, f32, f32, &mut Registers) -> bool,
+    ) -> Candidates {
+        let mut regs = Registers::pooled();
+        Candidates::with_tmins(&self.accel, rays, tmins, limits, margin, |r, i, t0, t1| {
+            told(&self.fields[i], &rays[r], t0, t1, &mut regs)
+        })
     }
 
     /// Soft shadows of `which` queries (all of penumbra sharpness k): blocked by a mesh, else
@@ -598,16 +610,12 @@ impl<'a> SceneTracer<'a> {
         // k·h/t < 1 only where h < t/k ≤ limit/k: objects farther than that cannot darken;
         // those whose penumbra provably leaves a ray lit (a ground plane it leaves) are no
         // lanes
-        let mut regs = Registers::pooled();
-        let mut candidates = Candidates::with_tmins(
-            &self.accel,
+        let mut candidates = self.shadow_candidates(
             &rays,
             &tmins,
             &limits,
             |r| limits[r] / k,
-            |r, i, t0, t1| {
-                sphere::unshaded_from_start(&self.fields[i], &rays[r], t0, t1, k, s, &mut regs)
-            },
+            |field, ray, t0, t1, regs| sphere::unshaded_from_start(field, ray, t0, t1, k, s, regs),
         );
         let mut values = [0.0f32; packet::BUNDLE];
         candidates.in_packets(

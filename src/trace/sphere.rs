@@ -594,8 +594,7 @@ impl LineBelow {
         let slope: f64 = (0..3)
             .map(|a| (lo[a] as f64 * d[a] as f64).min(hi[a] as f64 * d[a] as f64))
             .sum();
-        let reach = |t: f32| ray.at(t).abs().max_element();
-        let error = model.error(reach(t0).max(reach(t1))) as f64;
+        let error = ConvexBound::new(model, ray, t0, t1).error as f64;
         let h0 = field.whole.eval_in(ray.at(t0), regs) as f64;
         // a NaN sample fails every comparison with the line
         Some(LineBelow {
