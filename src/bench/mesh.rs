@@ -246,6 +246,7 @@ pub struct Referee {
     default: crate::reference::embree::EmbreeScene,
     width: crate::reference::embree::PacketWidth,
 }
+/// Without Embree built in, nothing: the mesh section reports our side alone.
 #[cfg(not(feature = "embree"))]
 pub struct Referee;
 
