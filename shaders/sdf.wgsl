@@ -131,11 +131,11 @@ fn parts_new(object: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> Parts
 }
 
 // Parts::whole_part: the whole tape, its fall bounded by the object's gradient enclosure
-// outside the tree (field::ObjectField::outside).
-fn whole_part(object: u32, d: vec3<f32>, start: f32, end: f32) -> Part {
-    let obj = objects[object];
-    let fall = gradient_fall(obj.outside_graded, obj.outside_lo, obj.outside_hi, d);
-    return Part(obj.distance, fall, fall, start, end, true);
+// outside the tree (field::ObjectField::outside), the same bound the parts hold for
+// anywhere (computed once per ray, in parts_new).
+fn whole_part(parts: ptr<function, Parts>, start: f32, end: f32) -> Part {
+    let fall = (*parts).everywhere;
+    return Part(objects[(*parts).object].distance, fall, fall, start, end, true);
 }
 
 // Parts::next: the next part for a march now at t.
@@ -145,11 +145,11 @@ fn parts_next(parts: ptr<function, Parts>, t: f32) -> Part {
         switch (*parts).phase {
             case PHASE_WHOLE: {
                 (*parts).phase = PHASE_DONE;
-                return whole_part(object, (*parts).direction, t, (*parts).t1);
+                return whole_part(parts, t, (*parts).t1);
             }
             case PHASE_BEFORE: {
                 (*parts).phase = PHASE_WALK;
-                return whole_part(object, (*parts).direction, t, (*parts).enter);
+                return whole_part(parts, t, (*parts).enter);
             }
             case PHASE_WALK: {
                 let x = field_next_leaf();
@@ -165,7 +165,7 @@ fn parts_next(parts: ptr<function, Parts>, t: f32) -> Part {
             case PHASE_AFTER: {
                 (*parts).phase = PHASE_DONE;
                 if (*parts).leave < (*parts).t1 {
-                    return whole_part(object, (*parts).direction, max(t, next_up((*parts).leave)), (*parts).t1);
+                    return whole_part(parts, max(t, next_up((*parts).leave)), (*parts).t1);
                 }
             }
             default: {}
