@@ -108,13 +108,29 @@ impl Default for AccelOptions {
     }
 }
 
-/// The box an object's octree covers: its bounds, with the unbounded axes (planes, infinite
-/// repetition) clipped to the scene's finite bounds grown by half their size — where the
-/// camera looks; outside it the whole tape is evaluated, which is always right.
+/// The box an object's octree covers: the cube around its bounds, or, for an unbounded
+/// object (planes, infinite repetition), its bounds with the unbounded axes clipped to the
+/// scene's finite bounds grown by half their size — where the camera looks; outside the box
+/// the whole tape is evaluated, which is always right.
+///
+/// A cube, because the octree halves every axis at once: over a flat object's own box its
+/// cells are as flat, and a ray across the flat axis crosses as many of them as one along
+/// the long axes would. On 1,000 boxes tiling a square six times wider than deep, seen
+/// face on, a ray walked nine leaves to its hit over the flat box and three over the cube,
+/// and the frame took a quarter less (the octree built in a third of the time). The
+/// clipped boxes of unbounded objects stay as they are: a ground's cube would be mostly
+/// empty space that every ray from the camera walks (2–5 % slower frames).
 pub fn field_region(object: &SdfObject, scene_box: &Aabb) -> Aabb {
     let b = object.bounds();
     if b.is_finite() {
-        return b;
+        if b.is_empty() {
+            return b;
+        }
+        let half = Vec3::splat(0.5 * (b.max - b.min).max_element());
+        return Aabb {
+            min: b.center() - half,
+            max: b.center() + half,
+        };
     }
     if scene_box.is_empty() || !scene_box.is_finite() {
         return Aabb::EMPTY;
