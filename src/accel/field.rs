@@ -1,8 +1,9 @@
 //! An SDF object's field as an octree of region-specialised tapes, for rays of any origin.
 //!
-//! Each leaf of the octree over the object's bounds holds the tape specialised to its box
-//! ([`crate::sdf::simplify`]), whether the box is empty, full or crossed by the surface, and,
-//! for a crossed box, interval enclosures of ∂f/∂x, ∂f/∂y, ∂f/∂z there. A point is evaluated
+//! Each leaf of the octree over the object's box (for a finite object, the cube around its
+//! bounds) holds the tape specialised to its box ([`crate::sdf::simplify`]), whether the box
+//! is empty, full or crossed by the surface, and, for a crossed box, interval enclosures of
+//! ∂f/∂x, ∂f/∂y, ∂f/∂z there. A point is evaluated
 //! with the tape of the leaf that holds it, which gives the whole tape's value at a fraction of
 //! its cost; a ray skips empty leaves without evaluating anything; steps inside a leaf may be
 //! lengthened by how slowly the field can fall along the ray there ([`Leaf::fall`]). Outside
@@ -1124,8 +1125,8 @@ pub struct Region<'a> {
 
 impl ObjectField {
     /// The field of an object from its lowering: an octree over `region` (the cube around
-    /// the object's bounds, or its bounds clipped to a finite box for an unbounded object:
-    /// [`crate::trace::field_region`]) when one pays.
+    /// the object's bounds, or its bounds clipped to a finite box for an unbounded object)
+    /// when one pays.
     pub fn build(lowered: &LoweredSdf, region: Aabb) -> Self {
         let outside = gradient_everywhere(&lowered.program);
         ObjectField {

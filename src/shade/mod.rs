@@ -166,7 +166,10 @@ fn shadow_query_toward(
 /// Direction to a light from p, its distance, the irradiance it brings (with a spot light's
 /// cone and a light's range window applied) and its shadow kind; `None` for ambient lights, a
 /// light at p, and points outside a spot light's cone or beyond a light's range.
-#[inline]
+// Always inlined: called, it returns its tuple through memory, which the caller then reads
+// back with other widths than it was written with (a store-forwarding stall on every light
+// of every shaded point: 2–3 % of a hybrid.ron or showcase frame).
+#[inline(always)]
 pub fn light_at(light: &Light, p: Vec3) -> Option<(Vec3, f32, Vec3, Shadow)> {
     match *light {
         Light::Ambient { .. } => None,
