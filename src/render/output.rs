@@ -44,10 +44,74 @@ pub fn linear_to_srgb(v: f32) -> f32 {
     }
 }
 
+/// 8-bit sRGB of a display-linear value as the transfer function gives it:
+/// linear_to_srgb(v)·255 + ½, rounded down.
+fn srgb8_by_formula(v: f32) -> u8 {
+    (linear_to_srgb(v) * 255.0 + 0.5) as u8
+}
+
+/// Where the 8-bit sRGB levels start: the smallest display-linear value of each level from 1
+/// to 255 ([`srgb8_by_formula`] steps up there), found once by bisection over the f32s of
+/// [0, 1], and the level at each of 4,096 even steps of [0, 1], where a search starts.
+///
+/// A level is then a table read and a comparison or two instead of a `powf` (the viewer
+/// converted every preview that way, a twelfth of a core on its window thread beside the
+/// render threads): the same levels, since the formula does not decrease (tested over every
+/// 61st f32 of [0, 1] and around every threshold). No step of 1/4,096 spans more than one
+/// level (the curve rises at most 12.92·255 levels per unit, at its linear foot).
+struct Srgb8Levels {
+    starts: [f32; 255],
+    at_step: [u8; STEPS + 1],
+}
+
+/// The even steps of [0, 1] [`Srgb8Levels`] keeps the level of.
+const STEPS: usize = 4096;
+
+fn srgb8_levels() -> &'static Srgb8Levels {
+    static LEVELS: std::sync::OnceLock<Srgb8Levels> = std::sync::OnceLock::new();
+    LEVELS.get_or_init(|| {
+        let starts: [f32; 255] = std::array::from_fn(|i| {
+            let level = i as u8 + 1;
+            // bit patterns of non-negative floats are ordered as the floats
+            let (mut lo, mut hi) = (0u32, 1.0f32.to_bits());
+            while lo < hi {
+                let mid = lo + (hi - lo) / 2;
+                if srgb8_by_formula(f32::from_bits(mid)) >= level {
+                    hi = mid;
+                } else {
+                    lo = mid + 1;
+                }
+            }
+            f32::from_bits(lo)
+        });
+        let at_step = std::array::from_fn(|i| {
+            let v = i as f32 / STEPS as f32;
+            starts.partition_point(|&t| t <= v) as u8
+        });
+        Srgb8Levels { starts, at_step }
+    })
+}
+
+/// 8-bit sRGB of a display-linear value: [`srgb8_by_formula`]'s level, from [`Srgb8Levels`].
+#[inline]
+pub fn srgb8(v: f32) -> u8 {
+    // NaN and values at or below 0 are level 0, as the formula's clamp makes them
+    if v.is_nan() || v <= 0.0 {
+        return 0;
+    }
+    let levels = srgb8_levels();
+    let v = v.min(1.0);
+    // v·4,096 is exact (a power of two), so the step's value is at most v
+    let mut level = levels.at_step[(v * STEPS as f32) as usize];
+    while level < 255 && levels.starts[level as usize] <= v {
+        level += 1;
+    }
+    level
+}
+
 /// 8-bit sRGB of a display-linear colour.
 pub fn to_srgb8(c: Vec3) -> [u8; 3] {
-    let q = |v: f32| (linear_to_srgb(v) * 255.0 + 0.5) as u8;
-    [q(c.x), q(c.y), q(c.z)]
+    [srgb8(c.x), srgb8(c.y), srgb8(c.z)]
 }
 
 /// Writes a picture as PNG.
@@ -90,6 +154,27 @@ mod tests {
                 .abs()
                 < 1e-6
         );
+    }
+
+    #[test]
+    fn levels_by_thresholds_are_the_formula_s() {
+        // every 61st f32 of [0, 1], then 64 on either side of each threshold
+        let one = 1.0f32.to_bits();
+        let mut bits = (0..=one).step_by(61).chain([one]).collect::<Vec<u32>>();
+        for &t in &srgb8_levels().starts {
+            let b = t.to_bits();
+            bits.extend(b.saturating_sub(64)..=(b + 64).min(one));
+        }
+        for b in bits {
+            let v = f32::from_bits(b);
+            assert_eq!(srgb8(v), srgb8_by_formula(v), "at {v} ({b:#x})");
+        }
+        for v in [-1.0, -0.0, 1.5, f32::INFINITY, f32::NEG_INFINITY, f32::NAN] {
+            assert_eq!(srgb8(v), srgb8_by_formula(v), "at {v}");
+        }
+        // a search takes a comparison or two: no step spans more than one level
+        let steps = &srgb8_levels().at_step;
+        assert!(steps.windows(2).all(|w| w[1] - w[0] <= 1));
     }
 
     #[test]
