@@ -844,6 +844,98 @@ fn brute_boxes(
     v
 }
 
+/// A random ray for the box walks of `boxes`, the `i`-th kind of four, and its range.
+fn box_walk_ray(rng: &mut Rng, boxes: &[Aabb], i: usize) -> (Ray, f32, f32) {
+    let (o, d) = match i % 4 {
+        0 => (rng.direction() * 20.0, rng.vec3_in(-10.0, 10.0)),
+        1 => (rng.vec3_in(-10.0, 10.0), rng.direction()),
+        2 => {
+            // Axis-parallel from a box corner (exactly on two of its planes).
+            let b = boxes[rng.below(boxes.len() as u64) as usize];
+            let mut d = Vec3::ZERO;
+            d[rng.below(3) as usize] = if rng.next_f32() < 0.5 { 1.0 } else { -1.0 };
+            (b.min, d)
+        }
+        _ => (Vec3::new(0.5, 1.0, 0.5), rng.direction()),
+    };
+    let r = ray(o, d - if i % 4 == 0 { o } else { Vec3::ZERO });
+    let (tmin, tmax) = if i % 3 == 0 {
+        (0.5, 15.0)
+    } else {
+        (0.0, f32::INFINITY)
+    };
+    (r, tmin, tmax)
+}
+
+/// Checks one ray's walks of `bvh` (built over `boxes`) against a scan with
+/// `ray_box_interval`: every crossed box once with exactly its interval, nearest entry first;
+/// a closest-hit walk that lowers tmax gets the interval clipped to the lowered tmax and finds
+/// the nearest entry; an any-hit walk stops at the first; grown boxes likewise. Returns the
+/// boxes crossed and those the closest-hit walk visited.
+fn check_box_walks(bvh: &AabbBvh, boxes: &[Aabb], r: &Ray, tmin: f32, tmax: f32) -> (usize, usize) {
+    let expect = brute_boxes(boxes, r, tmin, tmax, 0.0);
+
+    let mut got = Vec::new();
+    let mut tm = tmax;
+    bvh.visit(r, tmin, &mut tm, |k, t0, t1, _| {
+        got.push((k, t0, t1));
+        ControlFlow::Continue(())
+    });
+    let entries: Vec<f32> = got.iter().map(|e| e.1).collect();
+    // the tree sorts a node's children by the entry into the child's box, which holds
+    // several boxes in a big tree: only the scan of a few boxes orders them exactly
+    if boxes.len() <= 8 {
+        assert!(entries.is_sorted(), "nearest entry first: {entries:?}");
+    }
+    got.sort_by_key(|e| e.0);
+    assert_eq!(got, expect, "o={} d={}", r.origin, r.direction);
+
+    // Closest-hit style: pretend every box is hit at its entry; shrinking tmax prunes.
+    let mut tm = tmax;
+    let mut best: Option<(f32, usize)> = None;
+    let mut visits = 0;
+    bvh.visit(r, tmin, &mut tm, |k, t0, t1, tmax| {
+        visits += 1;
+        assert_eq!(
+            ray_box_interval(&boxes[k], r, tmin, *tmax),
+            Some((t0, t1)),
+            "the interval within the lowered tmax"
+        );
+        if best.is_none_or(|b| (t0, k) < b) {
+            best = Some((t0, k));
+            *tmax = t0;
+        }
+        ControlFlow::Continue(())
+    });
+    let brute_best = expect
+        .iter()
+        .map(|e| (e.1, e.0))
+        .min_by(|a, b| a.partial_cmp(b).unwrap());
+    assert_eq!(best.map(|b| b.0), brute_best.map(|b| b.0));
+
+    // Any-hit style: stop at the first.
+    let mut any = 0;
+    let mut tm = tmax;
+    bvh.visit(r, tmin, &mut tm, |_, _, _, _| {
+        any += 1;
+        ControlFlow::Break(())
+    });
+    assert_eq!(any, usize::from(!expect.is_empty()));
+
+    // Grown boxes (soft-shadow queries).
+    for margin in [0.25, 0.0, -1.0] {
+        let mut got = Vec::new();
+        let mut tm = tmax;
+        bvh.visit_within(r, tmin, &mut tm, margin, |k, t0, t1, _| {
+            got.push((k, t0, t1));
+            ControlFlow::Continue(())
+        });
+        got.sort_by_key(|e| e.0);
+        assert_eq!(got, brute_boxes(boxes, r, tmin, tmax, margin));
+    }
+    (expect.len(), visits)
+}
+
 #[test]
 fn aabb_bvh_visits_exactly_the_crossed_boxes() {
     let mut rng = Rng::new(1234);
@@ -870,76 +962,10 @@ fn aabb_bvh_visits_exactly_the_crossed_boxes() {
     let mut total_visits = 0usize;
     let mut closest_visits = 0usize;
     for i in 0..3000 {
-        let (o, d) = match i % 4 {
-            0 => (rng.direction() * 20.0, rng.vec3_in(-10.0, 10.0)),
-            1 => (rng.vec3_in(-10.0, 10.0), rng.direction()),
-            2 => {
-                // Axis-parallel from a box corner (exactly on two of its planes).
-                let b = boxes[rng.below(boxes.len() as u64) as usize];
-                let mut d = Vec3::ZERO;
-                d[rng.below(3) as usize] = if rng.next_f32() < 0.5 { 1.0 } else { -1.0 };
-                (b.min, d)
-            }
-            _ => (Vec3::new(0.5, 1.0, 0.5), rng.direction()),
-        };
-        let r = ray(o, d - if i % 4 == 0 { o } else { Vec3::ZERO });
-        let (tmin, tmax) = if i % 3 == 0 {
-            (0.5, 15.0)
-        } else {
-            (0.0, f32::INFINITY)
-        };
-        let expect = brute_boxes(&boxes, &r, tmin, tmax, 0.0);
-
-        // Every crossed box, once, with exactly ray_box_interval's interval.
-        let mut got = Vec::new();
-        let mut tm = tmax;
-        bvh.visit(&r, tmin, &mut tm, |k, t0, t1, _| {
-            got.push((k, t0, t1));
-            ControlFlow::Continue(())
-        });
-        got.sort_by_key(|e| e.0);
-        assert_eq!(got, expect, "ray {i}: o={o} d={}", r.direction);
-        total_visits += got.len();
-
-        // Closest-hit style: pretend every box is hit at its entry; shrinking tmax prunes.
-        let mut tm = tmax;
-        let mut best: Option<(f32, usize)> = None;
-        let mut visits = 0;
-        bvh.visit(&r, tmin, &mut tm, |k, t0, _, tmax| {
-            visits += 1;
-            if best.is_none_or(|b| (t0, k) < b) {
-                best = Some((t0, k));
-                *tmax = t0;
-            }
-            ControlFlow::Continue(())
-        });
-        let brute_best = expect
-            .iter()
-            .map(|e| (e.1, e.0))
-            .min_by(|a, b| a.partial_cmp(b).unwrap());
-        assert_eq!(best.map(|b| b.0), brute_best.map(|b| b.0));
-        closest_visits += visits;
-
-        // Any-hit style: stop at the first.
-        let mut visits = 0;
-        let mut tm = tmax;
-        bvh.visit(&r, tmin, &mut tm, |_, _, _, _| {
-            visits += 1;
-            ControlFlow::Break(())
-        });
-        assert_eq!(visits, usize::from(!expect.is_empty()));
-
-        // Grown boxes (soft-shadow queries).
-        if i % 5 == 0 {
-            let mut got = Vec::new();
-            let mut tm = tmax;
-            bvh.visit_within(&r, tmin, &mut tm, 0.25, |k, t0, t1, _| {
-                got.push((k, t0, t1));
-                ControlFlow::Continue(())
-            });
-            got.sort_by_key(|e| e.0);
-            assert_eq!(got, brute_boxes(&boxes, &r, tmin, tmax, 0.25));
-        }
+        let (r, tmin, tmax) = box_walk_ray(&mut rng, &boxes, i);
+        let (crossed, visited) = check_box_walks(&bvh, &boxes, &r, tmin, tmax);
+        total_visits += crossed;
+        closest_visits += visited;
     }
     println!(
         "boxes: {} nodes; {total_visits} boxes crossed in all, {closest_visits} visited by the \
@@ -950,6 +976,38 @@ fn aabb_bvh_visits_exactly_the_crossed_boxes() {
         closest_visits * 2 < total_visits,
         "front-to-back order prunes"
     );
+}
+
+/// A scene's handful of SDF objects is scanned rather than walked: the same boxes with the
+/// same intervals, nearest entry first, for one to eight boxes (and nine, walked again),
+/// among them flat, touching, nested and coinciding ones.
+#[test]
+fn a_few_boxes_are_scanned_with_the_walks_answers() {
+    let mut rng = Rng::new(77);
+    for set in 0..400 {
+        let n = 1 + set % 9;
+        let mut boxes: Vec<Aabb> = (0..n)
+            .map(|k| {
+                let c = rng.vec3_in(-3.0, 3.0);
+                let mut h = rng.vec3_in(0.0, 2.0);
+                if k % 3 == 1 {
+                    h[k % 3] = 0.0;
+                }
+                Aabb::new(c - h, c + h)
+            })
+            .collect();
+        if set % 4 == 0 && n > 1 {
+            boxes[n - 1] = boxes[0];
+        }
+        if set % 5 == 0 && n > 2 {
+            boxes[1] = Aabb::new(boxes[0].max, boxes[0].max + Vec3::ONE);
+        }
+        let bvh = AabbBvh::build(&boxes);
+        for i in 0..200 {
+            let (r, tmin, tmax) = box_walk_ray(&mut rng, &boxes, i);
+            check_box_walks(&bvh, &boxes, &r, tmin, tmax);
+        }
+    }
 }
 
 #[test]
