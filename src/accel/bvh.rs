@@ -1332,13 +1332,23 @@ impl FewBoxes {
             let inv = 1.0 / ray.direction[axis];
             let (lo, hi) = (&self.min[axis], &self.max[axis]);
             if inv.is_finite() {
-                for j in 0..FEW_BOXES {
-                    let t_a = (lo[j] - margin - o) * inv;
-                    let t_b = (hi[j] + margin - o) * inv;
-                    let (n, f) = if inv < 0.0 { (t_b, t_a) } else { (t_a, t_b) };
+                // one loop per sign of the direction, so that neither chooses per lane; and
+                // `max`/`min` as comparisons, which compile to single instructions (they
+                // differ from f32::max and f32::min only on a NaN, which fails the lane's
+                // comparisons first)
+                let mut slab = |j: usize, n: f32, f: f32| {
                     crossed[j] &= n <= far[j] && f >= near[j];
-                    near[j] = near[j].max(n);
-                    far[j] = far[j].min(f);
+                    near[j] = if n > near[j] { n } else { near[j] };
+                    far[j] = if f < far[j] { f } else { far[j] };
+                };
+                if inv < 0.0 {
+                    for j in 0..FEW_BOXES {
+                        slab(j, (hi[j] + margin - o) * inv, (lo[j] - margin - o) * inv);
+                    }
+                } else {
+                    for j in 0..FEW_BOXES {
+                        slab(j, (lo[j] - margin - o) * inv, (hi[j] + margin - o) * inv);
+                    }
                 }
             } else {
                 for j in 0..FEW_BOXES {
