@@ -1502,10 +1502,12 @@ impl AabbBvh {
             return;
         }
         let nr = NodeRay::new(ray.origin, ray.direction);
+        // the reciprocals once for every box of every leaf
+        let inv = Vec3::ONE / ray.direction;
         let leaf = |first: u32, count: u32, tmax: &mut f32| {
             for (i, b) in &self.boxes[first as usize..(first + count) as usize] {
                 let b = if grow { b.expand(margin) } else { *b };
-                if let Some((t0, t1)) = ray_box_interval(&b, ray, tmin, *tmax) {
+                if let Some((t0, t1)) = b.ray_interval_from(ray.origin, inv, tmin, *tmax) {
                     visit(*i as usize, t0, t1, tmax)?;
                 }
             }

@@ -129,10 +129,23 @@ impl Aabb {
     /// slab plane, and NaN must not widen the interval. Infinite boxes work; empty boxes and
     /// NaN bounds miss.
     pub fn ray_interval(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<(f32, f32)> {
+        self.ray_interval_from(ray.origin, Vec3::ONE / ray.direction, tmin, tmax)
+    }
+
+    /// [`Aabb::ray_interval`] of the ray from `origin` whose reciprocal direction is `inv`
+    /// (computed once for many boxes).
+    #[inline]
+    pub fn ray_interval_from(
+        &self,
+        origin: Vec3,
+        inv: Vec3,
+        tmin: f32,
+        tmax: f32,
+    ) -> Option<(f32, f32)> {
         let (mut t_near, mut t_far) = (tmin, tmax);
         for axis in 0..3 {
-            let (o, lo, hi) = (ray.origin[axis], self.min[axis], self.max[axis]);
-            let inv = 1.0 / ray.direction[axis];
+            let (o, lo, hi) = (origin[axis], self.min[axis], self.max[axis]);
+            let inv = inv[axis];
             if inv.is_finite() {
                 let t_a = (lo - o) * inv;
                 let t_b = (hi - o) * inv;
