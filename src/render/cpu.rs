@@ -119,9 +119,7 @@ fn pass<T: ShadingTracer + Sync + ?Sized>(
     let Some(done) = done else {
         return false;
     };
-    for (tile, px) in done {
-        sums.add_tile(tile, &px);
-    }
+    sums.add_tiles(TILE, &done);
     true
 }
 
