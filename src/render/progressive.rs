@@ -66,6 +66,28 @@ impl PixelSums {
     }
 }
 
+/// Adds one sample to every pixel of `tile` in `rows`, the image's rows of `width` pixels
+/// from row `first_row` on; `samples` holds them row by row.
+fn add_to_rows(
+    rows: &mut [PixelSums],
+    width: u32,
+    first_row: u32,
+    tile: Tile,
+    samples: &[CameraSample],
+) {
+    assert_eq!(
+        samples.len(),
+        (tile.w * tile.h) as usize,
+        "one sample a pixel"
+    );
+    for (j, row) in samples.chunks_exact(tile.w as usize).enumerate() {
+        let start = ((tile.y0 - first_row + j as u32) * width + tile.x0) as usize;
+        for (sums, sample) in rows[start..start + row.len()].iter_mut().zip(row) {
+            sums.add(sample);
+        }
+    }
+}
+
 /// The running [`PixelSums`] of every pixel of a `width`×`height` image, row-major.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SampleSums {
@@ -94,17 +116,7 @@ impl SampleSums {
 
     /// Adds one sample to every pixel of `tile`; `samples` holds them row by row.
     pub fn add_tile(&mut self, tile: Tile, samples: &[CameraSample]) {
-        assert_eq!(
-            samples.len(),
-            (tile.w * tile.h) as usize,
-            "one sample a pixel"
-        );
-        for (j, row) in samples.chunks_exact(tile.w as usize).enumerate() {
-            let start = ((tile.y0 + j as u32) * self.width + tile.x0) as usize;
-            for (sums, sample) in self.pixels[start..start + row.len()].iter_mut().zip(row) {
-                sums.add(sample);
-            }
-        }
+        add_to_rows(&mut self.pixels, self.width, 0, tile, samples);
     }
 
     /// [`SampleSums::add_tile`] of every tile of a pass cut by [`super::tiles`] with side
@@ -124,20 +136,11 @@ impl SampleSums {
         self.pixels
             .par_chunks_mut((width * side) as usize)
             .zip(bands)
-            .for_each(|(rows, band)| {
-                for (tile, samples) in band {
-                    assert_eq!(tile.y0 % side, 0, "a tile of the cut");
-                    assert_eq!(
-                        samples.len(),
-                        (tile.w * tile.h) as usize,
-                        "one sample a pixel"
-                    );
-                    for (j, row) in samples.chunks_exact(tile.w as usize).enumerate() {
-                        let start = (j as u32 * width + tile.x0) as usize;
-                        for (sums, sample) in rows[start..start + row.len()].iter_mut().zip(row) {
-                            sums.add(sample);
-                        }
-                    }
+            .enumerate()
+            .for_each(|(band, (rows, tiles))| {
+                for (tile, samples) in tiles {
+                    assert_eq!(tile.y0, band as u32 * side, "a tile of the cut");
+                    add_to_rows(rows, width, tile.y0, *tile, samples);
                 }
             });
     }
