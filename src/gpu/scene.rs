@@ -31,7 +31,7 @@ use super::shaders::{
 };
 use crate::accel::SdfAccel;
 use crate::accel::bvh::{AabbBvh, FIRST_MASK, LEAF_BIT, WideNode, leaf_first};
-use crate::accel::field::{FieldOctree, LEAF};
+use crate::accel::field::{EMPTY_LEAF, FieldOctree, LEAF};
 use crate::geom::Aabb;
 use crate::scene::{Scene, TracerSettings};
 use crate::sdf::tape::Tape;
@@ -392,8 +392,9 @@ impl SceneData {
         }));
         let (node_base, leaf_base) = (node_base as u32, leaf_base as u32);
         self.field_nodes.extend(raw.iter().map(|&n| {
+            // the walk here reads each leaf's verdict from its record
             if n & LEAF != 0 {
-                LEAF | ((n & !LEAF) + leaf_base)
+                LEAF | ((n & !(LEAF | EMPTY_LEAF)) + leaf_base)
             } else {
                 n + node_base
             }

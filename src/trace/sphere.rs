@@ -148,8 +148,8 @@ impl<'f, 's> Parts<'f, 's> {
                 Phase::Walk => {
                     let walk = self.walk.as_mut().expect("a walk in the walk phase");
                     walk.skip_to(t);
-                    match walk.next_leaf() {
-                        Some(x) if x.exit < t || x.leaf.verdict == Verdict::Empty => {}
+                    match walk.next_nonempty_leaf() {
+                        Some(x) if x.exit < t => {}
                         Some(x) => {
                             return Some(Part {
                                 tape: x.tape,
