@@ -1,8 +1,10 @@
 //! Per-frame CPU render time with the acceleration structures built once, as the viewer
 //! renders: `cargo run --release --example frame_time -- [scene.ron or model] [width] [height] [frames]
-//! [native|interpreted]` (no scene: the built-in showcase; tapes as native code by default).
-//! Prints the build time and the minimum and median of the frames' times, each one pass of
-//! [`cpu::render_pass`] at one sample per pixel.
+//! [native|interpreted] [pass|image]` (no scene: the built-in showcase; tapes as native code
+//! by default). Prints the build time and the minimum and median of the frames' times, each one
+//! pass of [`cpu::render_pass`] at one sample per pixel into sums made before the clock starts
+//! (`pass`, the default), or a whole one-sample image as `hytrace render` and the bench's steady
+//! frame make it: the sums, the pass and the framebuffer of their means (`image`).
 
 use hytrace::render::progressive::SampleSums;
 use hytrace::render::{RenderOptions, cpu};
@@ -37,8 +39,20 @@ fn main() -> anyhow::Result<()> {
         },
     );
     println!("build {:.1} ms", start.elapsed().as_secs_f64() * 1e3);
+    let whole_image = match args.get(5).map(String::as_str) {
+        None | Some("pass") => false,
+        Some("image") => true,
+        Some(other) => anyhow::bail!("expected pass or image, not {other}"),
+    };
     let mut times = Vec::new();
     for _ in 0..frames {
+        if whole_image {
+            let start = Instant::now();
+            let image = cpu::render_with(&tracer, &opts)?;
+            times.push(start.elapsed().as_secs_f64() * 1e3);
+            assert_eq!(image.depth.len(), (width * height) as usize);
+            continue;
+        }
         let mut sums = SampleSums::new(width, height);
         let start = Instant::now();
         let finished = cpu::render_pass(&tracer, &scene.camera, &opts, 0, &mut sums, &|| false);

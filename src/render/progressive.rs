@@ -53,18 +53,44 @@ impl PixelSums {
         self.count += 1;
     }
 
-    /// Writes the mean into pixel `i` of `fb`: the sums divided by the count (by 1 when no
-    /// sample was added, leaving black and all-miss), the nearest depth as it is.
-    pub(super) fn write_mean(&self, fb: &mut Framebuffer, i: usize) {
+    /// The pixel's value: the sums divided by the count (by 1 when no sample was added,
+    /// leaving black and all-miss), the nearest depth as it is.
+    fn mean(&self) -> PixelMean {
         let n = self.count.max(1) as f32;
-        fb.pixels[i] = self.radiance / n;
-        fb.depth[i] = self.depth;
-        fb.normal[i] = self.normal / n;
-        fb.albedo[i] = self.albedo / n;
-        fb.steps[i] = self.steps / n;
-        fb.gradient[i] = self.gradient / n;
+        PixelMean {
+            radiance: self.radiance / n,
+            depth: self.depth,
+            normal: self.normal / n,
+            albedo: self.albedo / n,
+            steps: self.steps / n,
+            gradient: self.gradient / n,
+        }
+    }
+
+    /// Writes the mean ([`Self::mean`]) into pixel `i` of `fb`.
+    pub(super) fn write_mean(&self, fb: &mut Framebuffer, i: usize) {
+        let m = self.mean();
+        fb.pixels[i] = m.radiance;
+        fb.depth[i] = m.depth;
+        fb.normal[i] = m.normal;
+        fb.albedo[i] = m.albedo;
+        fb.steps[i] = m.steps;
+        fb.gradient[i] = m.gradient;
     }
 }
+
+/// One pixel of a [`Framebuffer`], as [`PixelSums::mean`] gives it.
+struct PixelMean {
+    radiance: Vec3,
+    depth: f32,
+    normal: Vec3,
+    albedo: Vec3,
+    steps: f32,
+    gradient: f32,
+}
+
+/// Pixels per job of the parallel loops over a whole image (a 1024² image is 64 jobs).
+const PIXELS_PER_JOB: usize = 1 << 14;
 
 /// Adds one sample to every pixel of `tile` in `rows`, the image's rows of `width` pixels
 /// from row `first_row` on; `samples` holds them row by row.
@@ -100,12 +126,21 @@ pub struct SampleSums {
 }
 
 impl SampleSums {
-    /// No samples yet.
+    /// No samples yet. The sums are written in parallel: a new image's memory is new to the
+    /// process, and each page of it costs the kernel a fault and a zeroing on first touch
+    /// (on one thread, with the means' framebuffer, a sixth of a one-sample 1024² frame).
     pub fn new(width: u32, height: u32) -> Self {
+        use rayon::prelude::*;
+        let mut pixels = Vec::new();
+        (0..width as usize * height as usize)
+            .into_par_iter()
+            .with_min_len(PIXELS_PER_JOB)
+            .map(|_| PixelSums::default())
+            .collect_into_vec(&mut pixels);
         SampleSums {
             width,
             height,
-            pixels: vec![PixelSums::default(); (width * height) as usize],
+            pixels,
         }
     }
 
@@ -158,11 +193,45 @@ impl SampleSums {
 
     /// The image of the samples so far: per pixel the means and the nearest depth (see
     /// [`Framebuffer`]).
+    ///
+    /// Computed in parallel, into memory allocated zeroed and first touched by the loop that
+    /// writes the means (see [`Self::new`]).
     pub fn mean(&self) -> Framebuffer {
-        let mut fb = Framebuffer::new(self.width, self.height);
-        for (i, sums) in self.pixels.iter().enumerate() {
-            sums.write_mean(&mut fb, i);
-        }
+        use bytemuck::zeroed_vec;
+        use rayon::prelude::*;
+        let n = self.pixels.len();
+        let mut fb = Framebuffer {
+            width: self.width,
+            height: self.height,
+            pixels: zeroed_vec(n),
+            depth: zeroed_vec(n),
+            normal: zeroed_vec(n),
+            albedo: zeroed_vec(n),
+            steps: zeroed_vec(n),
+            gradient: zeroed_vec(n),
+        };
+        let job = PIXELS_PER_JOB;
+        fb.pixels
+            .par_chunks_mut(job)
+            .zip(fb.depth.par_chunks_mut(job))
+            .zip(fb.normal.par_chunks_mut(job))
+            .zip(fb.albedo.par_chunks_mut(job))
+            .zip(fb.steps.par_chunks_mut(job))
+            .zip(fb.gradient.par_chunks_mut(job))
+            .zip(self.pixels.par_chunks(job))
+            .for_each(
+                |((((((radiance, depth), normal), albedo), steps), gradient), sums)| {
+                    for (i, s) in sums.iter().enumerate() {
+                        let m = s.mean();
+                        radiance[i] = m.radiance;
+                        depth[i] = m.depth;
+                        normal[i] = m.normal;
+                        albedo[i] = m.albedo;
+                        steps[i] = m.steps;
+                        gradient[i] = m.gradient;
+                    }
+                },
+            );
         fb
     }
 }
@@ -258,6 +327,28 @@ mod tests {
             assert_eq!(bits(&fb, p as usize), average(&samples), "pixel {p}");
             by_pixel.set(p % w, p / w, &samples);
             assert_eq!(passes.pixels[p as usize].count, n);
+        }
+        assert_eq!(fb, by_pixel);
+    }
+
+    #[test]
+    fn an_image_of_several_jobs_is_averaged_like_pixel_by_pixel() {
+        // two and a bit parallel jobs' worth of pixels, the last job partial; pixels left
+        // without samples too
+        let (w, h) = (181, 200);
+        assert!((w * h) as usize > 2 * PIXELS_PER_JOB && (w * h) as usize % PIXELS_PER_JOB != 0);
+        let mut sums = SampleSums::new(w, h);
+        assert!(sums.pixels.iter().all(|p| *p == PixelSums::default()));
+        let with_samples = |p: u32| p % 7 != 3;
+        for s in 0..2 {
+            for p in (0..w * h).filter(|&p| with_samples(p)) {
+                sums.add(p % w, p / w, &sample(p, s));
+            }
+        }
+        let fb = sums.mean();
+        let mut by_pixel = Framebuffer::new(w, h);
+        for p in (0..w * h).filter(|&p| with_samples(p)) {
+            by_pixel.set(p % w, p / w, &[sample(p, 0), sample(p, 1)]);
         }
         assert_eq!(fb, by_pixel);
     }
