@@ -1,7 +1,7 @@
 //! The CPU backend: rayon over tiles, one camera path per sample, the image built up one
 //! sample pass at a time.
 
-use super::progressive::SampleSums;
+use super::progressive::{SampleSums, framebuffer_of_pass};
 use super::{Framebuffer, RenderOptions, TILE, Tile, sample_offset, tiles};
 use crate::geom::Ray;
 use crate::scene::Scene;
@@ -51,6 +51,12 @@ pub fn render_through<T: ShadingTracer + Sync + ?Sized>(
     } else {
         ProgressBar::hidden()
     };
+    if opts.samples == 1 {
+        let done = pass_tiles(tracer, camera, opts, 0, &|| false, &bar)
+            .expect("a pass nobody cancels finishes");
+        bar.finish_and_clear();
+        return Ok(framebuffer_of_pass(opts.width, opts.height, TILE, &done));
+    }
     let mut sums = SampleSums::new(opts.width, opts.height);
     for sample in 0..opts.samples {
         let finished = pass(tracer, camera, opts, sample, &mut sums, &|| false, &bar);
@@ -99,12 +105,29 @@ fn pass<T: ShadingTracer + Sync + ?Sized>(
         (opts.width, opts.height),
         "the sums are of the image rendered"
     );
+    let Some(done) = pass_tiles(tracer, camera, opts, sample, cancelled, bar) else {
+        return false;
+    };
+    sums.add_tiles(TILE, &done);
+    true
+}
+
+/// Sample `sample` of every pixel, tile by tile (in the order of [`tiles`]), or `None` once
+/// `cancelled()` turned true.
+fn pass_tiles<T: ShadingTracer + Sync + ?Sized>(
+    tracer: &T,
+    camera: &Camera,
+    opts: &RenderOptions,
+    sample: u32,
+    cancelled: &(dyn Fn() -> bool + Sync),
+    bar: &ProgressBar,
+) -> Option<Vec<(Tile, Vec<CameraSample>)>> {
     let materials = tracer.scene().material_table();
     // rayon stops handing out tiles once one comes back None. Each tile is its own job:
     // rayon's adaptive splitting would otherwise hand a thread a run of dozens of tiles that
     // nobody can steal from, and the other threads sit idle through that run's tail (a tenth
     // of every pass at 1280×720 on two cores, measured)
-    let done: Option<Vec<(Tile, Vec<CameraSample>)>> = tiles(opts.width, opts.height, TILE)
+    tiles(opts.width, opts.height, TILE)
         .into_par_iter()
         .with_max_len(1)
         .map(|tile| {
@@ -115,12 +138,7 @@ fn pass<T: ShadingTracer + Sync + ?Sized>(
             bar.inc(1);
             Some((tile, px))
         })
-        .collect();
-    let Some(done) = done else {
-        return false;
-    };
-    sums.add_tiles(TILE, &done);
-    true
+        .collect()
 }
 
 /// Rows of a tile whose camera rays are traced together: a band of 4 rows of 32 pixels fills a

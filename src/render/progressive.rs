@@ -79,6 +79,85 @@ impl PixelSums {
     }
 }
 
+/// A pass's tiles (cut by [`super::tiles`] with side `side`, in its order) by band of `side`
+/// rows of an image `height` rows high.
+fn bands_of(
+    height: u32,
+    side: u32,
+    done: &[(Tile, Vec<CameraSample>)],
+) -> Vec<&[(Tile, Vec<CameraSample>)]> {
+    let bands: Vec<_> = done.chunk_by(|a, b| a.0.y0 == b.0.y0).collect();
+    assert_eq!(
+        bands.len() as u32,
+        height.div_ceil(side),
+        "a band per tile row"
+    );
+    bands
+}
+
+/// The image of a single pass, its tiles cut by [`super::tiles`] with side `side` (in its
+/// order): what [`SampleSums::mean`] gives after [`SampleSums::add_tiles`] of these tiles to
+/// new sums, bit for bit (each pixel's one sample is added to zero sums and divided by one,
+/// as there), without the sums. A one-sample image (the viewer's previews, the peer bench's
+/// frames) has no use for them, and writing and reading them was a tenth of a 1024² frame of
+/// a sparse union.
+pub fn framebuffer_of_pass(
+    width: u32,
+    height: u32,
+    side: u32,
+    done: &[(Tile, Vec<CameraSample>)],
+) -> Framebuffer {
+    use bytemuck::zeroed_vec;
+    use rayon::prelude::*;
+    let n = width as usize * height as usize;
+    let mut fb = Framebuffer {
+        width,
+        height,
+        pixels: zeroed_vec(n),
+        depth: zeroed_vec(n),
+        normal: zeroed_vec(n),
+        albedo: zeroed_vec(n),
+        steps: zeroed_vec(n),
+        gradient: zeroed_vec(n),
+    };
+    let band = (width * side) as usize;
+    fb.pixels
+        .par_chunks_mut(band)
+        .zip(fb.depth.par_chunks_mut(band))
+        .zip(fb.normal.par_chunks_mut(band))
+        .zip(fb.albedo.par_chunks_mut(band))
+        .zip(fb.steps.par_chunks_mut(band))
+        .zip(fb.gradient.par_chunks_mut(band))
+        .zip(bands_of(height, side, done))
+        .for_each(
+            |((((((radiance, depth), normal), albedo), steps), gradient), tiles)| {
+                for (tile, samples) in tiles {
+                    assert_eq!(
+                        samples.len(),
+                        (tile.w * tile.h) as usize,
+                        "one sample a pixel"
+                    );
+                    for (j, row) in samples.chunks_exact(tile.w as usize).enumerate() {
+                        let start = ((tile.y0 % side + j as u32) * width + tile.x0) as usize;
+                        for (k, sample) in row.iter().enumerate() {
+                            let mut sums = PixelSums::default();
+                            sums.add(sample);
+                            let m = sums.mean();
+                            let i = start + k;
+                            radiance[i] = m.radiance;
+                            depth[i] = m.depth;
+                            normal[i] = m.normal;
+                            albedo[i] = m.albedo;
+                            steps[i] = m.steps;
+                            gradient[i] = m.gradient;
+                        }
+                    }
+                }
+            },
+        );
+    fb
+}
+
 /// One pixel of a [`Framebuffer`], as [`PixelSums::mean`] gives it.
 struct PixelMean {
     radiance: Vec3,
@@ -161,13 +240,7 @@ impl SampleSums {
     pub fn add_tiles(&mut self, side: u32, done: &[(Tile, Vec<CameraSample>)]) {
         use rayon::prelude::*;
         let width = self.width;
-        let bands: Vec<&[(Tile, Vec<CameraSample>)]> =
-            done.chunk_by(|a, b| a.0.y0 == b.0.y0).collect();
-        assert_eq!(
-            bands.len() as u32,
-            self.height.div_ceil(side),
-            "a band per tile row"
-        );
+        let bands = bands_of(self.height, side, done);
         self.pixels
             .par_chunks_mut((width * side) as usize)
             .zip(bands)
@@ -351,6 +424,34 @@ mod tests {
             by_pixel.set(p % w, p / w, &[sample(p, 0), sample(p, 1)]);
         }
         assert_eq!(fb, by_pixel);
+    }
+
+    #[test]
+    fn a_single_pass_makes_the_image_its_sums_would() {
+        // partial tiles on the right and at the bottom; negative zeros, misses and large and
+        // tiny values in the samples (see `sample`)
+        let (w, h, side) = (75, 53, 16);
+        let done: Vec<(Tile, Vec<CameraSample>)> = crate::render::tiles(w, h, side)
+            .into_iter()
+            .map(|t| {
+                let samples = (0..t.h)
+                    .flat_map(|y| (0..t.w).map(move |x| (t.y0 + y) * w + t.x0 + x))
+                    .map(|p| sample(p, 3))
+                    .collect();
+                (t, samples)
+            })
+            .collect();
+        let mut sums = SampleSums::new(w, h);
+        sums.add_tiles(side, &done);
+        let by_sums = sums.mean();
+        let direct = framebuffer_of_pass(w, h, side, &done);
+        for i in 0..(w * h) as usize {
+            assert_eq!(bits(&direct, i), bits(&by_sums, i), "pixel {i}");
+        }
+        assert!(
+            by_sums.normal.iter().any(|n| n.y.to_bits() == 0),
+            "a normal whose sum turned a negative zero positive"
+        );
     }
 
     #[test]
