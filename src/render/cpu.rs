@@ -1,7 +1,7 @@
 //! The CPU backend: rayon over tiles, one camera path per sample, the image built up one
 //! sample pass at a time.
 
-use super::progressive::{SampleSums, framebuffer_of_pass};
+use super::progressive::{FramebufferRows, SampleSums};
 use super::{Framebuffer, RenderOptions, TILE, Tile, sample_offset, tiles};
 use crate::geom::Ray;
 use crate::scene::Scene;
@@ -12,6 +12,8 @@ use crate::shade::{ShadingTracer, shadow_query};
 use crate::trace::SceneTracer;
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
+use std::cell::RefCell;
+use std::sync::Mutex;
 
 /// Renders the scene on the CPU. Every pixel depends only on its own coordinates, so the image
 /// is identical for any thread count and any run. The acceleration structures (the SDF
@@ -52,10 +54,9 @@ pub fn render_through<T: ShadingTracer + Sync + ?Sized>(
         ProgressBar::hidden()
     };
     if opts.samples == 1 {
-        let done = pass_tiles(tracer, camera, opts, 0, &|| false, &bar)
-            .expect("a pass nobody cancels finishes");
+        let fb = single_pass(tracer, camera, opts, &bar);
         bar.finish_and_clear();
-        return Ok(framebuffer_of_pass(opts.width, opts.height, TILE, &done));
+        return Ok(fb);
     }
     let mut sums = SampleSums::new(opts.width, opts.height);
     for sample in 0..opts.samples {
@@ -112,6 +113,50 @@ fn pass<T: ShadingTracer + Sync + ?Sized>(
     true
 }
 
+thread_local! {
+    /// A tile's samples, on the thread that renders it ([`single_pass`]).
+    static TILE_SAMPLES: RefCell<Vec<CameraSample>> = const { RefCell::new(Vec::new()) };
+}
+
+/// The image of one sample per pixel (sample 0), each tile's samples written into its band of
+/// the framebuffer ([`FramebufferRows::write_single_samples`]) as soon as the tile is done,
+/// from a buffer its thread keeps: bit for bit the means of the sums of [`pass`], without
+/// the sums, and without holding the whole image's samples until the pass ends (a
+/// [`render_pass`] must, to leave its sums unchanged when cancelled). That memory, new to the
+/// process every frame, and the sums were a sixth of a one-sample 1024² frame.
+fn single_pass<T: ShadingTracer + Sync + ?Sized>(
+    tracer: &T,
+    camera: &Camera,
+    opts: &RenderOptions,
+    bar: &ProgressBar,
+) -> Framebuffer {
+    let materials = tracer.scene().material_table();
+    let mut fb = Framebuffer::zeroed(opts.width, opts.height);
+    let bands: Vec<Mutex<FramebufferRows>> =
+        fb.bands_mut(TILE).into_iter().map(Mutex::new).collect();
+    let write = |tile: Tile, samples: &mut Vec<CameraSample>| {
+        render_tile(tracer, &materials, camera, opts, tile, 0, samples);
+        bands[(tile.y0 / TILE) as usize]
+            .lock()
+            .expect("a band is never left half written")
+            .write_single_samples(tile, samples);
+    };
+    // one tile per job, as in `pass_tiles`
+    tiles(opts.width, opts.height, TILE)
+        .into_par_iter()
+        .with_max_len(1)
+        .for_each(|tile| {
+            TILE_SAMPLES.with(|buffer| match buffer.try_borrow_mut() {
+                Ok(mut samples) => write(tile, &mut samples),
+                // a tracer that runs rayon jobs inside a tile may start another tile here
+                Err(_) => write(tile, &mut Vec::new()),
+            });
+            bar.inc(1);
+        });
+    drop(bands);
+    fb
+}
+
 /// Sample `sample` of every pixel, tile by tile (in the order of [`tiles`]), or `None` once
 /// `cancelled()` turned true.
 fn pass_tiles<T: ShadingTracer + Sync + ?Sized>(
@@ -134,7 +179,8 @@ fn pass_tiles<T: ShadingTracer + Sync + ?Sized>(
             if cancelled() {
                 return None;
             }
-            let px = render_tile(tracer, &materials, camera, opts, tile, sample);
+            let mut px = Vec::new();
+            render_tile(tracer, &materials, camera, opts, tile, sample, &mut px);
             bar.inc(1);
             Some((tile, px))
         })
@@ -146,10 +192,11 @@ fn pass_tiles<T: ShadingTracer + Sync + ?Sized>(
 /// stand in one leaf, across the rows as along them.
 const BAND_ROWS: u32 = 4;
 
-/// Sample `sample` of every pixel of a tile as `camera` sees it, in row order. Each sample's
-/// camera rays are traced a band of [`BAND_ROWS`] tile rows at a time: the band's closest hits
-/// come from one [`ShadingTracer::closest_hits`] call and the shadow rays of their local
-/// shading from one [`ShadingTracer::visibilities`] call (on our tracer, ray bundles:
+/// Sample `sample` of every pixel of a tile as `camera` sees it, in row order, into `out`
+/// (cleared first). Each sample's camera rays are traced a band of [`BAND_ROWS`] tile rows at
+/// a time: the band's closest hits come from one [`ShadingTracer::closest_hits`] call and
+/// the shadow rays of their local shading from one [`ShadingTracer::visibilities`] call (on
+/// our tracer, ray bundles:
 /// [`SceneTracer::closest_hits`]), and so do the mirror reflections the paths follow from
 /// those hits ([`integrator::first_reflection`]); then each ray's path is followed on its
 /// own. The answers are those of tracing every ray alone, so the image does not depend on
@@ -161,10 +208,12 @@ fn render_tile<T: ShadingTracer + Sync + ?Sized>(
     opts: &RenderOptions,
     tile: Tile,
     sample: u32,
-) -> Vec<CameraSample> {
+    out: &mut Vec<CameraSample>,
+) {
     let scene = tracer.scene();
     let lights = scene.lights.len();
-    let mut out = Vec::with_capacity((tile.w * tile.h) as usize);
+    out.clear();
+    out.reserve((tile.w * tile.h) as usize);
     let band = (tile.w * BAND_ROWS) as usize;
     let mut rays = Vec::with_capacity(band);
     let mut hits = Vec::with_capacity(band);
@@ -240,7 +289,6 @@ fn render_tile<T: ShadingTracer + Sync + ?Sized>(
             out.push(trace_camera_ray_from(tracer, materials, *ray, Some(first)));
         }
     }
-    out
 }
 
 /// The ray of `camera` through image position (px, py), in pixels.
@@ -300,5 +348,25 @@ mod tests {
         ));
         assert_eq!(sums, before);
         assert!(sums.pixels.iter().all(|p| p.count == 1));
+    }
+
+    #[test]
+    fn a_one_sample_image_is_its_pass_averaged() {
+        // written tile by tile into the framebuffer, it is what the viewer's first pass shows
+        let (scene, opts) = setup();
+        let opts = RenderOptions { samples: 1, ..opts };
+        let tracer = SceneTracer::new(&scene);
+        let mut sums = SampleSums::new(opts.width, opts.height);
+        assert!(render_pass(
+            &tracer,
+            &scene.camera,
+            &opts,
+            0,
+            &mut sums,
+            &|| false
+        ));
+        let image = render_with(&tracer, &opts).unwrap_or_else(|e| panic!("{e}"));
+        assert!(image.depth.iter().any(|d| d.is_finite()) && image.depth.contains(&f32::INFINITY));
+        assert_eq!(image, sums.mean());
     }
 }

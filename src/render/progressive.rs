@@ -79,83 +79,93 @@ impl PixelSums {
     }
 }
 
-/// A pass's tiles (cut by [`super::tiles`] with side `side`, in its order) by band of `side`
-/// rows of an image `height` rows high.
-fn bands_of(
-    height: u32,
-    side: u32,
-    done: &[(Tile, Vec<CameraSample>)],
-) -> Vec<&[(Tile, Vec<CameraSample>)]> {
-    let bands: Vec<_> = done.chunk_by(|a, b| a.0.y0 == b.0.y0).collect();
-    assert_eq!(
-        bands.len() as u32,
-        height.div_ceil(side),
-        "a band per tile row"
-    );
-    bands
+/// Rows of a [`Framebuffer`]: each of its arrays' part from row `first_row` on, for a job
+/// that writes those rows while others write the rest.
+pub struct FramebufferRows<'a> {
+    width: u32,
+    first_row: u32,
+    radiance: &'a mut [Vec3],
+    depth: &'a mut [f32],
+    normal: &'a mut [Vec3],
+    albedo: &'a mut [Vec3],
+    steps: &'a mut [f32],
+    gradient: &'a mut [f32],
 }
 
-/// The image of a single pass, its tiles cut by [`super::tiles`] with side `side` (in its
-/// order): what [`SampleSums::mean`] gives after [`SampleSums::add_tiles`] of these tiles to
-/// new sums, bit for bit (each pixel's one sample is added to zero sums and divided by one,
-/// as there), without the sums. A one-sample image (the viewer's previews, the peer bench's
-/// frames) has no use for them, and writing and reading them was a tenth of a 1024² frame of
-/// a sparse union.
-pub fn framebuffer_of_pass(
-    width: u32,
-    height: u32,
-    side: u32,
-    done: &[(Tile, Vec<CameraSample>)],
-) -> Framebuffer {
-    use bytemuck::zeroed_vec;
-    use rayon::prelude::*;
-    let n = width as usize * height as usize;
-    let mut fb = Framebuffer {
-        width,
-        height,
-        pixels: zeroed_vec(n),
-        depth: zeroed_vec(n),
-        normal: zeroed_vec(n),
-        albedo: zeroed_vec(n),
-        steps: zeroed_vec(n),
-        gradient: zeroed_vec(n),
-    };
-    let band = (width * side) as usize;
-    fb.pixels
-        .par_chunks_mut(band)
-        .zip(fb.depth.par_chunks_mut(band))
-        .zip(fb.normal.par_chunks_mut(band))
-        .zip(fb.albedo.par_chunks_mut(band))
-        .zip(fb.steps.par_chunks_mut(band))
-        .zip(fb.gradient.par_chunks_mut(band))
-        .zip(bands_of(height, side, done))
-        .for_each(
-            |((((((radiance, depth), normal), albedo), steps), gradient), tiles)| {
-                for (tile, samples) in tiles {
-                    assert_eq!(
-                        samples.len(),
-                        (tile.w * tile.h) as usize,
-                        "one sample a pixel"
-                    );
-                    for (j, row) in samples.chunks_exact(tile.w as usize).enumerate() {
-                        let start = ((tile.y0 % side + j as u32) * width + tile.x0) as usize;
-                        for (k, sample) in row.iter().enumerate() {
-                            let mut sums = PixelSums::default();
-                            sums.add(sample);
-                            let m = sums.mean();
-                            let i = start + k;
-                            radiance[i] = m.radiance;
-                            depth[i] = m.depth;
-                            normal[i] = m.normal;
-                            albedo[i] = m.albedo;
-                            steps[i] = m.steps;
-                            gradient[i] = m.gradient;
-                        }
-                    }
-                }
-            },
+impl FramebufferRows<'_> {
+    /// Writes the pixels of `tile` (within these rows) from their one sample each, row by
+    /// row in `samples`: what [`SampleSums::mean`] gives after adding that sample to new
+    /// sums, bit for bit (the sample is added to zero sums and divided by one, as there).
+    pub fn write_single_samples(&mut self, tile: Tile, samples: &[CameraSample]) {
+        assert_eq!(
+            samples.len(),
+            (tile.w * tile.h) as usize,
+            "one sample a pixel"
         );
-    fb
+        for (j, row) in samples.chunks_exact(tile.w as usize).enumerate() {
+            let start = ((tile.y0 - self.first_row + j as u32) * self.width + tile.x0) as usize;
+            for (k, sample) in row.iter().enumerate() {
+                let mut sums = PixelSums::default();
+                sums.add(sample);
+                let m = sums.mean();
+                let i = start + k;
+                self.radiance[i] = m.radiance;
+                self.depth[i] = m.depth;
+                self.normal[i] = m.normal;
+                self.albedo[i] = m.albedo;
+                self.steps[i] = m.steps;
+                self.gradient[i] = m.gradient;
+            }
+        }
+    }
+}
+
+impl Framebuffer {
+    /// A framebuffer of zeros (the depth too), allocated zeroed: its pages are first touched
+    /// by whoever writes its pixels (see [`SampleSums::new`]).
+    pub fn zeroed(width: u32, height: u32) -> Self {
+        use bytemuck::zeroed_vec;
+        let n = width as usize * height as usize;
+        Framebuffer {
+            width,
+            height,
+            pixels: zeroed_vec(n),
+            depth: zeroed_vec(n),
+            normal: zeroed_vec(n),
+            albedo: zeroed_vec(n),
+            steps: zeroed_vec(n),
+            gradient: zeroed_vec(n),
+        }
+    }
+
+    /// The framebuffer cut into bands of `rows` rows, top to bottom.
+    pub fn bands_mut(&mut self, rows: u32) -> Vec<FramebufferRows<'_>> {
+        let width = self.width;
+        let n = (width * rows) as usize;
+        self.pixels
+            .chunks_mut(n)
+            .zip(self.depth.chunks_mut(n))
+            .zip(self.normal.chunks_mut(n))
+            .zip(self.albedo.chunks_mut(n))
+            .zip(self.steps.chunks_mut(n))
+            .zip(self.gradient.chunks_mut(n))
+            .enumerate()
+            .map(
+                |(band, (((((radiance, depth), normal), albedo), steps), gradient))| {
+                    FramebufferRows {
+                        width,
+                        first_row: band as u32 * rows,
+                        radiance,
+                        depth,
+                        normal,
+                        albedo,
+                        steps,
+                        gradient,
+                    }
+                },
+            )
+            .collect()
+    }
 }
 
 /// One pixel of a [`Framebuffer`], as [`PixelSums::mean`] gives it.
@@ -240,7 +250,13 @@ impl SampleSums {
     pub fn add_tiles(&mut self, side: u32, done: &[(Tile, Vec<CameraSample>)]) {
         use rayon::prelude::*;
         let width = self.width;
-        let bands = bands_of(self.height, side, done);
+        let bands: Vec<&[(Tile, Vec<CameraSample>)]> =
+            done.chunk_by(|a, b| a.0.y0 == b.0.y0).collect();
+        assert_eq!(
+            bands.len() as u32,
+            self.height.div_ceil(side),
+            "a band per tile row"
+        );
         self.pixels
             .par_chunks_mut((width * side) as usize)
             .zip(bands)
@@ -270,19 +286,8 @@ impl SampleSums {
     /// Computed in parallel, into memory allocated zeroed and first touched by the loop that
     /// writes the means (see [`Self::new`]).
     pub fn mean(&self) -> Framebuffer {
-        use bytemuck::zeroed_vec;
         use rayon::prelude::*;
-        let n = self.pixels.len();
-        let mut fb = Framebuffer {
-            width: self.width,
-            height: self.height,
-            pixels: zeroed_vec(n),
-            depth: zeroed_vec(n),
-            normal: zeroed_vec(n),
-            albedo: zeroed_vec(n),
-            steps: zeroed_vec(n),
-            gradient: zeroed_vec(n),
-        };
+        let mut fb = Framebuffer::zeroed(self.width, self.height);
         let job = PIXELS_PER_JOB;
         fb.pixels
             .par_chunks_mut(job)
@@ -427,9 +432,9 @@ mod tests {
     }
 
     #[test]
-    fn a_single_pass_makes_the_image_its_sums_would() {
+    fn single_samples_written_by_band_make_the_image_their_sums_would() {
         // partial tiles on the right and at the bottom; negative zeros, misses and large and
-        // tiny values in the samples (see `sample`)
+        // tiny values in the samples (see `sample`); the tiles written out of order
         let (w, h, side) = (75, 53, 16);
         let done: Vec<(Tile, Vec<CameraSample>)> = crate::render::tiles(w, h, side)
             .into_iter()
@@ -444,7 +449,12 @@ mod tests {
         let mut sums = SampleSums::new(w, h);
         sums.add_tiles(side, &done);
         let by_sums = sums.mean();
-        let direct = framebuffer_of_pass(w, h, side, &done);
+        let mut direct = Framebuffer::zeroed(w, h);
+        let mut bands = direct.bands_mut(side);
+        assert_eq!(bands.len() as u32, h.div_ceil(side));
+        for (tile, samples) in done.iter().rev() {
+            bands[(tile.y0 / side) as usize].write_single_samples(*tile, samples);
+        }
         for i in 0..(w * h) as usize {
             assert_eq!(bits(&direct, i), bits(&by_sums, i), "pixel {i}");
         }
