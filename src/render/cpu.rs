@@ -321,19 +321,25 @@ mod tests {
         (scene, opts)
     }
 
-    #[test]
-    fn a_cancelled_pass_leaves_the_sums_unchanged() {
-        let (scene, opts) = setup();
-        let tracer = SceneTracer::new(&scene);
+    /// New sums with pass 0 added.
+    fn first_pass(tracer: &SceneTracer, scene: &Scene, opts: &RenderOptions) -> SampleSums {
         let mut sums = SampleSums::new(opts.width, opts.height);
         assert!(render_pass(
-            &tracer,
+            tracer,
             &scene.camera,
-            &opts,
+            opts,
             0,
             &mut sums,
             &|| false
         ));
+        sums
+    }
+
+    #[test]
+    fn a_cancelled_pass_leaves_the_sums_unchanged() {
+        let (scene, opts) = setup();
+        let tracer = SceneTracer::new(&scene);
+        let mut sums = first_pass(&tracer, &scene, &opts);
         let before = sums.clone();
         // cancelled after the first tile started: some tiles were rendered, none is added
         let asked = AtomicUsize::new(0);
@@ -356,15 +362,7 @@ mod tests {
         let (scene, opts) = setup();
         let opts = RenderOptions { samples: 1, ..opts };
         let tracer = SceneTracer::new(&scene);
-        let mut sums = SampleSums::new(opts.width, opts.height);
-        assert!(render_pass(
-            &tracer,
-            &scene.camera,
-            &opts,
-            0,
-            &mut sums,
-            &|| false
-        ));
+        let sums = first_pass(&tracer, &scene, &opts);
         let image = render_with(&tracer, &opts).unwrap_or_else(|e| panic!("{e}"));
         assert!(image.depth.iter().any(|d| d.is_finite()) && image.depth.contains(&f32::INFINITY));
         assert_eq!(image, sums.mean());

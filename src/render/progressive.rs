@@ -107,16 +107,20 @@ impl FramebufferRows<'_> {
             for (k, sample) in row.iter().enumerate() {
                 let mut sums = PixelSums::default();
                 sums.add(sample);
-                let m = sums.mean();
-                let i = start + k;
-                self.radiance[i] = m.radiance;
-                self.depth[i] = m.depth;
-                self.normal[i] = m.normal;
-                self.albedo[i] = m.albedo;
-                self.steps[i] = m.steps;
-                self.gradient[i] = m.gradient;
+                self.put(start + k, sums.mean());
             }
         }
+    }
+
+    /// Stores pixel `i` of these rows.
+    #[inline]
+    fn put(&mut self, i: usize, m: PixelMean) {
+        self.radiance[i] = m.radiance;
+        self.depth[i] = m.depth;
+        self.normal[i] = m.normal;
+        self.albedo[i] = m.albedo;
+        self.steps[i] = m.steps;
+        self.gradient[i] = m.gradient;
     }
 }
 
@@ -141,7 +145,8 @@ impl Framebuffer {
     /// The framebuffer cut into bands of `rows` rows, top to bottom.
     pub fn bands_mut(&mut self, rows: u32) -> Vec<FramebufferRows<'_>> {
         let width = self.width;
-        let n = (width * rows) as usize;
+        // (an image without pixels has no bands)
+        let n = (width * rows).max(1) as usize;
         self.pixels
             .chunks_mut(n)
             .zip(self.depth.chunks_mut(n))
@@ -178,7 +183,8 @@ struct PixelMean {
     gradient: f32,
 }
 
-/// Pixels per job of the parallel loops over a whole image (a 1024² image is 64 jobs).
+/// Pixels per job, about, of the parallel loops over a whole image (whole rows: a 1024² image
+/// is 64 jobs).
 const PIXELS_PER_JOB: usize = 1 << 14;
 
 /// Adds one sample to every pixel of `tile` in `rows`, the image's rows of `width` pixels
@@ -288,28 +294,15 @@ impl SampleSums {
     pub fn mean(&self) -> Framebuffer {
         use rayon::prelude::*;
         let mut fb = Framebuffer::zeroed(self.width, self.height);
-        let job = PIXELS_PER_JOB;
-        fb.pixels
-            .par_chunks_mut(job)
-            .zip(fb.depth.par_chunks_mut(job))
-            .zip(fb.normal.par_chunks_mut(job))
-            .zip(fb.albedo.par_chunks_mut(job))
-            .zip(fb.steps.par_chunks_mut(job))
-            .zip(fb.gradient.par_chunks_mut(job))
-            .zip(self.pixels.par_chunks(job))
-            .for_each(
-                |((((((radiance, depth), normal), albedo), steps), gradient), sums)| {
-                    for (i, s) in sums.iter().enumerate() {
-                        let m = s.mean();
-                        radiance[i] = m.radiance;
-                        depth[i] = m.depth;
-                        normal[i] = m.normal;
-                        albedo[i] = m.albedo;
-                        steps[i] = m.steps;
-                        gradient[i] = m.gradient;
-                    }
-                },
-            );
+        let rows = (PIXELS_PER_JOB as u32 / self.width.max(1)).max(1);
+        fb.bands_mut(rows)
+            .into_par_iter()
+            .zip(self.pixels.par_chunks((rows * self.width).max(1) as usize))
+            .for_each(|(mut band, sums)| {
+                for (i, s) in sums.iter().enumerate() {
+                    band.put(i, s.mean());
+                }
+            });
         fb
     }
 }
@@ -411,10 +404,15 @@ mod tests {
 
     #[test]
     fn an_image_of_several_jobs_is_averaged_like_pixel_by_pixel() {
-        // two and a bit parallel jobs' worth of pixels, the last job partial; pixels left
+        // two and a bit parallel jobs' worth of rows, the last job partial; pixels left
         // without samples too
         let (w, h) = (181, 200);
-        assert!((w * h) as usize > 2 * PIXELS_PER_JOB && (w * h) as usize % PIXELS_PER_JOB != 0);
+        let rows = PIXELS_PER_JOB as u32 / w;
+        assert!(h > 2 * rows && h % rows != 0);
+        for (w, h) in [(0, 5), (5, 0)] {
+            let none = SampleSums::new(w, h).mean();
+            assert!(none.pixels.is_empty() && none.depth.is_empty(), "{w}×{h}");
+        }
         let mut sums = SampleSums::new(w, h);
         assert!(sums.pixels.iter().all(|p| *p == PixelSums::default()));
         let with_samples = |p: u32| p % 7 != 3;
