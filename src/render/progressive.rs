@@ -69,13 +69,7 @@ impl PixelSums {
 
     /// Writes the mean ([`Self::mean`]) into pixel `i` of `fb`.
     pub(super) fn write_mean(&self, fb: &mut Framebuffer, i: usize) {
-        let m = self.mean();
-        fb.pixels[i] = m.radiance;
-        fb.depth[i] = m.depth;
-        fb.normal[i] = m.normal;
-        fb.albedo[i] = m.albedo;
-        fb.steps[i] = m.steps;
-        fb.gradient[i] = m.gradient;
+        fb.rows_mut().put(i, self.mean());
     }
 }
 
@@ -139,6 +133,20 @@ impl Framebuffer {
             albedo: zeroed_vec(n),
             steps: zeroed_vec(n),
             gradient: zeroed_vec(n),
+        }
+    }
+
+    /// The whole framebuffer as one band of rows.
+    fn rows_mut(&mut self) -> FramebufferRows<'_> {
+        FramebufferRows {
+            width: self.width,
+            first_row: 0,
+            radiance: &mut self.pixels,
+            depth: &mut self.depth,
+            normal: &mut self.normal,
+            albedo: &mut self.albedo,
+            steps: &mut self.steps,
+            gradient: &mut self.gradient,
         }
     }
 
