@@ -21,8 +21,8 @@
 //! confirmation point in the same leaf) are evaluated again at once, without waiting for the
 //! next round: a round's bookkeeping (each lane's part, the grouping by tape) is then paid when
 //! a lane changes leaf rather than at every step. Waiting until at least half a pass could go
-//! on, or letting lanes walk to their next part there, measured slower; so did the same for
-//! penumbra marches, which measured no gain.
+//! on, or letting lanes walk to their next part there, measured slower; the same for penumbra
+//! marches measured no gain.
 
 use super::crossing::{Candidate, Confirmation, Progress};
 use super::sphere::{Along, ConvexBound, Part, Parts, Sample, hart_step, penumbra_estimate};
