@@ -1262,6 +1262,7 @@ pub fn node_test_name() -> &'static str {
 }
 
 /// [`Aabb::ray_interval`] as a free function (the BVH walks and their tests use it by name).
+#[inline]
 pub fn ray_box_interval(b: &Aabb, ray: &Ray, tmin: f32, tmax: f32) -> Option<(f32, f32)> {
     b.ray_interval(ray, tmin, tmax)
 }

@@ -1331,6 +1331,19 @@ struct Frame {
     next: u8,
 }
 
+impl Frame {
+    /// The frame of `node`, whose slab parameters are [t0, t1], before any child is visited.
+    #[inline]
+    fn of(node: Node, t0: Vec3, t1: Vec3) -> Frame {
+        let next = if node.is_leaf() {
+            0
+        } else {
+            first_child(t0, 0.5 * (t0 + t1))
+        };
+        Frame { node, t0, t1, next }
+    }
+}
+
 /// The leaves a ray crosses, front to back: the parametric octree traversal of Revelles,
 /// Ureña & Lastra ("An efficient parametric algorithm for octree traversal", WSCG 2000). The
 /// ray is mirrored so that every direction component is positive (child numbers are mirrored
@@ -1374,7 +1387,10 @@ pub const TINY_DIRECTION: f32 = 1e-20;
 
 impl<'a, 's> RayWalk<'a, 's> {
     /// The walk over the leaves the ray crosses within [from, to], its frames on `stack`.
-    #[inline]
+    /// Always inlined, and made in one expression: returned through memory, or built in a
+    /// local and changed there, the walk was copied into its caller's in wider words than it
+    /// was written in, before those stores could forward (a stall on every lane).
+    #[inline(always)]
     pub fn new(
         tree: &'a FieldOctree,
         ray: &Ray,
@@ -1396,18 +1412,19 @@ impl<'a, 's> RayWalk<'a, 's> {
         let inv = d.recip();
         let t0 = (tree.lo - o) * inv;
         let t1 = (tree.hi - o) * inv;
-        let mut walk = RayWalk {
+        let enters = t0.max_element() < t1.min_element() && t1.min_element() >= from;
+        if enters {
+            let root = tree.nodes[0];
+            stack.0[0] = MaybeUninit::new(Frame::of(root, t0, t1));
+        }
+        RayWalk {
             tree,
             mirror,
-            len: 0,
+            len: u8::from(enters),
             from,
             to,
             stack,
-        };
-        if t0.max_element() < t1.min_element() && t1.min_element() >= from {
-            walk.push(tree.nodes[0], t0, t1);
         }
-        walk
     }
 
     /// The frame at `len` (just popped).
@@ -1416,17 +1433,6 @@ impl<'a, 's> RayWalk<'a, 's> {
         // SAFETY: frames are written at `len` before `len` grows past them (`push` and
         // `next_leaf` are the only writers of `len`), and this reads one below a former `len`.
         unsafe { self.stack.0[self.len as usize].assume_init() }
-    }
-
-    #[inline]
-    fn push(&mut self, node: Node, t0: Vec3, t1: Vec3) {
-        let next = if node.is_leaf() {
-            0
-        } else {
-            first_child(t0, 0.5 * (t0 + t1))
-        };
-        self.stack.0[self.len as usize] = MaybeUninit::new(Frame { node, t0, t1, next });
-        self.len += 1;
     }
 
     /// Leaves that end before `t` will not be wanted: the walk passes over every subtree the

@@ -127,7 +127,9 @@ impl Aabb {
     /// 1/d is not finite (the ray is parallel to the slab) the axis is a containment test
     /// min ≤ o ≤ max — computing (min − o)·∞ there would give NaN when the origin lies on a
     /// slab plane, and NaN must not widen the interval. Infinite boxes work; empty boxes and
-    /// NaN bounds miss.
+    /// NaN bounds miss. Inlined: an interval returned through memory is read back in a wider
+    /// word than it was written in, a stall on every ray's walk set-up.
+    #[inline]
     pub fn ray_interval(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<(f32, f32)> {
         self.ray_interval_from(ray.origin, Vec3::ONE / ray.direction, tmin, tmax)
     }

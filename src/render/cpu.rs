@@ -286,7 +286,9 @@ fn render_tile<T: ShadingTracer + Sync + ?Sized>(
                     .map(|s| (s, &visibility[i * lights..(i + 1) * lights])),
                 reflection: mirror_of[i].map(|m| (mirrors[m], mirror_hits[m].as_ref())),
             };
-            out.push(trace_camera_ray_from(tracer, materials, *ray, Some(first)));
+            out.push(CameraSample::NOTHING);
+            let slot = out.last_mut().expect("just pushed");
+            trace_camera_ray_from(tracer, materials, *ray, Some(first), slot);
         }
     }
 }

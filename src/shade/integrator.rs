@@ -49,6 +49,19 @@ pub struct CameraSample {
     pub gradient: f32,
 }
 
+impl CameraSample {
+    /// What a camera ray that meets nothing and sees no light carries: the start of every
+    /// sample.
+    pub const NOTHING: CameraSample = CameraSample {
+        radiance: Vec3::ZERO,
+        depth: f32::INFINITY,
+        normal: Vec3::ZERO,
+        albedo: Vec3::ZERO,
+        steps: 0,
+        gradient: 0.0,
+    };
+}
+
 /// One pending ray of the path: where it goes, what fraction of it reaches the camera, how
 /// many bounces it took, and the object it travels inside (for refracted rays).
 #[derive(Debug, Clone, Copy)]
@@ -80,7 +93,9 @@ pub fn trace_camera_ray<T: ShadingTracer + ?Sized>(
     materials: &[MaterialVec],
     ray: Ray,
 ) -> CameraSample {
-    trace_camera_ray_from(tracer, materials, ray, None)
+    let mut sample = CameraSample::NOTHING;
+    trace_camera_ray_from(tracer, materials, ray, None, &mut sample);
+    sample
 }
 
 /// A surface point the path meets, with what the integrator needs there.
@@ -220,153 +235,165 @@ pub fn first_reflection<T: ShadingTracer + ?Sized>(
 /// (and perhaps its lights' visibilities): the CPU renderer traces a tile row's camera rays
 /// and shadow rays together (see [`crate::trace::SceneTracer::closest_hits`] and
 /// [`crate::trace::SceneTracer::visibilities`]). The answers are those of tracing the ray
-/// alone.
+/// alone. The sample is written to `slot` (the caller's place for it: returned by value, it
+/// was copied over in wider words than it was written in before those stores could forward,
+/// a stall on every pixel).
 pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
     tracer: &T,
     materials: &[MaterialVec],
     ray: Ray,
     mut first: Option<Primary>,
-) -> CameraSample {
+    slot: &mut CameraSample,
+) {
     let scene = tracer.scene();
+    let mut sample = CameraSample::NOTHING;
+    // A camera ray found to miss sees the background and spawns nothing: what the loop below
+    // gives it, without setting up a path (the sky is a large part of most frames).
+    if first.as_ref().is_some_and(|f| f.hit.is_none()) {
+        sample.radiance = scene.image.background;
+        *slot = sample;
+        return;
+    }
     let max_bounces = scene.shading.max_bounces.min(MAX_BOUNCES);
     // Depth-first: each step pops one ray and pushes at most two, so the stack never holds
     // more than max_bounces + 1 entries (a fixed array of MAX_BOUNCES + 2 here, as on the GPU).
+    // The camera ray itself is followed first without going through the stack: built in a
+    // temporary and copied into the array in wide words, it was read back before those
+    // stores could forward (a stall that was a fifth of this function's time).
     let mut stack = PathStack::new();
-    stack.push(PendingRay {
+    let mut item = PendingRay {
         ray,
         weight: Vec3::ONE,
         bounces: 0,
         inside: None,
-    });
-    let mut reflection = first.and_then(|f| f.reflection);
-    let mut sample = CameraSample {
-        radiance: Vec3::ZERO,
-        depth: f32::INFINITY,
-        normal: Vec3::ZERO,
-        albedo: Vec3::ZERO,
-        steps: 0,
-        gradient: 0.0,
     };
+    let mut reflection = first.and_then(|f| f.reflection);
     let mut primary = true;
-    while let Some(item) = stack.pop() {
-        let spawn = |stack: &mut PathStack, ray: Ray, weight: Vec3, inside| {
-            if follows(item.bounces, max_bounces, weight) {
-                stack.push(PendingRay {
-                    ray,
-                    weight,
-                    bounces: item.bounces + 1,
-                    inside,
-                });
-            }
-        };
-        if let Some((object, ior)) = item.inside {
-            // Travelling inside a transparent object: find where it leaves.
-            let Some((t, n)) = tracer.exit(object, &item.ray, f32::INFINITY) else {
-                continue;
+    loop {
+        'follow: {
+            let spawn = |stack: &mut PathStack, ray: Ray, weight: Vec3, inside| {
+                if follows(item.bounces, max_bounces, weight) {
+                    stack.push(PendingRay {
+                        ray,
+                        weight,
+                        bounces: item.bounces + 1,
+                        inside,
+                    });
+                }
             };
-            let p = item.ray.at(t);
-            let d = item.ray.direction;
-            let offset = surface_offset(tracer, t, p);
-            let cos_i = d.dot(n).clamp(0.0, 1.0);
-            let f = schlick(cos_i, ior, 1.0);
-            if let Some(out) = refract(d, -n, ior) {
+            if let Some((object, ior)) = item.inside {
+                // Travelling inside a transparent object: find where it leaves.
+                let Some((t, n)) = tracer.exit(object, &item.ray, f32::INFINITY) else {
+                    break 'follow;
+                };
+                let p = item.ray.at(t);
+                let d = item.ray.direction;
+                let offset = surface_offset(tracer, t, p);
+                let cos_i = d.dot(n).clamp(0.0, 1.0);
+                let f = schlick(cos_i, ior, 1.0);
+                if let Some(out) = refract(d, -n, ior) {
+                    spawn(
+                        &mut stack,
+                        Ray::new(p + n * offset, out),
+                        item.weight * (1.0 - f),
+                        None,
+                    );
+                }
                 spawn(
                     &mut stack,
-                    Ray::new(p + n * offset, out),
-                    item.weight * (1.0 - f),
+                    Ray::new(p - n * offset, reflect(d, -n)),
+                    item.weight * f,
+                    Some((object, ior)),
+                );
+                break 'follow;
+            }
+            let traced;
+            let (hit, prepared) = match first.take() {
+                Some(f) if primary => (f.hit, f.shading),
+                // the ray traced ahead, if this is it (the same ray has the same closest hit)
+                _ => match reflection {
+                    Some((ray, hit)) if ray == item.ray => {
+                        reflection = None;
+                        (hit, None)
+                    }
+                    _ => {
+                        traced = tracer.closest_hit(&item.ray, 0.0, f32::INFINITY);
+                        (traced.as_ref(), None)
+                    }
+                },
+            };
+            if primary {
+                sample.steps = hit.map_or(0, |h| h.steps);
+            }
+            let Some(hit) = hit else {
+                sample.radiance += item.weight * scene.image.background;
+                primary = false;
+                break 'follow;
+            };
+            let found;
+            let (surf, visibility) = match prepared {
+                Some((surf, v)) => (surf, Some(v)),
+                None => {
+                    found = surfaced(tracer, materials, &item.ray, hit);
+                    (&found, None)
+                }
+            };
+            let (p, n, m) = (surf.point.position, surf.point.normal, surf.point.material);
+            let d = item.ray.direction;
+            if primary {
+                sample.depth = hit.t;
+                sample.normal = n;
+                sample.albedo = m.color;
+                sample.gradient = hit.gradient;
+                primary = false;
+            }
+            let (f_t, local_weight) = (surf.f_t, surf.local_weight);
+            let coverage = m.opacity.clamp(0.0, 1.0);
+            let offset = surface_offset(tracer, hit.t, p);
+            if m.opacity < 1.0 {
+                // A partly covered (glTF BLEND) surface: the uncovered fraction goes on straight
+                // through, as if the surface were not there (see `Surfaced::local_weight`).
+                spawn(
+                    &mut stack,
+                    Ray::new(p - n * offset, d),
+                    item.weight * (1.0 - m.opacity.max(0.0)),
                     None,
                 );
             }
-            spawn(
-                &mut stack,
-                Ray::new(p - n * offset, reflect(d, -n)),
-                item.weight * f,
-                Some((object, ior)),
-            );
-            continue;
-        }
-        let traced;
-        let (hit, prepared) = match first.take() {
-            Some(f) if primary => (f.hit, f.shading),
-            // the ray traced ahead, if this is it (the same ray has the same closest hit)
-            _ => match reflection {
-                Some((ray, hit)) if ray == item.ray => {
-                    reflection = None;
-                    (hit, None)
-                }
-                _ => {
-                    traced = tracer.closest_hit(&item.ray, 0.0, f32::INFINITY);
-                    (traced.as_ref(), None)
-                }
-            },
-        };
-        if primary {
-            sample.steps = hit.map_or(0, |h| h.steps);
-        }
-        let Some(hit) = hit else {
-            sample.radiance += item.weight * scene.image.background;
-            primary = false;
-            continue;
-        };
-        let found;
-        let (surf, visibility) = match prepared {
-            Some((surf, v)) => (surf, Some(v)),
-            None => {
-                found = surfaced(tracer, materials, &item.ray, hit);
-                (&found, None)
+            if local_weight > 0.0 {
+                let local = match visibility {
+                    Some(v) => shade_with(tracer, &surf.point, |light, _| v[light]),
+                    None => shade(tracer, &surf.point),
+                };
+                sample.radiance += item.weight * local_weight * local;
             }
-        };
-        let (p, n, m) = (surf.point.position, surf.point.normal, surf.point.material);
-        let d = item.ray.direction;
-        if primary {
-            sample.depth = hit.t;
-            sample.normal = n;
-            sample.albedo = m.color;
-            sample.gradient = hit.gradient;
-            primary = false;
-        }
-        let (f_t, local_weight) = (surf.f_t, surf.local_weight);
-        let coverage = m.opacity.clamp(0.0, 1.0);
-        let offset = surface_offset(tracer, hit.t, p);
-        if m.opacity < 1.0 {
-            // A partly covered (glTF BLEND) surface: the uncovered fraction goes on straight
-            // through, as if the surface were not there (see `Surfaced::local_weight`).
-            spawn(
-                &mut stack,
-                Ray::new(p - n * offset, d),
-                item.weight * (1.0 - m.opacity.max(0.0)),
-                None,
-            );
-        }
-        if local_weight > 0.0 {
-            let local = match visibility {
-                Some(v) => shade_with(tracer, &surf.point, |light, _| v[light]),
-                None => shade(tracer, &surf.point),
-            };
-            sample.radiance += item.weight * local_weight * local;
-        }
-        let reflect_weight = mirror_weight(surf);
-        if reflect_weight.max_element() > 0.0 {
-            spawn(
-                &mut stack,
-                mirror_ray(tracer, surf, d),
-                item.weight * reflect_weight,
-                None,
-            );
-        }
-        let transmit_weight = coverage * m.transparency * (1.0 - f_t);
-        if transmit_weight > 0.0 {
-            if let Some(t) = refract(d, n, 1.0 / m.ior) {
+            let reflect_weight = mirror_weight(surf);
+            if reflect_weight.max_element() > 0.0 {
                 spawn(
                     &mut stack,
-                    Ray::new(p - n * offset, t),
-                    item.weight * transmit_weight * m.color,
-                    Some((hit.surface, m.ior)),
+                    mirror_ray(tracer, surf, d),
+                    item.weight * reflect_weight,
+                    None,
                 );
             }
+            let transmit_weight = coverage * m.transparency * (1.0 - f_t);
+            if transmit_weight > 0.0 {
+                if let Some(t) = refract(d, n, 1.0 / m.ior) {
+                    spawn(
+                        &mut stack,
+                        Ray::new(p - n * offset, t),
+                        item.weight * transmit_weight * m.color,
+                        Some((hit.surface, m.ior)),
+                    );
+                }
+            }
+        }
+        match stack.pop() {
+            Some(next) => item = next,
+            None => break,
         }
     }
-    sample
+    *slot = sample;
 }
 
 #[cfg(test)]

@@ -132,7 +132,9 @@ pub fn shade<T: ShadingTracer + ?Sized>(tracer: &T, sp: &SurfacePoint) -> Vec3 {
 }
 
 /// The shadow ray [`shade`] casts from `sp` toward light `light`, if it casts one (the light
-/// is not ambient, faces the surface, and shadows are on).
+/// is not ambient, faces the surface, and shadows are on). Inlined: returned through memory,
+/// the query was read back in wider words than it was written in, a stall on every lit pixel.
+#[inline]
 pub fn shadow_query(scene: &Scene, sp: &SurfacePoint, light: usize) -> Option<ShadowQuery> {
     if !scene.tracer.shadows {
         return None;

@@ -112,6 +112,41 @@ impl Confirmation {
         })
     }
 
+    /// [`Self::start`] writing the confirmation into `slot` (left as it was when the
+    /// candidate is decided at once), for a caller that keeps it in a lane's state: the
+    /// fields are stored where the next step reads them, one by one, rather than built in a
+    /// temporary and copied over in wider words (which a later read of a field cannot
+    /// forward from the stores that made it: a stall that was a tenth of a bundle's time).
+    #[inline]
+    pub fn start_in(
+        slot: &mut Option<Confirmation>,
+        t: f32,
+        d: f32,
+        t1: f32,
+        s: &TracerSettings,
+    ) -> Option<Candidate> {
+        match Self::start(t, d, t1, s) {
+            Progress::Evaluate(c) => {
+                *slot = Some(c);
+                None
+            }
+            Progress::Decided(answer) => Some(answer),
+        }
+    }
+
+    /// [`Self::feed`] in place: the next confirmation replaces this one, or the candidate
+    /// is decided (this one is then left as it was, for the caller to clear).
+    #[inline]
+    pub fn feed_in(&mut self, value: f32, t1: f32, s: &TracerSettings) -> Option<Candidate> {
+        match self.feed(value, t1, s) {
+            Progress::Evaluate(next) => {
+                *self = next;
+                None
+            }
+            Progress::Decided(answer) => Some(answer),
+        }
+    }
+
     /// The ray parameter whose field value [`Self::feed`] wants.
     #[inline]
     pub fn at(&self) -> f32 {
@@ -125,6 +160,7 @@ impl Confirmation {
     }
 
     /// The next step, given the field `value` at [`Self::at`].
+    #[inline]
     pub fn feed(self, value: f32, t1: f32, s: &TracerSettings) -> Progress {
         let eps = self.eps;
         match self.stage {
@@ -171,6 +207,7 @@ impl Confirmation {
 
     /// Narrows a bracket (`outside`: f > 0, `inside`: f ≤ 0) to ε/2 and answers its outside
     /// end: the next halving, or the answer once the bracket is narrow enough.
+    #[inline]
     fn bisect(self, outside: f32, inside: f32, done: u32, s: &TracerSettings) -> Progress {
         if done >= MAX_BISECTIONS || inside - outside <= 0.5 * epsilon_at(s, outside) {
             return Progress::Decided(Candidate::Hit(outside));

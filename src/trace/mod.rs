@@ -394,7 +394,14 @@ impl<'a> SceneTracer<'a> {
         }
         let mut regs = Registers::pooled();
         for r in 0..n {
-            out[r] = self.finish_hit(&rays[r], best[r], steps[r], mesh_hits[r], &mut regs);
+            self.finish_hit(
+                &rays[r],
+                best[r],
+                steps[r],
+                mesh_hits[r],
+                &mut regs,
+                &mut out[r],
+            );
         }
     }
 
@@ -424,11 +431,15 @@ impl<'a> SceneTracer<'a> {
             }
             ControlFlow::Continue(())
         });
-        self.finish_hit(ray, best, steps, mesh_hit, &mut regs)
+        let mut hit = None;
+        self.finish_hit(ray, best, steps, mesh_hit, &mut regs, &mut hit);
+        hit
     }
 
     /// The hit a closest-hit query reports: the nearest SDF hit with its normal, else the
-    /// mesh hit with its surface.
+    /// mesh hit with its surface; written to `out` (returned by value, the hit was copied
+    /// into the caller's slot in wider words than it was written in, before those stores
+    /// could forward: a stall on every ray of a bundle).
     fn finish_hit(
         &self,
         ray: &Ray,
@@ -436,22 +447,24 @@ impl<'a> SceneTracer<'a> {
         steps: u32,
         mesh_hit: Option<crate::accel::bvh::InstanceHit>,
         regs: &mut Registers,
-    ) -> Option<Hit> {
+        out: &mut Option<Hit>,
+    ) {
         let s = &self.scene.tracer;
         if let Some((t, object)) = best {
             let p = ray.at(t);
             let h = normal::step_for(s, t);
             let mut field = self.fields[object].cursor(regs);
             let (n, gradient) = normal::estimate(&mut field, p, h, s.normals);
-            return Some(Hit {
+            *out = Some(Hit {
                 t,
                 surface: Surface::Sdf(object),
                 normal: n,
                 gradient,
                 steps,
             });
+            return;
         }
-        mesh_hit.map(|h| {
+        *out = mesh_hit.map(|h| {
             let surf =
                 self.scene
                     .meshes
@@ -470,7 +483,7 @@ impl<'a> SceneTracer<'a> {
                 gradient: 1.0,
                 steps,
             }
-        })
+        });
     }
 
     /// The fraction of light arriving along a shadow ray over (tmin, tmax): 0 or 1 for hard

@@ -24,7 +24,7 @@
 //! on, or letting lanes walk to their next part there, measured slower; the same for penumbra
 //! marches measured no gain.
 
-use super::crossing::{Candidate, Confirmation, Progress};
+use super::crossing::{Candidate, Confirmation};
 use super::sphere::{Along, ConvexBound, Part, Parts, Sample, hart_step, penumbra_estimate};
 use super::step::{TraceResult, epsilon_at};
 use crate::accel::field::{Cell, FieldCursor, ObjectField, WalkStack};
@@ -87,6 +87,10 @@ impl Default for PacketScratch {
         Self::new()
     }
 }
+
+/// One evaluation of a tape on SIMD lanes: the tape, the bundle's lanes it serves (in SIMD
+/// lane order) and their points, x, y and z across the lanes.
+type Pass<'t> = (&'t Tape, ArrayVec<usize, PACKET>, [[f32; PACKET]; 3]);
 
 /// One round of a bundle: each active lane's point and the tape valid there, evaluated in
 /// passes of up to [`PACKET`] lanes that share a tape.
@@ -172,23 +176,24 @@ impl<'t> Round<'t> {
         self.keys.push((std::ptr::from_ref(tape) as usize, i as u8));
     }
 
-    /// The round's passes: lanes grouped by tape, so that those of one leaf are adjacent,
-    /// in lane order within a group (the passes are those of sorting the keys; their order
-    /// does not matter, each lane's value being its own).
-    fn passes(
-        &mut self,
-    ) -> impl Iterator<Item = (&'t Tape, ArrayVec<usize, PACKET>, [[f32; PACKET]; 3])> + '_ {
-        self.group_by_tape();
-        let (points, tapes) = (&self.points, &self.tapes);
-        self.keys
-            .chunk_by(|a, b| a.0 == b.0)
-            .flat_map(|run| run.chunks(PACKET))
-            .map(move |chunk| {
-                let pass: ArrayVec<usize, PACKET> =
-                    chunk.iter().map(|&(_, i)| i as usize).collect();
-                let xyz = pass_points(pass.len(), |k| points[pass[k]]);
-                (tapes[pass[0]].expect("added"), pass, xyz)
-            })
+    /// The round's next pass, once [`Self::group_by_tape`] has made the lanes of a tape
+    /// adjacent: from key `*at`, at most [`PACKET`] lanes of one tape (in key order, so in
+    /// lane order), their tape and their points as SIMD lanes; `*at` moves past it. From
+    /// `at = 0` until `None`, the passes are the round's; their order does not matter, each
+    /// lane's value being its own. Callers loop over them rather than take them from an
+    /// iterator: a pass handed out by an iterator was built in its closure's frame and
+    /// copied to the loop's in wider words than it was written in, before those stores could
+    /// forward (a stall on every pass).
+    #[inline(always)]
+    fn next_pass(&self, at: &mut usize) -> Option<Pass<'t>> {
+        let tape = self.keys.get(*at)?.0;
+        let mut pass = ArrayVec::new();
+        while *at < self.keys.len() && self.keys[*at].0 == tape && !pass.is_full() {
+            pass.push(self.keys[*at].1 as usize);
+            *at += 1;
+        }
+        let xyz = pass_points(pass.len(), |k| self.points[pass[k]]);
+        Some((self.tapes[pass[0]].expect("added"), pass, xyz))
     }
 }
 
@@ -274,7 +279,9 @@ pub fn trace_hart_packet(
         if round.is_empty() {
             break;
         }
-        for (tape, mut pass, mut xyz) in round.passes() {
+        round.group_by_tape();
+        let mut at = 0;
+        while let Some((tape, mut pass, mut xyz)) = round.next_pass(&mut at) {
             loop {
                 let d = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
                 for (k, &i) in pass.iter().enumerate() {
@@ -378,8 +385,8 @@ fn pass_points(len: usize, point: impl Fn(usize) -> Vec3) -> [[f32; PACKET]; 3] 
 #[inline]
 fn march_step(st: &mut State, lane: &Lane, d: f32, s: &TracerSettings) {
     st.steps += 1;
-    let progress = match st.confirming.take() {
-        Some(c) => c.feed(d, lane.t1, s),
+    let decided = match &mut st.confirming {
+        Some(c) => c.feed_in(d, lane.t1, s),
         None => {
             let t = st.t;
             let eps = epsilon_at(s, t);
@@ -394,13 +401,20 @@ fn march_step(st: &mut State, lane: &Lane, d: f32, s: &TracerSettings) {
                 return;
             }
             st.chord = Sample::NONE;
-            Confirmation::start(t, d, lane.t1, s)
+            Confirmation::start_in(&mut st.confirming, t, d, lane.t1, s)
         }
     };
-    match progress {
-        Progress::Evaluate(c) => st.confirming = Some(c),
-        Progress::Decided(Candidate::Hit(t)) => st.done = Some(Some(t)),
-        Progress::Decided(Candidate::Continue(next)) => st.t = next,
+    match decided {
+        // confirming: the lane's next point is the confirmation's
+        None => {}
+        Some(Candidate::Hit(t)) => {
+            st.confirming = None;
+            st.done = Some(Some(t));
+        }
+        Some(Candidate::Continue(next)) => {
+            st.confirming = None;
+            st.t = next;
+        }
     }
 }
 
@@ -465,7 +479,9 @@ pub fn penumbra_packet(
         if round.is_empty() {
             break;
         }
-        for (tape, pass, xyz) in round.passes() {
+        round.group_by_tape();
+        let mut at = 0;
+        while let Some((tape, pass, xyz)) = round.next_pass(&mut at) {
             let h = eval8(*level, tape, &xyz[0], &xyz[1], &xyz[2], simd);
             for (j, &i) in pass.iter().enumerate() {
                 let st = &mut states[i];
@@ -514,7 +530,9 @@ mod tests {
         let mut seen = vec![false; leaf_of.len()];
         let mut passes_of_tape: Vec<Vec<usize>> = vec![Vec::new(); tapes.len()];
         let mut passes = 0;
-        for (tape, pass, xyz) in round.passes() {
+        round.group_by_tape();
+        let mut at = 0;
+        while let Some((tape, pass, xyz)) = round.next_pass(&mut at) {
             passes += 1;
             let t = tapes
                 .iter()

@@ -106,30 +106,36 @@ impl<'f, 's> Parts<'f, 's> {
         t1: f32,
         stack: &'s mut WalkStack,
     ) -> Self {
-        let whole = cursor.whole_tape();
-        let mut parts = Parts {
-            whole,
-            whole_fall: cursor.fall_outside(ray.direction),
-            direction: ray.direction,
-            walk: None,
-            phase: Phase::Whole,
-            t1,
-            enter: t0,
-            leave: t1,
-        };
-        if let Some(tree) = cursor.octree() {
-            if let Some((enter, leave)) = tree.bounds().ray_interval(ray, t0, t1) {
-                parts.walk = Some(RayWalk::new(tree, ray, t0, leave, stack));
-                parts.phase = if t0 < enter {
+        // Every field is found first and the parts made in one expression, so that they are
+        // stored where the caller keeps them: built in a local and changed there, they were
+        // copied out in wider words than they were written in, before those stores could
+        // forward (a stall on every lane of a bundle).
+        let crossing = cursor
+            .octree()
+            .and_then(|tree| Some((tree, tree.bounds().ray_interval(ray, t0, t1)?)));
+        let (walk, phase, enter, leave) = match crossing {
+            Some((tree, (enter, leave))) => (
+                Some(RayWalk::new(tree, ray, t0, leave, stack)),
+                if t0 < enter {
                     Phase::Before
                 } else {
                     Phase::Walk
-                };
-                parts.enter = enter;
-                parts.leave = leave;
-            }
+                },
+                enter,
+                leave,
+            ),
+            None => (None, Phase::Whole, t0, t1),
+        };
+        Parts {
+            whole: cursor.whole_tape(),
+            whole_fall: cursor.fall_outside(ray.direction),
+            direction: ray.direction,
+            walk,
+            phase,
+            t1,
+            enter,
+            leave,
         }
-        parts
     }
 
     /// The next part for a march now at t, or `None` when nothing is left before t1.
