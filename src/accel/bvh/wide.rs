@@ -278,11 +278,18 @@ impl Hasher for PassThrough {
 }
 
 /// Per-ray constants of the node test.
+///
+/// The origin and the reciprocals are each written with one 16-byte store (a fourth lane of
+/// 0): the walk, entered right after, loads them in pairs, and a load that spans two earlier
+/// stores cannot take its data from them (it waits until they reach the cache: written axis
+/// by axis, that stalled every walk's entry).
 #[derive(Clone, Copy, Debug)]
+#[repr(C, align(16))]
 pub(crate) struct NodeRay {
-    o: [f32; 3],
-    /// 1/d, or 0 on a parallel axis.
-    inv: [f32; 3],
+    /// The origin (x, y, z, 0).
+    o: [f32; 4],
+    /// 1/d, or 0 on a parallel axis (and in the fourth lane).
+    inv: [f32; 4],
     /// Index into [`WideNode::bounds`] of the entry plane per axis (max plane when d < 0).
     near: [usize; 3],
     /// Bit `axis` set where 1/d is not finite (d = ±0, subnormal, or NaN): a containment
@@ -294,28 +301,25 @@ pub(crate) struct NodeRay {
 
 impl NodeRay {
     /// For a ray `origin + t·direction` (any length).
+    #[inline]
     pub fn new(origin: Vec3, direction: Vec3) -> Self {
-        let mut parallel = 0;
-        let mut r = NodeRay {
-            o: origin.to_array(),
-            inv: [0.0; 3],
-            near: [0, 2, 4],
-            parallel: 0,
-        };
-        for axis in 0..3 {
-            let inv = 1.0 / direction[axis];
-            if inv.is_finite() {
-                r.inv[axis] = inv;
-                // The sign of 1/d, not of d, decides which plane is entered first (−0 has
-                // been excluded: its inverse is −∞).
-                r.near[axis] = 2 * axis + usize::from(inv < 0.0);
-            } else {
-                // |d| < 2^-128: treated as exactly parallel. The real ray drifts by |d|·t on
-                // this axis, under 3e-39·t: far below any f32 box tolerance.
-                parallel |= 1 << axis;
-            }
+        // the three divisions at once (each lane is the IEEE quotient, as one by one), kept
+        // in a register until the one store
+        let inv = Vec3A::ONE / Vec3A::from(direction);
+        // |d| < 2^-128 (1/d not finite): treated as exactly parallel, a containment test.
+        // The real ray drifts by |d|·t on this axis, under 3e-39·t: far below any f32 box
+        // tolerance.
+        let finite = inv.is_finite_mask();
+        let inv = Vec3A::select(finite, inv, Vec3A::ZERO);
+        // The sign of 1/d, not of d, decides which plane is entered first (−0 has been
+        // excluded: its inverse is −∞); a parallel axis keeps the min plane.
+        let negative = inv.cmplt(Vec3A::ZERO).bitmask();
+        NodeRay {
+            o: Vec4::from((origin, 0.0)).to_array(),
+            inv: inv.extend(0.0).to_array(),
+            near: std::array::from_fn(|axis| 2 * axis + ((negative >> axis) & 1) as usize),
+            parallel: !finite.bitmask() & 0b111,
         }
-        NodeRay { parallel, ..r }
     }
 }
 

@@ -134,7 +134,7 @@ impl Bounds {
 
     #[inline(always)]
     fn add(&mut self, r: &NodeRay) {
-        let (o, inv) = (Vec3A::from_array(r.o), Vec3A::from_array(r.inv));
+        let (o, inv) = (Vec3A::from_slice(&r.o[..3]), Vec3A::from_slice(&r.inv[..3]));
         self.o_lo = self.o_lo.min(o);
         self.o_hi = self.o_hi.max(o);
         self.inv_lo = self.inv_lo.min(inv);
