@@ -139,7 +139,10 @@ impl<'f, 's> Parts<'f, 's> {
     }
 
     /// The next part for a march now at t, or `None` when nothing is left before t1.
-    #[inline]
+    /// Always inlined: returned through memory, the part was read back in wider words than
+    /// it was written in, before those stores could forward (a stall on every leaf a lane
+    /// enters).
+    #[inline(always)]
     pub fn next(&mut self, t: f32) -> Option<Part<'f>> {
         loop {
             match self.phase {
