@@ -257,140 +257,131 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
     let max_bounces = scene.shading.max_bounces.min(MAX_BOUNCES);
     // Depth-first: each step pops one ray and pushes at most two, so the stack never holds
     // more than max_bounces + 1 entries (a fixed array of MAX_BOUNCES + 2 here, as on the GPU).
-    // The camera ray itself is followed first without going through the stack: built in a
-    // temporary and copied into the array in wide words, it was read back before those
-    // stores could forward (a stall that was a fifth of this function's time).
     let mut stack = PathStack::new();
-    let mut item = PendingRay {
+    stack.push(PendingRay {
         ray,
         weight: Vec3::ONE,
         bounces: 0,
         inside: None,
-    };
+    });
     let mut reflection = first.and_then(|f| f.reflection);
     let mut primary = true;
-    loop {
-        'follow: {
-            let spawn = |stack: &mut PathStack, ray: Ray, weight: Vec3, inside| {
-                if follows(item.bounces, max_bounces, weight) {
-                    stack.push(PendingRay {
-                        ray,
-                        weight,
-                        bounces: item.bounces + 1,
-                        inside,
-                    });
-                }
-            };
-            if let Some((object, ior)) = item.inside {
-                // Travelling inside a transparent object: find where it leaves.
-                let Some((t, n)) = tracer.exit(object, &item.ray, f32::INFINITY) else {
-                    break 'follow;
-                };
-                let p = item.ray.at(t);
-                let d = item.ray.direction;
-                let offset = surface_offset(tracer, t, p);
-                let cos_i = d.dot(n).clamp(0.0, 1.0);
-                let f = schlick(cos_i, ior, 1.0);
-                if let Some(out) = refract(d, -n, ior) {
-                    spawn(
-                        &mut stack,
-                        Ray::new(p + n * offset, out),
-                        item.weight * (1.0 - f),
-                        None,
-                    );
-                }
-                spawn(
-                    &mut stack,
-                    Ray::new(p - n * offset, reflect(d, -n)),
-                    item.weight * f,
-                    Some((object, ior)),
-                );
-                break 'follow;
+    while let Some(item) = stack.pop() {
+        let spawn = |stack: &mut PathStack, ray: Ray, weight: Vec3, inside| {
+            if follows(item.bounces, max_bounces, weight) {
+                stack.push(PendingRay {
+                    ray,
+                    weight,
+                    bounces: item.bounces + 1,
+                    inside,
+                });
             }
-            let traced;
-            let (hit, prepared) = match first.take() {
-                Some(f) if primary => (f.hit, f.shading),
-                // the ray traced ahead, if this is it (the same ray has the same closest hit)
-                _ => match reflection {
-                    Some((ray, hit)) if ray == item.ray => {
-                        reflection = None;
-                        (hit, None)
-                    }
-                    _ => {
-                        traced = tracer.closest_hit(&item.ray, 0.0, f32::INFINITY);
-                        (traced.as_ref(), None)
-                    }
-                },
+        };
+        if let Some((object, ior)) = item.inside {
+            // Travelling inside a transparent object: find where it leaves.
+            let Some((t, n)) = tracer.exit(object, &item.ray, f32::INFINITY) else {
+                continue;
             };
-            if primary {
-                sample.steps = hit.map_or(0, |h| h.steps);
-            }
-            let Some(hit) = hit else {
-                sample.radiance += item.weight * scene.image.background;
-                primary = false;
-                break 'follow;
-            };
-            let found;
-            let (surf, visibility) = match prepared {
-                Some((surf, v)) => (surf, Some(v)),
-                None => {
-                    found = surfaced(tracer, materials, &item.ray, hit);
-                    (&found, None)
-                }
-            };
-            let (p, n, m) = (surf.point.position, surf.point.normal, surf.point.material);
+            let p = item.ray.at(t);
             let d = item.ray.direction;
-            if primary {
-                sample.depth = hit.t;
-                sample.normal = n;
-                sample.albedo = m.color;
-                sample.gradient = hit.gradient;
-                primary = false;
-            }
-            let (f_t, local_weight) = (surf.f_t, surf.local_weight);
-            let coverage = m.opacity.clamp(0.0, 1.0);
-            let offset = surface_offset(tracer, hit.t, p);
-            if m.opacity < 1.0 {
-                // A partly covered (glTF BLEND) surface: the uncovered fraction goes on straight
-                // through, as if the surface were not there (see `Surfaced::local_weight`).
+            let offset = surface_offset(tracer, t, p);
+            let cos_i = d.dot(n).clamp(0.0, 1.0);
+            let f = schlick(cos_i, ior, 1.0);
+            if let Some(out) = refract(d, -n, ior) {
                 spawn(
                     &mut stack,
-                    Ray::new(p - n * offset, d),
-                    item.weight * (1.0 - m.opacity.max(0.0)),
+                    Ray::new(p + n * offset, out),
+                    item.weight * (1.0 - f),
                     None,
                 );
             }
-            if local_weight > 0.0 {
-                let local = match visibility {
-                    Some(v) => shade_with(tracer, &surf.point, |light, _| v[light]),
-                    None => shade(tracer, &surf.point),
-                };
-                sample.radiance += item.weight * local_weight * local;
-            }
-            let reflect_weight = mirror_weight(surf);
-            if reflect_weight.max_element() > 0.0 {
-                spawn(
-                    &mut stack,
-                    mirror_ray(tracer, surf, d),
-                    item.weight * reflect_weight,
-                    None,
-                );
-            }
-            let transmit_weight = coverage * m.transparency * (1.0 - f_t);
-            if transmit_weight > 0.0 {
-                if let Some(t) = refract(d, n, 1.0 / m.ior) {
-                    spawn(
-                        &mut stack,
-                        Ray::new(p - n * offset, t),
-                        item.weight * transmit_weight * m.color,
-                        Some((hit.surface, m.ior)),
-                    );
-                }
-            }
+            spawn(
+                &mut stack,
+                Ray::new(p - n * offset, reflect(d, -n)),
+                item.weight * f,
+                Some((object, ior)),
+            );
+            continue;
         }
-        match stack.pop() {
-            Some(next) => item = next,
-            None => break,
+        let traced;
+        let (hit, prepared) = match first.take() {
+            Some(f) if primary => (f.hit, f.shading),
+            // the ray traced ahead, if this is it (the same ray has the same closest hit)
+            _ => match reflection {
+                Some((ray, hit)) if ray == item.ray => {
+                    reflection = None;
+                    (hit, None)
+                }
+                _ => {
+                    traced = tracer.closest_hit(&item.ray, 0.0, f32::INFINITY);
+                    (traced.as_ref(), None)
+                }
+            },
+        };
+        if primary {
+            sample.steps = hit.map_or(0, |h| h.steps);
+        }
+        let Some(hit) = hit else {
+            sample.radiance += item.weight * scene.image.background;
+            primary = false;
+            continue;
+        };
+        let found;
+        let (surf, visibility) = match prepared {
+            Some((surf, v)) => (surf, Some(v)),
+            None => {
+                found = surfaced(tracer, materials, &item.ray, hit);
+                (&found, None)
+            }
+        };
+        let (p, n, m) = (surf.point.position, surf.point.normal, surf.point.material);
+        let d = item.ray.direction;
+        if primary {
+            sample.depth = hit.t;
+            sample.normal = n;
+            sample.albedo = m.color;
+            sample.gradient = hit.gradient;
+            primary = false;
+        }
+        let (f_t, local_weight) = (surf.f_t, surf.local_weight);
+        let coverage = m.opacity.clamp(0.0, 1.0);
+        let offset = surface_offset(tracer, hit.t, p);
+        if m.opacity < 1.0 {
+            // A partly covered (glTF BLEND) surface: the uncovered fraction goes on straight
+            // through, as if the surface were not there (see `Surfaced::local_weight`).
+            spawn(
+                &mut stack,
+                Ray::new(p - n * offset, d),
+                item.weight * (1.0 - m.opacity.max(0.0)),
+                None,
+            );
+        }
+        if local_weight > 0.0 {
+            let local = match visibility {
+                Some(v) => shade_with(tracer, &surf.point, |light, _| v[light]),
+                None => shade(tracer, &surf.point),
+            };
+            sample.radiance += item.weight * local_weight * local;
+        }
+        let reflect_weight = mirror_weight(surf);
+        if reflect_weight.max_element() > 0.0 {
+            spawn(
+                &mut stack,
+                mirror_ray(tracer, surf, d),
+                item.weight * reflect_weight,
+                None,
+            );
+        }
+        let transmit_weight = coverage * m.transparency * (1.0 - f_t);
+        if transmit_weight > 0.0 {
+            if let Some(t) = refract(d, n, 1.0 / m.ior) {
+                spawn(
+                    &mut stack,
+                    Ray::new(p - n * offset, t),
+                    item.weight * transmit_weight * m.color,
+                    Some((hit.surface, m.ior)),
+                );
+            }
         }
     }
     *slot = sample;

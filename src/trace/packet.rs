@@ -297,9 +297,9 @@ pub fn trace_hart_packet(
                     let next = if st.done.is_some() {
                         None
                     } else if let Some(c) = &st.confirming {
-                        let (p, at) =
+                        let (p, there) =
                             confirmation_point(&lanes[i], c, short, &mut cursor, &mut cells[i]);
-                        std::ptr::eq(at, tape).then_some(p)
+                        std::ptr::eq(there, tape).then_some(p)
                     } else {
                         let in_part = st
                             .part
