@@ -7,7 +7,9 @@
 //! with the tape of the leaf that holds it, which gives the whole tape's value at a fraction of
 //! its cost; a ray skips empty leaves without evaluating anything; steps inside a leaf may be
 //! lengthened by how slowly the field can fall along the ray there ([`Leaf::fall`]). Outside
-//! the octree's box the whole tape is used. The structure depends
+//! the octree's box the whole tape is used, and so it is everywhere where it is short
+//! ([`SHORT_TAPE`]): by Hart's march on both backends and by the CPU's other queries (the
+//! leaves then serve the GPU's penumbra walks and the opt-in steppers). The structure depends
 //! only on the object, so camera, shadow, ambient-occlusion, penumbra, reflection and
 //! refraction rays share it (screen tiles would serve camera rays only).
 //!
@@ -1075,9 +1077,10 @@ impl RoundingModel {
 /// set up per ray, or a descent per point, costs more than the instructions the leaf drops.
 /// Measured on 640×360 CPU frames (`examples/frame_time`, penumbra samples alone): a
 /// 16-instruction ground 7 % of a hybrid.ron frame, a 235-instruction union of 40 spheres
-/// 12 % of its frame, 900 instructions even, 2,300 the leaves 15 % faster. Hart's march keeps
-/// the leaves whatever the length: their bound on the field's fall lengthens its steps along
-/// planes.
+/// 12 % of its frame, 900 instructions even, 2,300 the leaves 15 % faster. Hart's march takes
+/// the whole tape too ([`crate::trace::sphere`]'s parts): once the object's gradient
+/// enclosure over all of space bounded its steps towards planes, the leaves' bounds no longer
+/// paid for the leaf changes.
 pub const SHORT_TAPE: usize = 256;
 
 /// An evaluation cursor over an object's field: the last leaf found, so that consecutive
