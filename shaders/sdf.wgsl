@@ -99,7 +99,7 @@ const PHASE_DONE: u32 = 4u;
 
 // sphere::Parts: the parts of [t0, t1] in order: the whole tape before the tree's box, the
 // leaves of the walk (field_walk) that are not empty, the whole tape beyond the box; one
-// whole-tape part for a whole tape of at most SHORT_TAPE instructions.
+// whole-tape part where the leaves save little (field::FieldOctree::marched_whole).
 struct Parts {
     object: u32,
     direction: vec3<f32>,
@@ -115,7 +115,7 @@ fn parts_new(object: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> Parts
     let obj = objects[object];
     let everywhere = gradient_fall(obj.outside_graded, obj.outside_lo, obj.outside_hi, d);
     var parts = Parts(object, d, everywhere, PHASE_WHOLE, t1, t0, t1);
-    if obj.field_root != NONE && obj.distance.len > SHORT_TAPE {
+    if obj.field_root != NONE && obj.marched_whole == 0u {
         let iv = ray_interval(obj.field_lo, obj.field_hi, o, d, t0, t1);
         if iv.hit {
             field_walk_begin(object, o, d, t0, iv.t1);

@@ -65,7 +65,7 @@ pub fn instr_records(instrs: &[crate::sdf::tape::Instr]) -> &[InstrRecord] {
 
 gpu_struct! {
     /// One SDF object: world bounds, its field octree and its two whole tapes.
-    pub struct SdfObjectRecord(128) {
+    pub struct SdfObjectRecord(144) {
         /// Bounds minimum (infinite coordinates stored as ∓`f32::MAX`).
         pub lo: [f32; 3],
         /// 1 when the bounds are NaN (unknown: the whole ray is visited), else 0.
@@ -98,6 +98,15 @@ gpu_struct! {
         pub distance: TapeRef,
         /// The whole shading tape (distance and blended material).
         pub shading: TapeRef,
+        /// 1 when Hart's march takes the whole tape rather than the octree's leaves
+        /// (`FieldOctree::marched_whole`), else 0.
+        pub marched_whole: u32,
+        /// Unused (the record's size is a multiple of 16 bytes).
+        pub reserved0: u32,
+        /// Unused.
+        pub reserved1: u32,
+        /// Unused.
+        pub reserved2: u32,
     }
 }
 

@@ -156,6 +156,7 @@ impl SceneData {
                 Some(tree) => (data.add_field(tree)?, tree.bounds()),
                 None => (NONE, Aabb::new(Vec3::ZERO, Vec3::ZERO)),
             };
+            let marched_whole = field.octree.as_ref().is_some_and(|t| t.marched_whole());
             let b: Aabb = object.bounds();
             let nan = b.min.is_nan() || b.max.is_nan();
             let (outside_graded, [outside_lo, outside_hi]) = gradient_record(&field.outside);
@@ -172,6 +173,10 @@ impl SceneData {
                 convex: field.convex.is_some() as u32,
                 convex_relative: field.convex.map_or(0.0, |m| m.relative),
                 convex_scale: field.convex.map_or(0.0, |m| m.scale),
+                marched_whole: marched_whole as u32,
+                reserved0: 0,
+                reserved1: 0,
+                reserved2: 0,
                 distance,
                 shading,
             });

@@ -363,7 +363,6 @@ pub fn wgsl_prelude() -> String {
     s += &u("VERDICT_FULL", verdict_code(Verdict::Full));
     s += &u("VERDICT_SURFACE", verdict_code(Verdict::Surface));
     s += &u("FIELD_MAX_DEPTH", field::MAX_DEPTH);
-    s += &u("SHORT_TAPE", field::SHORT_TAPE as u32);
     s += &u("FIELD_LEAF", field::LEAF);
     s += &u("FIELD_PROBE_LEAVES", FIELD_PROBE_LEAVES);
     s += &u("MAX_SKIPS", crate::trace::step::MAX_SKIPS);
