@@ -127,8 +127,8 @@ fn print_fields(scene: &hytrace::scene::Scene, tracer: &SceneTracer) {
         if i < LISTED_OBJECTS {
             println!(
                 "SDF octree   {}: {} nodes, {} leaves ({} empty, {} full, {} crossed), {} tapes, \
-                 crossed leaves' tapes {:.1} of {whole} instructions on average, {:.1} KiB, \
-                 native code {:.1} KiB",
+                 crossed leaves' tapes {:.1} of {whole} instructions on average (sphere tracing \
+                 {}), {:.1} KiB, native code {:.1} KiB",
                 object.name,
                 st.nodes,
                 st.leaves,
@@ -137,6 +137,11 @@ fn print_fields(scene: &hytrace::scene::Scene, tracer: &SceneTracer) {
                 st.leaves - st.empty - st.full,
                 st.tapes,
                 st.mean_surface_tape,
+                if tree.marched_whole() {
+                    "takes the whole tape"
+                } else {
+                    "walks the leaves"
+                },
                 st.bytes as f64 / 1024.0,
                 st.native_bytes as f64 / 1024.0
             );
