@@ -11,6 +11,16 @@ use crate::sdf::tape::Tape;
 use crate::sdf::{SdfNode, lower};
 use glam::Vec3;
 
+/// fidget's demo shape max(‖30p‖ − 25, |gyroid(30p)| − 0.2) as an SDF tree (scene-file
+/// syntax): the exact sphere of radius 25/30 intersected with the gyroid shell as an
+/// implicit, traced as f/λ with λ = 30·√6 ≈ 73.5 (|∇ gyroid| ≤ √6). Each argument of the max
+/// is the original one times a positive constant, so the surface is the same. The peer
+/// benchmark renders it beside fidget; tests use it as a short tape whose leaves drop half
+/// of it.
+pub const FIDGET_GYROID_SPHERE: &str = "Intersection([Sphere(radius: 0.8333333), \
+    Implicit(expr: \"abs(sin(30*x)*cos(30*y) + sin(30*y)*cos(30*z) + sin(30*z)*cos(30*x)) - 0.2\", \
+    lipschitz: 73.5, half_extents: (0.84, 0.84, 0.84))])";
+
 /// A batch evaluator: distances of `tape` at `points`.
 pub trait Evaluator {
     /// Evaluates the tape at every point.

@@ -1338,15 +1338,17 @@ mod tests {
         // gyroid sphere: its leaves drop the sphere and the box (19 of 41 instructions), and
         // 64 tiles: a long tape; both walked leaf by leaf
         let torus = "Scene(camera: Perspective(position: (0, 0, 5), look_at: (0, 0, 0), fov: 40), objects: [(shape: Torus(major: 0.6, minor: 0.2))])";
-        let gyroid = "Scene(camera: Perspective(position: (0, 0, 5), look_at: (0, 0, 0), fov: 40), objects: [(shape: Intersection([Sphere(radius: 0.8333333), \
-            Implicit(expr: \"abs(sin(30*x)*cos(30*y) + sin(30*y)*cos(30*z) + sin(30*z)*cos(30*x)) - 0.2\", \
-            lipschitz: 73.5, half_extents: (0.84, 0.84, 0.84))]))])";
+        let gyroid = format!(
+            "Scene(camera: Perspective(position: (0, 0, 5), look_at: (0, 0, 0), fov: 40), \
+             objects: [(shape: {})])",
+            crate::sdf::conformance::FIDGET_GYROID_SPHERE
+        );
         let load = |src: &str| {
             Scene::from_source(src, Path::new("t.ron")).unwrap_or_else(|e| panic!("{e}"))
         };
         let cases = [
             ("torus", load(torus), true),
-            ("gyroid sphere", load(gyroid), false),
+            ("gyroid sphere", load(&gyroid), false),
             (
                 "64 tiles",
                 crate::accel::field::tests::tiles_scene(8, 8),

@@ -100,17 +100,12 @@ fn scene_source(objects: &str) -> String {
     )
 }
 
-/// fidget's demo shape max(‖30p‖ − 25, |gyroid(30p)| − 0.2) as an SDF tree: the exact sphere of
-/// radius 25/30 intersected with the gyroid shell as an implicit, traced as f/λ with
-/// λ = 30·√6 ≈ 73.5 (|∇ gyroid| ≤ √6). Each argument of the max is the original one times a
-/// positive constant, so the surface is the same.
+/// fidget's gyroid sphere ([`crate::sdf::conformance::FIDGET_GYROID_SPHERE`]) as a scene.
 fn gyroid_sphere() -> String {
-    scene_source(
-        "(name: \"gyroid sphere\", shape: Intersection([\
-            Sphere(radius: 0.8333333), \
-            Implicit(expr: \"abs(sin(30*x)*cos(30*y) + sin(30*y)*cos(30*z) + sin(30*z)*cos(30*x)) - 0.2\", \
-                lipschitz: 73.5, half_extents: (0.84, 0.84, 0.84))]))",
-    )
+    scene_source(&format!(
+        "(name: \"gyroid sphere\", shape: {})",
+        crate::sdf::conformance::FIDGET_GYROID_SPHERE
+    ))
 }
 
 /// `n` spheres of radius 0.06 along a six-turn spiral (the shape of fidget's many-spheres
