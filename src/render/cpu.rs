@@ -1,7 +1,7 @@
 //! The CPU backend: rayon over tiles, one camera path per sample, the image built up one
 //! sample pass at a time.
 
-use super::progressive::{FramebufferRows, SampleSums};
+use super::progressive::{FramebufferRows, SampleSums, SumsRows};
 use super::{Framebuffer, RenderOptions, TILE, Tile, sample_offset, tiles};
 use crate::geom::Ray;
 use crate::scene::Scene;
@@ -69,9 +69,10 @@ pub fn render_through<T: ShadingTracer + Sync + ?Sized>(
 
 /// Renders sample `sample` of `opts.samples` of every pixel as `camera` sees the tracer's
 /// scene, in parallel over the tiles on the current rayon pool, and adds it to `sums` (of
-/// `opts.width`×`opts.height`). Returns false, with `sums` unchanged, when `cancelled()`
-/// turned true: it is asked before each tile, so an abandoned pass stops within one tile's
-/// time. Passes 0..n added in order hold exactly what [`render`] averages.
+/// `opts.width`×`opts.height`). Returns false when `cancelled()` turned true: it is asked
+/// before each tile, so an abandoned pass stops within one tile's time, and `sums` then hold
+/// part of the pass, to be dropped. Passes 0..n added in order hold exactly what [`render`]
+/// averages.
 pub fn render_pass(
     tracer: &SceneTracer,
     camera: &Camera,
@@ -92,6 +93,11 @@ pub fn render_pass(
 }
 
 /// [`render_pass`], counting finished tiles on `bar`.
+///
+/// Each tile's samples are added to its band of the sums as soon as the tile is done, from a
+/// buffer its thread keeps ([`TILE_SAMPLES`]). A cancelled pass has then added some of its
+/// tiles: it reports false and its caller drops the sums (the viewer starts over from its new
+/// camera; nothing else cancels).
 fn pass<T: ShadingTracer + Sync + ?Sized>(
     tracer: &T,
     camera: &Camera,
@@ -106,24 +112,47 @@ fn pass<T: ShadingTracer + Sync + ?Sized>(
         (opts.width, opts.height),
         "the sums are of the image rendered"
     );
-    let Some(done) = pass_tiles(tracer, camera, opts, sample, cancelled, bar) else {
-        return false;
+    let materials = tracer.scene().material_table();
+    let bands: Vec<Mutex<SumsRows>> = sums.bands_mut(TILE).into_iter().map(Mutex::new).collect();
+    let add = |tile: Tile, samples: &mut Vec<CameraSample>| {
+        render_tile(tracer, &materials, camera, opts, tile, sample, samples);
+        bands[(tile.y0 / TILE) as usize]
+            .lock()
+            .expect("a band is never left half added")
+            .add_tile(tile, samples);
     };
-    sums.add_tiles(TILE, &done);
-    true
+    // rayon stops handing out tiles once one comes back None. Each tile is its own job:
+    // rayon's adaptive splitting would otherwise hand a thread a run of dozens of tiles that
+    // nobody can steal from, and the other threads sit idle through that run's tail (a tenth
+    // of every pass at 1280×720 on two cores, measured)
+    tiles(opts.width, opts.height, TILE)
+        .into_par_iter()
+        .with_max_len(1)
+        .try_for_each(|tile| {
+            if cancelled() {
+                return None;
+            }
+            TILE_SAMPLES.with(|buffer| match buffer.try_borrow_mut() {
+                Ok(mut samples) => add(tile, &mut samples),
+                // a tracer that runs rayon jobs inside a tile may start another tile here
+                Err(_) => add(tile, &mut Vec::new()),
+            });
+            bar.inc(1);
+            Some(())
+        })
+        .is_some()
 }
 
 thread_local! {
-    /// A tile's samples, on the thread that renders it ([`single_pass`]).
+    /// A tile's samples, on the thread that renders it ([`pass`], [`single_pass`]).
     static TILE_SAMPLES: RefCell<Vec<CameraSample>> = const { RefCell::new(Vec::new()) };
 }
 
 /// The image of one sample per pixel (sample 0), each tile's samples written into its band of
 /// the framebuffer ([`FramebufferRows::write_single_samples`]) as soon as the tile is done,
 /// from a buffer its thread keeps: bit for bit the means of the sums of [`pass`], without
-/// the sums, and without holding the whole image's samples until the pass ends (a
-/// [`render_pass`] must, to leave its sums unchanged when cancelled). That memory, new to the
-/// process every frame, and the sums were a sixth of a one-sample 1024² frame.
+/// the sums (they and the memory they take, new to the process every frame, were a sixth of
+/// a one-sample 1024² frame).
 fn single_pass<T: ShadingTracer + Sync + ?Sized>(
     tracer: &T,
     camera: &Camera,
@@ -141,7 +170,7 @@ fn single_pass<T: ShadingTracer + Sync + ?Sized>(
             .expect("a band is never left half written")
             .write_single_samples(tile, samples);
     };
-    // one tile per job, as in `pass_tiles`
+    // one tile per job, as in `pass`
     tiles(opts.width, opts.height, TILE)
         .into_par_iter()
         .with_max_len(1)
@@ -155,36 +184,6 @@ fn single_pass<T: ShadingTracer + Sync + ?Sized>(
         });
     drop(bands);
     fb
-}
-
-/// Sample `sample` of every pixel, tile by tile (in the order of [`tiles`]), or `None` once
-/// `cancelled()` turned true.
-fn pass_tiles<T: ShadingTracer + Sync + ?Sized>(
-    tracer: &T,
-    camera: &Camera,
-    opts: &RenderOptions,
-    sample: u32,
-    cancelled: &(dyn Fn() -> bool + Sync),
-    bar: &ProgressBar,
-) -> Option<Vec<(Tile, Vec<CameraSample>)>> {
-    let materials = tracer.scene().material_table();
-    // rayon stops handing out tiles once one comes back None. Each tile is its own job:
-    // rayon's adaptive splitting would otherwise hand a thread a run of dozens of tiles that
-    // nobody can steal from, and the other threads sit idle through that run's tail (a tenth
-    // of every pass at 1280×720 on two cores, measured)
-    tiles(opts.width, opts.height, TILE)
-        .into_par_iter()
-        .with_max_len(1)
-        .map(|tile| {
-            if cancelled() {
-                return None;
-            }
-            let mut px = Vec::new();
-            render_tile(tracer, &materials, camera, opts, tile, sample, &mut px);
-            bar.inc(1);
-            Some((tile, px))
-        })
-        .collect()
 }
 
 /// Rows of a tile whose camera rays are traced together: a band of 4 rows of 32 pixels fills a
@@ -338,12 +337,11 @@ mod tests {
     }
 
     #[test]
-    fn a_cancelled_pass_leaves_the_sums_unchanged() {
+    fn a_cancelled_pass_stops_and_says_so() {
         let (scene, opts) = setup();
         let tracer = SceneTracer::new(&scene);
         let mut sums = first_pass(&tracer, &scene, &opts);
-        let before = sums.clone();
-        // cancelled after the first tile started: some tiles were rendered, none is added
+        // cancelled once the first tile asked: that tile is added, no other
         let asked = AtomicUsize::new(0);
         let cancelled = || asked.fetch_add(1, Ordering::Relaxed) >= 1;
         assert!(!render_pass(
@@ -354,8 +352,13 @@ mod tests {
             &mut sums,
             &cancelled
         ));
-        assert_eq!(sums, before);
-        assert!(sums.pixels.iter().all(|p| p.count == 1));
+        let twice = sums.pixels.iter().filter(|p| p.count == 2).count();
+        assert_eq!(
+            twice,
+            (TILE * TILE) as usize,
+            "one whole tile of the cancelled pass"
+        );
+        assert!(sums.pixels.iter().all(|p| (1..=2).contains(&p.count)));
     }
 
     #[test]

@@ -322,6 +322,10 @@ fn frames(
     // the accumulation of the refined image: its change, size, samples added, and the CPU's
     // sums (made by the first CPU pass: the GPU accumulates on its own)
     let mut sums: Option<(u64, RenderOptions, u32, Option<SampleSums>)> = None;
+    // The CPU sums of the last accumulation, kept for the next one of the same size: memory
+    // new to the process costs a page fault per 4 KiB on first touch, and a moving camera
+    // starts an accumulation every frame (a 640×360 image's sums are 11 MB).
+    let mut spare: Option<SampleSums> = None;
     loop {
         let Ok(job) = inbox.recv() else {
             return Next::Stop;
@@ -354,6 +358,9 @@ fn frames(
                 if !continues {
                     // a new accumulation; when the one asked to continue is not there (a GPU
                     // fault fell back to the CPU), its earlier samples are rendered first
+                    if let Some((_, _, _, Some(old))) = sums.take() {
+                        spare = Some(old);
+                    }
                     sums = Some((generation, options, 0, None));
                 }
                 let cancelled = || wanted.load(Ordering::Relaxed) != generation;
@@ -366,8 +373,15 @@ fn frames(
                         Some(_) if cancelled() => Ok(false),
                         Some(g) => g.add_pass(&camera, &options, pass).map(|()| true),
                         None => {
-                            let acc = acc.get_or_insert_with(|| {
-                                SampleSums::new(options.width, options.height)
+                            let acc = acc.get_or_insert_with(|| match spare.take() {
+                                Some(mut old)
+                                    if (old.width, old.height)
+                                        == (options.width, options.height) =>
+                                {
+                                    old.clear();
+                                    old
+                                }
+                                _ => SampleSums::new(options.width, options.height),
                             });
                             Ok(pool.install(|| {
                                 cpu::render_pass(tracer, &camera, &options, pass, acc, &cancelled)
@@ -388,7 +402,9 @@ fn frames(
                         None,
                     )),
                     (Ok(false), _) => {
-                        sums = None;
+                        if let Some((_, _, _, Some(old))) = sums.take() {
+                            spare = Some(old);
+                        }
                         report(Report::Abandoned);
                         continue;
                     }
