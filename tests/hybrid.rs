@@ -269,8 +269,11 @@ fn the_binary_renders_the_hybrid_showcase_from_the_repository_root_without_the_v
 #[test]
 fn cpu_render_traces_tile_rows_as_each_ray_alone() {
     // The CPU renderer finds a tile row's camera hits together (mesh packets and SDF
-    // bundles), and the mirror reflections of those hits together; every pixel must be what
-    // tracing its samples' rays one by one gives, bit for bit. 70×45 has partial tiles on
+    // bundles), the mirror reflections of those hits together, and the shadow rays of the
+    // later hits of the band's paths (reflections, refractions) together, their local
+    // shading added afterwards in each path's order; every pixel must be what tracing its
+    // samples' rays one by one gives, bit for bit (adding the put-off terms in another order
+    // fails here). 70×45 has partial tiles on
     // both edges; 3 samples jitter the rays inside the pixels. hybrid.ron has meshes and a
     // Phong mirror, pbr.ron metals whose reflections take their colour, glass.ron
     // dielectrics that reflect part of the light.

@@ -7,7 +7,9 @@ use crate::geom::Ray;
 use crate::scene::Scene;
 use crate::scene::camera::Camera;
 use crate::sdf::tape::MaterialVec;
-use crate::shade::integrator::{self, CameraSample, Primary, trace_camera_ray_from};
+use crate::shade::integrator::{
+    self, CameraSample, Deferral, DeferredShading, Primary, trace_camera_ray_from,
+};
 use crate::shade::{ShadingTracer, shadow_query};
 use crate::trace::SceneTracer;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -198,8 +200,9 @@ const BAND_ROWS: u32 = 4;
 /// our tracer, ray bundles:
 /// [`SceneTracer::closest_hits`]), and so do the mirror reflections the paths follow from
 /// those hits ([`integrator::first_reflection`]); then each ray's path is followed on its
-/// own. The answers are those of tracing every ray alone, so the image does not depend on
-/// this grouping.
+/// own, putting off the local shading of its later hits ([`DeferredShading`]), whose shadow
+/// rays are then answered by one more call for the band. The answers are those of tracing
+/// every ray alone, so the image does not depend on this grouping.
 fn render_tile<T: ShadingTracer + Sync + ?Sized>(
     tracer: &T,
     materials: &[MaterialVec],
@@ -224,6 +227,9 @@ fn render_tile<T: ShadingTracer + Sync + ?Sized>(
     let mut mirror_of = Vec::with_capacity(band);
     let mut mirror_hits = Vec::new();
     let mut visibility = vec![1.0f32; band * lights];
+    // the local shading of the paths' later hits, lit together once the band's paths are done
+    let mut deferred = DeferredShading::default();
+    let mut deferred_visibility = Vec::new();
     for y0 in (tile.y0..tile.y0 + tile.h).step_by(BAND_ROWS as usize) {
         rays.clear();
         for y in y0..(y0 + BAND_ROWS).min(tile.y0 + tile.h) {
@@ -286,9 +292,32 @@ fn render_tile<T: ShadingTracer + Sync + ?Sized>(
                 reflection: mirror_of[i].map(|m| (mirrors[m], mirror_hits[m].as_ref())),
             };
             out.push(CameraSample::NOTHING);
-            let slot = out.last_mut().expect("just pushed");
-            trace_camera_ray_from(tracer, materials, *ray, Some(first), slot);
+            let slot = out.len() - 1;
+            let defer = Deferral {
+                shading: &mut deferred,
+                slot,
+            };
+            trace_camera_ray_from(
+                tracer,
+                materials,
+                *ray,
+                Some(first),
+                &mut out[slot],
+                Some(defer),
+            );
         }
+        if !deferred.is_empty() {
+            deferred.shadow_queries(scene, &mut queries, &mut owners);
+            answers.resize(queries.len(), 0.0);
+            tracer.visibilities(&queries, &mut answers);
+            deferred_visibility.clear();
+            deferred_visibility.resize(deferred.points() * lights, 1.0);
+            for (&at, &v) in owners.iter().zip(&answers) {
+                deferred_visibility[at] = v;
+            }
+            deferred.finish(tracer, out, &deferred_visibility);
+        }
+        deferred.clear();
     }
 }
 
