@@ -10,7 +10,7 @@ use hytrace::rng::Rng;
 use hytrace::scene::{Scene, scene_files};
 use hytrace::sdf::conformance::{CASES, parse_node, points_on_faces};
 use hytrace::sdf::interval::{IntervalRegisters, eval_box};
-use hytrace::sdf::simd::{PacketRegisters, SimdLevel, eval8};
+use hytrace::sdf::simd::{PacketRegisters, SimdLevel, eval8, material8};
 use hytrace::sdf::simplify::{Fault, Simplifier, Verdict};
 use hytrace::sdf::ssa::SsaTape;
 use hytrace::sdf::tape::Tape;
@@ -121,6 +121,65 @@ fn simd_lanes_give_the_scalar_bits_on_every_shipped_object() {
             }
         }
     }
+}
+
+#[test]
+fn simd_materials_give_the_scalar_bits_on_every_shipped_object() {
+    // the objects whose shading tapes blend materials (checkerboards, smooth blends, unions
+    // of differently coloured shapes): every float of the material, bit for bit
+    let mut rng = Rng::new(12);
+    let mut regs = PacketRegisters::new();
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/scenes");
+    let (mut blended, mut fractional) = (0, 0);
+    for file in scene_files(&dir).unwrap() {
+        let scene = Scene::load(&file).unwrap_or_else(|e| panic!("{e}"));
+        let table = scene.material_table();
+        for o in &scene.objects {
+            let tape = &o.lowered.shading;
+            if tape.has_constant_material() {
+                continue;
+            }
+            blended += 1;
+            let b = o.bounds();
+            let (c, r) = if b.is_finite() {
+                (b.center(), 0.6 * (b.max - b.min).max_element() + 0.5)
+            } else {
+                (Vec3::ZERO, 8.0)
+            };
+            let pts: Vec<Vec3> = (0..512).map(|_| c + rng.vec3_in(-r, r)).collect();
+            for level in levels() {
+                for chunk in pts.chunks(8) {
+                    let mut xyz = [[0.0f32; 8]; 3];
+                    for (i, p) in chunk.iter().enumerate() {
+                        for a in 0..3 {
+                            xyz[a][i] = p[a];
+                        }
+                    }
+                    let got = material8(level, tape, &xyz[0], &xyz[1], &xyz[2], &table, &mut regs);
+                    for (i, p) in chunk.iter().enumerate() {
+                        let (_, want) = tape.eval_material(*p, &table);
+                        let mixed = want.iter().zip(&table[0]).any(|(w, t)| w != t);
+                        fractional += usize::from(level == SimdLevel::Portable && mixed);
+                        for (k, w) in want.iter().enumerate() {
+                            assert!(
+                                got[k][i].to_bits() == w.to_bits()
+                                    || (got[k][i].is_nan() && w.is_nan()),
+                                "{level:?} {}/{} at {p}, float {k}: {} vs {w}",
+                                file.display(),
+                                o.name,
+                                got[k][i]
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+    assert!(blended >= 4, "only {blended} objects blend materials");
+    assert!(
+        fractional > 0,
+        "no point took another material than the first"
+    );
 }
 
 /// A random box inside a sample's region: half-sizes from 10⁻³ of its reach to about all of

@@ -8,7 +8,7 @@
 //! shipped scene and the conformance catalogue).
 
 use crate::sdf::lanes::{Array8, Lanes};
-use crate::sdf::tape::{MAX_REGISTERS, Tape};
+use crate::sdf::tape::{MATERIAL_FLOATS, MAX_REGISTERS, MaterialVec, Tape};
 
 /// Which instruction set [`eval8`] uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -142,13 +142,44 @@ pub fn eval8_interpreted(
     }
 }
 
+/// [`Tape::material_lanes`] at 8 points with the widest evaluator `level` allows: entry k
+/// of the result holds material float k of each point, the bits [`Tape::eval_material`]
+/// gives there.
+pub fn material8(
+    level: SimdLevel,
+    tape: &Tape,
+    x: &[f32; 8],
+    y: &[f32; 8],
+    z: &[f32; 8],
+    materials: &[MaterialVec],
+    regs: &mut PacketRegisters,
+) -> [[f32; 8]; MATERIAL_FLOATS] {
+    match level {
+        #[cfg(target_arch = "x86_64")]
+        SimdLevel::Avx2 => {
+            // SAFETY: the level is `Avx2` only where `detect` found AVX2.
+            unsafe { x86::material8_avx2(tape, x, y, z, materials, regs.as_lanes()) }
+        }
+        _ => {
+            let m = tape.material_lanes(
+                Array8(*x),
+                Array8(*y),
+                Array8(*z),
+                materials,
+                regs.as_lanes(),
+            );
+            m.map(|v| v.0)
+        }
+    }
+}
+
 #[cfg(target_arch = "x86_64")]
 pub(crate) use x86::{apply_avx2, sin_cos_avx2};
 
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use super::Lanes;
-    use crate::sdf::tape::{MAX_REGISTERS, Tape};
+    use crate::sdf::tape::{MATERIAL_FLOATS, MAX_REGISTERS, MaterialVec, Tape};
     use std::arch::x86_64::*;
 
     /// Four lanes in an SSE register (SSE2 is part of x86-64: always available).
@@ -178,6 +209,28 @@ mod x86 {
             _mm_storeu_ps(out.as_mut_ptr(), r.0);
             out
         }
+    }
+
+    /// [`super::material8`] with AVX2.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[target_feature(enable = "avx2")]
+    pub unsafe fn material8_avx2(
+        tape: &Tape,
+        x: &[f32; 8],
+        y: &[f32; 8],
+        z: &[f32; 8],
+        materials: &[MaterialVec],
+        regs: &mut [Avx; MAX_REGISTERS],
+    ) -> [[f32; 8]; MATERIAL_FLOATS] {
+        let load = |s: &[f32; 8]| Avx(unsafe { _mm256_loadu_ps(s.as_ptr()) });
+        let m = tape.material_lanes(load(x), load(y), load(z), materials, regs);
+        m.map(|v| {
+            let mut out = [0.0f32; 8];
+            unsafe { _mm256_storeu_ps(out.as_mut_ptr(), v.0) };
+            out
+        })
     }
 
     /// The tape at 8 points with AVX2.

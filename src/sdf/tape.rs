@@ -473,38 +473,69 @@ impl Tape {
     pub fn eval_material(&self, p: Vec3, materials: &[MaterialVec]) -> (f32, MaterialVec) {
         // the value registers from the pool (zeroing 1 KiB for every hit showed in profiles)
         let mut pooled = Registers::pooled();
-        let regs: &mut [f32; MAX_REGISTERS] = &mut (*pooled).0;
-        let mut mats = [[0.0; MATERIAL_FLOATS]; MAX_MATERIAL_REGISTERS];
-        regs[0] = p.x;
-        regs[1] = p.y;
-        regs[2] = p.z;
+        self.distance_and_material_lanes(p.x, p.y, p.z, materials, &mut (*pooled).0)
+    }
+
+    /// [`Self::eval_material`]'s material on lanes: lane i holds, in each of the
+    /// [`MATERIAL_FLOATS`] entries, the bits a scalar evaluation at (x[i], y[i], z[i]) gives.
+    /// `r` is scratch.
+    #[inline(always)]
+    pub fn material_lanes<L: Lanes>(
+        &self,
+        x: L,
+        y: L,
+        z: L,
+        materials: &[MaterialVec],
+        r: &mut [L; MAX_REGISTERS],
+    ) -> [L; MATERIAL_FLOATS] {
+        self.distance_and_material_lanes(x, y, z, materials, r).1
+    }
+
+    /// The distance and the blended material on lanes, each lane's operations those of a
+    /// scalar evaluation, in the same order (so the same bits).
+    #[inline(always)]
+    fn distance_and_material_lanes<L: Lanes>(
+        &self,
+        x: L,
+        y: L,
+        z: L,
+        materials: &[MaterialVec],
+        r: &mut [L; MAX_REGISTERS],
+    ) -> (L, [L; MATERIAL_FLOATS]) {
+        let load = |k: u32| {
+            materials
+                .get(k as usize)
+                .copied()
+                .unwrap_or([0.0; MATERIAL_FLOATS])
+                .map(L::splat)
+        };
+        let mut mats = [[L::splat(0.0); MATERIAL_FLOATS]; MAX_MATERIAL_REGISTERS];
         let mreg = |i: u8| i as usize % MAX_MATERIAL_REGISTERS;
+        r[0] = x;
+        r[1] = y;
+        r[2] = z;
         for ins in &self.instrs {
             match ins.op() {
-                Op::MatLoad => {
-                    mats[mreg(ins.out)] = materials
-                        .get(ins.imm as usize)
-                        .copied()
-                        .unwrap_or([0.0; MATERIAL_FLOATS]);
-                }
+                Op::MatLoad => mats[mreg(ins.out)] = load(ins.imm),
                 Op::MatMix => {
                     let (ma, mb) = (mats[mreg(ins.a)], mats[mreg(ins.b)]);
-                    let h = regs[ins.imm as u8 as usize];
-                    mats[mreg(ins.out)] = std::array::from_fn(|i| ma[i] + (mb[i] - ma[i]) * h);
+                    let h = r[ins.imm as u8 as usize];
+                    mats[mreg(ins.out)] =
+                        std::array::from_fn(|i| ma[i].add(mb[i].sub(ma[i]).mul(h)));
                 }
                 op => {
-                    let a = regs[ins.a as usize];
-                    let b = regs[ins.b as usize];
-                    let c = regs[ins.imm as u8 as usize];
-                    regs[ins.out as usize] = apply(op, a, b, c, ins.imm());
+                    let a = r[ins.a as usize];
+                    let b = r[ins.b as usize];
+                    let c = r[ins.imm as u8 as usize];
+                    r[ins.out as usize] = apply(op, a, b, c, ins.imm());
                 }
             }
         }
-        let m = self
-            .material_result
-            .map(|r| mats[mreg(r)])
-            .unwrap_or_else(|| materials.first().copied().unwrap_or([0.0; MATERIAL_FLOATS]));
-        (regs[self.result as usize], m)
+        let m = match self.material_result {
+            Some(m) => mats[mreg(m)],
+            None => load(0),
+        };
+        (r[self.result as usize], m)
     }
 
     /// The blended material at `p`: [`Self::eval_material`]'s, without evaluating anything

@@ -249,8 +249,16 @@ pub fn surfaced<T: ShadingTracer + ?Sized>(
     ray: &Ray,
     hit: &Hit,
 ) -> Surfaced {
+    let material = tracer.material_at(hit, ray.at(hit.t), materials);
+    surfaced_with(ray, hit, material)
+}
+
+/// [`surfaced`] with the material at the hit found by the caller
+/// ([`ShadingTracer::material_at`] there, or [`ShadingTracer::materials_at`] for many hits).
+#[inline]
+pub fn surfaced_with(ray: &Ray, hit: &Hit, material: MaterialParams) -> Surfaced {
     let p = ray.at(hit.t);
-    let mut m = tracer.material_at(hit, p, materials);
+    let mut m = material;
     if m.opacity < 1.0 {
         // A partly covered surface is thin: what is not covered passes straight through, and
         // the covered part does not refract (its coverage replaces transmission).

@@ -65,6 +65,22 @@ pub trait ShadingTracer {
             *o = self.visibility(&q.ray, q.tmin, q.tmax, q.shadow);
         }
     }
+    /// [`ShadingTracer::material_at`] of every hit `hits[i]` of `rays[i]`, at its point
+    /// `rays[i].at(t)`, into `out[i]` (left as it is where there is no hit); as with
+    /// [`ShadingTracer::closest_hits`], the answers of asking one at a time.
+    fn materials_at(
+        &self,
+        rays: &[Ray],
+        hits: &[Option<Hit>],
+        materials: &[MaterialVec],
+        out: &mut [MaterialParams],
+    ) {
+        for ((ray, hit), o) in rays.iter().zip(hits).zip(out) {
+            if let Some(hit) = hit {
+                *o = self.material_at(hit, ray.at(hit.t), materials);
+            }
+        }
+    }
 }
 
 impl ShadingTracer for SceneTracer<'_> {
@@ -91,6 +107,15 @@ impl ShadingTracer for SceneTracer<'_> {
     }
     fn visibilities(&self, queries: &[ShadowQuery], out: &mut [f32]) {
         SceneTracer::visibilities(self, queries, out)
+    }
+    fn materials_at(
+        &self,
+        rays: &[Ray],
+        hits: &[Option<Hit>],
+        materials: &[MaterialVec],
+        out: &mut [MaterialParams],
+    ) {
+        SceneTracer::materials_at(self, rays, hits, materials, out)
     }
 }
 

@@ -30,8 +30,8 @@ use super::step::{TraceResult, epsilon_at};
 use crate::accel::field::{Cell, FieldCursor, ObjectField, WalkStack};
 use crate::geom::Ray;
 use crate::scene::TracerSettings;
-use crate::sdf::simd::{PacketRegisters, SimdLevel, eval8};
-use crate::sdf::tape::{Registers, Tape};
+use crate::sdf::simd::{PacketRegisters, SimdLevel, eval8, material8};
+use crate::sdf::tape::{MATERIAL_FLOATS, MaterialVec, Registers, Tape};
 use arrayvec::ArrayVec;
 use glam::Vec3;
 
@@ -79,6 +79,24 @@ impl PacketScratch {
             level,
             stacks: (0..BUNDLE).map(|_| WalkStack::new()).collect(),
         }
+    }
+
+    /// The material `tape` blends at eight points ([`crate::sdf::simd::material8`]).
+    pub fn material8(
+        &mut self,
+        tape: &Tape,
+        xyz: &[[f32; PACKET]; 3],
+        materials: &[MaterialVec],
+    ) -> [[f32; PACKET]; MATERIAL_FLOATS] {
+        material8(
+            self.level,
+            tape,
+            &xyz[0],
+            &xyz[1],
+            &xyz[2],
+            materials,
+            &mut self.simd,
+        )
     }
 }
 
