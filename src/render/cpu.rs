@@ -6,8 +6,7 @@ use super::{Framebuffer, RenderOptions, TILE, Tile, sample_offset, tiles};
 use crate::geom::Ray;
 use crate::scene::Scene;
 use crate::scene::camera::Camera;
-use crate::scene::material::MaterialParams;
-use crate::sdf::tape::{MATERIAL_FLOATS, MaterialVec};
+use crate::sdf::tape::MaterialVec;
 use crate::shade::integrator::{
     self, CameraSample, Deferral, DeferredShading, Primary, trace_camera_ray_from,
 };
@@ -221,7 +220,7 @@ fn render_tile<T: ShadingTracer + Sync + ?Sized>(
     let mut rays = Vec::with_capacity(band);
     let mut hits = Vec::with_capacity(band);
     let mut surfaces = Vec::with_capacity(band);
-    let mut band_materials = Vec::with_capacity(band);
+    let mut blended = Vec::new();
     let mut queries = Vec::new();
     let mut owners = Vec::new();
     let mut answers = Vec::new();
@@ -244,20 +243,18 @@ fn render_tile<T: ShadingTracer + Sync + ?Sized>(
         hits.resize(rays.len(), None);
         tracer.closest_hits(&rays, 0.0, f32::INFINITY, &mut hits);
         // the band's shadow rays, light by light (rays toward one light are coherent)
-        // the band's materials together (where a shading tape blends them, eight at a time)
-        band_materials.clear();
-        band_materials.resize(
-            rays.len(),
-            MaterialParams::from_vec(&[0.0; MATERIAL_FLOATS]),
-        );
-        tracer.materials_at(&rays, &hits, materials, &mut band_materials);
+        // the materials that shading tapes blend, together (eight at a time); the others as
+        // each surface is made
+        tracer.blended_materials(&rays, &hits, materials, &mut blended);
+        let mut blended_at = blended.iter().peekable();
         surfaces.clear();
-        surfaces.extend(
-            rays.iter()
-                .zip(&hits)
-                .zip(&band_materials)
-                .map(|((ray, hit), &m)| hit.as_ref().map(|h| integrator::surfaced_with(ray, h, m))),
-        );
+        surfaces.extend(rays.iter().zip(&hits).enumerate().map(|(i, (ray, hit))| {
+            let hit = hit.as_ref()?;
+            Some(match blended_at.next_if(|b| b.0 == i) {
+                Some(&(_, m)) => integrator::surfaced_with(ray, hit, m),
+                None => integrator::surfaced(tracer, materials, ray, hit),
+            })
+        }));
         queries.clear();
         owners.clear();
         for light in 0..lights {

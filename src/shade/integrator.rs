@@ -254,7 +254,7 @@ pub fn surfaced<T: ShadingTracer + ?Sized>(
 }
 
 /// [`surfaced`] with the material at the hit found by the caller
-/// ([`ShadingTracer::material_at`] there, or [`ShadingTracer::materials_at`] for many hits).
+/// ([`ShadingTracer::material_at`] there, or [`ShadingTracer::blended_materials`] for many).
 #[inline]
 pub fn surfaced_with(ray: &Ray, hit: &Hit, material: MaterialParams) -> Surfaced {
     let p = ray.at(hit.t);

@@ -65,21 +65,19 @@ pub trait ShadingTracer {
             *o = self.visibility(&q.ray, q.tmin, q.tmax, q.shadow);
         }
     }
-    /// [`ShadingTracer::material_at`] of every hit `hits[i]` of `rays[i]`, at its point
-    /// `rays[i].at(t)`, into `out[i]` (left as it is where there is no hit); as with
-    /// [`ShadingTracer::closest_hits`], the answers of asking one at a time.
-    fn materials_at(
+    /// The hits among `hits` (of `rays`) whose material a shading tape blends at the point,
+    /// with that material ([`ShadingTracer::material_at`] at `rays[i].at(t)`, the same bits),
+    /// in increasing `i`, into `out` (cleared first): a tracer may evaluate those together.
+    /// None by default: every material is then found by `material_at`.
+    fn blended_materials(
         &self,
         rays: &[Ray],
         hits: &[Option<Hit>],
         materials: &[MaterialVec],
-        out: &mut [MaterialParams],
+        out: &mut Vec<(usize, MaterialParams)>,
     ) {
-        for ((ray, hit), o) in rays.iter().zip(hits).zip(out) {
-            if let Some(hit) = hit {
-                *o = self.material_at(hit, ray.at(hit.t), materials);
-            }
-        }
+        let _ = (rays, hits, materials);
+        out.clear();
     }
 }
 
@@ -108,14 +106,14 @@ impl ShadingTracer for SceneTracer<'_> {
     fn visibilities(&self, queries: &[ShadowQuery], out: &mut [f32]) {
         SceneTracer::visibilities(self, queries, out)
     }
-    fn materials_at(
+    fn blended_materials(
         &self,
         rays: &[Ray],
         hits: &[Option<Hit>],
         materials: &[MaterialVec],
-        out: &mut [MaterialParams],
+        out: &mut Vec<(usize, MaterialParams)>,
     ) {
-        SceneTracer::materials_at(self, rays, hits, materials, out)
+        SceneTracer::blended_materials(self, rays, hits, materials, out)
     }
 }
 

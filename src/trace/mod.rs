@@ -711,41 +711,44 @@ impl<'a> SceneTracer<'a> {
         }
     }
 
-    /// [`Self::material_at`] of every hit `hits[i]` of `rays[i]` at `rays[i].at(t)`, into
-    /// `out[i]` (left as it is where there is no hit): the same bits. The hits whose material
-    /// a shading tape blends at the point (a checkerboard's tiles) are evaluated eight at a
-    /// time, grouped by tape, on SIMD lanes; one material per hit's tape or mesh is read as
-    /// it is. (Interpreted one hit at a time, antialiasing.ron's checkerboard spent 45 % of its
-    /// frame there, glass.ron 20 %.)
-    pub fn materials_at(
+    /// The hits among `hits` (of `rays`) whose material a shading tape blends at the point
+    /// (a checkerboard's tiles), with [`Self::material_at`] there (the same bits), in
+    /// increasing `i`, into `out` (cleared first). They are evaluated eight at a time,
+    /// grouped by tape, on SIMD lanes. (Interpreted one hit at a time, antialiasing.ron's
+    /// checkerboard spent 45 % of its frame there, glass.ron 20 %.)
+    pub fn blended_materials(
         &self,
         rays: &[Ray],
         hits: &[Option<Hit>],
         materials: &[MaterialVec],
-        out: &mut [MaterialParams],
+        out: &mut Vec<(usize, MaterialParams)>,
     ) {
-        assert!(rays.len() == hits.len() && hits.len() == out.len());
+        out.clear();
         // (the tape's address, the hit) of the hits with a blended material
         let mut blended: Vec<(usize, usize)> = Vec::new();
         for (i, (ray, hit)) in rays.iter().zip(hits).enumerate() {
-            let Some(hit) = hit else { continue };
-            let p = ray.at(hit.t);
-            if let Surface::Sdf(object) = hit.surface {
-                let field = &self.fields[object];
-                if !field.whole_shading.has_constant_material() {
-                    let tape = field.shading_at(p);
-                    if !tape.has_constant_material() {
-                        blended.push((tape as *const Tape as usize, i));
-                        continue;
-                    }
-                }
+            let Some(Hit {
+                surface: Surface::Sdf(object),
+                t,
+                ..
+            }) = *hit
+            else {
+                continue;
+            };
+            let field = &self.fields[object];
+            if field.whole_shading.has_constant_material() {
+                continue;
             }
-            out[i] = self.material_at(hit, p, materials);
+            let tape = field.shading_at(ray.at(t));
+            if !tape.has_constant_material() {
+                blended.push((tape as *const Tape as usize, i));
+            }
         }
         if blended.is_empty() {
             return;
         }
-        // one tape's hits together, in hit order
+        let point = |i: usize| rays[i].at(hits[i].as_ref().map_or(0.0, |h| h.t));
+        // one tape's hits together
         blended.sort_unstable();
         PACKET_SCRATCH.with(|scratch| {
             let scratch = &mut *scratch.borrow_mut();
@@ -755,7 +758,6 @@ impl<'a> SceneTracer<'a> {
                     let Some(Surface::Sdf(object)) = hits[first].as_ref().map(|h| h.surface) else {
                         unreachable!("only SDF hits are blended");
                     };
-                    let point = |i: usize| rays[i].at(hits[i].as_ref().map_or(0.0, |h| h.t));
                     let tape = self.fields[object].shading_at(point(first));
                     // the lanes past the group's hits repeat its first point
                     let at: [Vec3; packet::PACKET] =
@@ -764,11 +766,12 @@ impl<'a> SceneTracer<'a> {
                     let m = scratch.material8(tape, &xyz, materials);
                     for (k, &(_, i)) in lanes.iter().enumerate() {
                         let v: MaterialVec = std::array::from_fn(|f| m[f][k]);
-                        out[i] = MaterialParams::from_vec(&v);
+                        out.push((i, MaterialParams::from_vec(&v)));
                     }
                 }
             }
         });
+        out.sort_unstable_by_key(|&(i, _)| i);
     }
 
     /// Whether a mesh blocks the ray within (tmin, tmax).
