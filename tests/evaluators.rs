@@ -182,6 +182,35 @@ fn simd_materials_give_the_scalar_bits_on_every_shipped_object() {
     );
 }
 
+#[test]
+fn distances_found_together_are_each_point_s_distance() {
+    // every shipped scene: points around its objects, near and far, in one call against one
+    // at a time (equal values: only a zero's sign may differ, min taking objects in another
+    // order)
+    let mut rng = Rng::new(13);
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/scenes");
+    let mut near = 0;
+    for file in scene_files(&dir).unwrap() {
+        let scene = Scene::load(&file).unwrap_or_else(|e| panic!("{e}"));
+        let tracer = hytrace::trace::SceneTracer::new(&scene);
+        let points: Vec<Vec3> = (0..400).map(|_| rng.vec3_in(-4.0, 4.0)).collect();
+        for reach in [0.05, 0.6, 10.0] {
+            let mut together = vec![0.0; points.len()];
+            tracer.distances(&points, reach, &mut together);
+            for (p, d) in points.iter().zip(&together) {
+                let alone = tracer.distance(*p, reach);
+                assert!(
+                    same(*d, alone),
+                    "{} at {p} within {reach}: {d} vs {alone}",
+                    file.display()
+                );
+                near += usize::from(alone < reach);
+            }
+        }
+    }
+    assert!(near > 1000, "only {near} points near an object");
+}
+
 /// A random box inside a sample's region: half-sizes from 10⁻³ of its reach to about all of
 /// it, some flat along an axis.
 fn random_box(rng: &mut Rng, centre: Vec3, reach: f32) -> (Vec3, Vec3) {

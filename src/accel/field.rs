@@ -1338,11 +1338,17 @@ impl<'f, 'r> FieldCursor<'f, 'r> {
     /// The field at p.
     #[inline]
     pub fn eval(&mut self, p: Vec3) -> f32 {
-        let tape = match self.short_whole_tape() {
+        let tape = self.tape_at(p);
+        tape.eval_in(p, self.regs)
+    }
+
+    /// The tape [`Self::eval`] evaluates at p (every tape valid there gives the same value).
+    #[inline]
+    pub fn tape_at(&mut self, p: Vec3) -> &'f Tape {
+        match self.short_whole_tape() {
             Some(whole) => whole,
             None => self.region(p).tape,
-        };
-        tape.eval_in(p, self.regs)
+        }
     }
 }
 

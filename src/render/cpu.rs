@@ -7,10 +7,13 @@ use crate::geom::Ray;
 use crate::scene::Scene;
 use crate::scene::camera::Camera;
 use crate::sdf::tape::MaterialVec;
+use crate::shade::integrator::Surfaced;
 use crate::shade::integrator::{
     self, CameraSample, Deferral, DeferredShading, Primary, trace_camera_ray_from,
 };
-use crate::shade::{ShadingTracer, shadow_query};
+use crate::shade::{
+    ShadingTracer, occlusion_from, occlusion_reach, occlusion_sample, shadow_query,
+};
 use crate::trace::SceneTracer;
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
@@ -221,6 +224,9 @@ fn render_tile<T: ShadingTracer + Sync + ?Sized>(
     let mut hits = Vec::with_capacity(band);
     let mut surfaces = Vec::with_capacity(band);
     let mut blended = Vec::new();
+    let mut occlusion = Vec::with_capacity(band);
+    let mut occlusion_points = Vec::new();
+    let mut occlusion_distances = Vec::new();
     let mut queries = Vec::new();
     let mut owners = Vec::new();
     let mut answers = Vec::new();
@@ -255,6 +261,33 @@ fn render_tile<T: ShadingTracer + Sync + ?Sized>(
                 None => integrator::surfaced(tracer, materials, ray, hit),
             })
         }));
+        // the band's ambient occlusion together, where the scene asks for it
+        occlusion.clear();
+        if let Some(ao) = scene.shading.ambient_occlusion.filter(|_| {
+            (scene.lights.iter()).any(|l| matches!(l, crate::scene::Light::Ambient { .. }))
+        }) {
+            let shaded =
+                |s: &Option<Surfaced>| s.as_ref().filter(|s| s.local_weight > 0.0).is_some();
+            occlusion_points.clear();
+            for s in surfaces.iter().flatten().filter(|s| s.local_weight > 0.0) {
+                let (p, n) = (s.point.position, s.point.normal);
+                occlusion_points.extend((1..=ao.steps).map(|i| occlusion_sample(p, n, &ao, i)));
+            }
+            occlusion_distances.resize(occlusion_points.len(), 0.0);
+            tracer.distances(
+                &occlusion_points,
+                occlusion_reach(&ao),
+                &mut occlusion_distances,
+            );
+            let mut at = 0;
+            for s in &surfaces {
+                occlusion.push(shaded(s).then(|| {
+                    let value = occlusion_from(&ao, |i| occlusion_distances[at + i as usize - 1]);
+                    at += ao.steps as usize;
+                    value
+                }));
+            }
+        }
         queries.clear();
         owners.clear();
         for light in 0..lights {
@@ -294,6 +327,7 @@ fn render_tile<T: ShadingTracer + Sync + ?Sized>(
         for (i, (ray, hit)) in rays.iter().zip(&hits).enumerate() {
             let first = Primary {
                 hit: hit.as_ref(),
+                occlusion: occlusion.get(i).copied().flatten(),
                 shading: surfaces[i]
                     .as_ref()
                     .map(|s| (s, &visibility[i * lights..(i + 1) * lights])),

@@ -172,7 +172,7 @@ impl DeferredShading {
                     point,
                 } => {
                     let v = &visibility[point * lights..(point + 1) * lights];
-                    let local = shade_with(tracer, &self.points[point], |light, _| v[light]);
+                    let local = shade_with(tracer, &self.points[point], None, |light, _| v[light]);
                     samples[slot].radiance += weight * local;
                 }
             }
@@ -305,6 +305,9 @@ pub struct Primary<'a> {
     pub hit: Option<&'a Hit>,
     /// [`surfaced`] at the hit, with the lights' visibilities.
     pub shading: Option<(&'a Surfaced, &'a [f32])>,
+    /// The ambient occlusion at the hit, where the caller found it ahead
+    /// ([`super::ambient_occlusion`]'s value).
+    pub occlusion: Option<f32>,
     /// The mirror reflection of the hit ([`first_reflection`]) and its closest hit over
     /// [0, ∞), where the caller traced it ahead with others; used only if the path sends
     /// exactly that ray.
@@ -378,6 +381,7 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
         inside: None,
     });
     let mut reflection = first.and_then(|f| f.reflection);
+    let mut first_occlusion = first.and_then(|f| f.occlusion);
     let mut primary = true;
     // Once a term went to the deferral, the later ones follow it there, in order.
     let mut deferring = false;
@@ -479,7 +483,8 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
         if local_weight > 0.0 {
             match (visibility, defer.as_mut()) {
                 (Some(v), _) => {
-                    let local = shade_with(tracer, &surf.point, |light, _| v[light]);
+                    let occlusion = first_occlusion.take();
+                    let local = shade_with(tracer, &surf.point, occlusion, |light, _| v[light]);
                     add_radiance(
                         &mut sample,
                         &mut defer,

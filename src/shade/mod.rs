@@ -65,6 +65,13 @@ pub trait ShadingTracer {
             *o = self.visibility(&q.ray, q.tmin, q.tmax, q.shadow);
         }
     }
+    /// [`ShadingTracer::distance`] at every point, clamped to `reach`, into `out` (of the same
+    /// length); as with [`ShadingTracer::closest_hits`], the answers of asking one at a time.
+    fn distances(&self, points: &[Vec3], reach: f32, out: &mut [f32]) {
+        for (p, o) in points.iter().zip(out) {
+            *o = self.distance(*p, reach);
+        }
+    }
     /// The hits among `hits` (of `rays`) whose material a shading tape blends at the point,
     /// with that material ([`ShadingTracer::material_at`] at `rays[i].at(t)`, the same bits),
     /// in increasing `i`, into `out` (cleared first): a tracer may evaluate those together.
@@ -115,6 +122,9 @@ impl ShadingTracer for SceneTracer<'_> {
     ) {
         SceneTracer::blended_materials(self, rays, hits, materials, out)
     }
+    fn distances(&self, points: &[Vec3], reach: f32, out: &mut [f32]) {
+        SceneTracer::distances(self, points, reach, out)
+    }
 }
 
 /// Everything the shader needs to know about a surface point.
@@ -149,7 +159,7 @@ pub fn offset_from_surface(settings: &TracerSettings, t: f32, p: Vec3) -> f32 {
 
 /// Local (direct) radiance from `sp` toward the eye.
 pub fn shade<T: ShadingTracer + ?Sized>(tracer: &T, sp: &SurfacePoint) -> Vec3 {
-    shade_with(tracer, sp, |_, q| {
+    shade_with(tracer, sp, None, |_, q| {
         tracer.visibility(&q.ray, q.tmin, q.tmax, q.shadow)
     })
 }
@@ -238,10 +248,13 @@ pub fn light_at(light: &Light, p: Vec3) -> Option<(Vec3, f32, Vec3, Shadow)> {
 }
 
 /// [`shade`] with the lights' visibilities from `visibility(light, query)`, called for the
-/// queries [`shadow_query`] gives (so a caller may have answered them ahead, in packets).
+/// queries [`shadow_query`] gives (so a caller may have answered them ahead, in packets), and
+/// the ambient occlusion at the point where the caller found it ahead (else it is found here,
+/// if the scene asks for it).
 pub fn shade_with<T: ShadingTracer + ?Sized>(
     tracer: &T,
     sp: &SurfacePoint,
+    occlusion: Option<f32>,
     mut visibility: impl FnMut(usize, &ShadowQuery) -> f32,
 ) -> Vec3 {
     let scene = tracer.scene();
@@ -258,10 +271,11 @@ pub fn shade_with<T: ShadingTracer + ?Sized>(
     let mut out = m.emissive;
     for (i, light) in scene.lights.iter().enumerate() {
         if let Light::Ambient { radiance } = *light {
-            let ao = scene
-                .shading
-                .ambient_occlusion
-                .map_or(1.0, |a| ambient_occlusion(tracer, sp.position, n, &a));
+            let ao = match (scene.shading.ambient_occlusion, occlusion) {
+                (None, _) => 1.0,
+                (Some(_), Some(found)) => found,
+                (Some(a), None) => ambient_occlusion(tracer, sp.position, n, &a),
+            };
             out += ambient_reflectance * radiance * ao;
             continue;
         }
@@ -310,12 +324,32 @@ pub fn ambient_occlusion<T: ShadingTracer + ?Sized>(
     n: Vec3,
     ao: &AmbientOcclusion,
 ) -> f32 {
-    let reach = ao.step * ao.steps as f32;
+    let reach = occlusion_reach(ao);
+    occlusion_from(ao, |i| {
+        tracer.distance(occlusion_sample(p, n, ao, i), reach)
+    })
+}
+
+/// How far [`ambient_occlusion`]'s distances look: its farthest sample's height.
+#[inline]
+pub fn occlusion_reach(ao: &AmbientOcclusion) -> f32 {
+    ao.step * ao.steps as f32
+}
+
+/// Sample i (1..=steps) of [`ambient_occlusion`] above p along n.
+#[inline]
+pub fn occlusion_sample(p: Vec3, n: Vec3, ao: &AmbientOcclusion, i: u32) -> Vec3 {
+    p + n * (ao.step * i as f32)
+}
+
+/// [`ambient_occlusion`] from the distance at each sample, `distance(i)` for i = 1..=steps in
+/// order (the renderer finds a band's distances together).
+pub fn occlusion_from(ao: &AmbientOcclusion, mut distance: impl FnMut(u32) -> f32) -> f32 {
     let mut occlusion = 0.0;
     let mut weight = 0.5;
     for i in 1..=ao.steps {
         let h = ao.step * i as f32;
-        let d = tracer.distance(p + n * h, reach);
+        let d = distance(i);
         occlusion += weight * (h - d).max(0.0);
         weight *= 0.5;
     }

@@ -81,6 +81,11 @@ impl PacketScratch {
         }
     }
 
+    /// `tape` at eight points ([`eval8`]).
+    pub fn eval8(&mut self, tape: &Tape, xyz: &[[f32; PACKET]; 3]) -> [f32; PACKET] {
+        eval8(self.level, tape, &xyz[0], &xyz[1], &xyz[2], &mut self.simd)
+    }
+
     /// The material `tape` blends at eight points ([`crate::sdf::simd::material8`]).
     pub fn material8(
         &mut self,
