@@ -59,7 +59,7 @@ pub fn render_through<T: ShadingTracer + Sync + ?Sized>(
         ProgressBar::hidden()
     };
     if opts.samples == 1 {
-        let fb = single_pass(tracer, camera, opts, &bar);
+        let fb = single_pass(tracer, camera, opts, &|| false, &bar).expect("nobody cancels");
         bar.finish_and_clear();
         return Ok(fb);
     }
@@ -153,17 +153,31 @@ thread_local! {
     static TILE_SAMPLES: RefCell<Vec<CameraSample>> = const { RefCell::new(Vec::new()) };
 }
 
+/// The image of sample 0 alone of every pixel as `camera` sees the tracer's scene, in
+/// parallel over the tiles on the current rayon pool: bit for bit the mean of new sums after
+/// [`render_pass`] 0, without the sums (the viewer's previews, whose one sample is the whole
+/// image). `None` once `cancelled()` turned true: it is asked before each tile.
+pub fn render_single_pass(
+    tracer: &SceneTracer,
+    camera: &Camera,
+    opts: &RenderOptions,
+    cancelled: &(dyn Fn() -> bool + Sync),
+) -> Option<Framebuffer> {
+    single_pass(tracer, camera, opts, cancelled, &ProgressBar::hidden())
+}
+
 /// The image of one sample per pixel (sample 0), each tile's samples written into its band of
 /// the framebuffer ([`FramebufferRows::write_single_samples`]) as soon as the tile is done,
 /// from a buffer its thread keeps: bit for bit the means of the sums of [`pass`], without
 /// the sums (they and the memory they take, new to the process every frame, were a sixth of
-/// a one-sample 1024² frame).
+/// a one-sample 1024² frame). `None` once `cancelled()` turned true.
 fn single_pass<T: ShadingTracer + Sync + ?Sized>(
     tracer: &T,
     camera: &Camera,
     opts: &RenderOptions,
+    cancelled: &(dyn Fn() -> bool + Sync),
     bar: &ProgressBar,
-) -> Framebuffer {
+) -> Option<Framebuffer> {
     let materials = tracer.scene().material_table();
     let mut fb = Framebuffer::zeroed(opts.width, opts.height);
     let bands: Vec<Mutex<FramebufferRows>> =
@@ -176,19 +190,23 @@ fn single_pass<T: ShadingTracer + Sync + ?Sized>(
             .write_single_samples(tile, samples);
     };
     // one tile per job, as in `pass`
-    tiles(opts.width, opts.height, TILE)
+    let finished = tiles(opts.width, opts.height, TILE)
         .into_par_iter()
         .with_max_len(1)
-        .for_each(|tile| {
+        .try_for_each(|tile| {
+            if cancelled() {
+                return None;
+            }
             TILE_SAMPLES.with(|buffer| match buffer.try_borrow_mut() {
                 Ok(mut samples) => write(tile, &mut samples),
                 // a tracer that runs rayon jobs inside a tile may start another tile here
                 Err(_) => write(tile, &mut Vec::new()),
             });
             bar.inc(1);
+            Some(())
         });
     drop(bands);
-    fb
+    finished.map(|()| fb)
 }
 
 /// Rows of a tile whose camera rays are traced together: a band of 4 rows of 32 pixels fills a
@@ -410,6 +428,19 @@ mod tests {
             &|| false
         ));
         sums
+    }
+
+    #[test]
+    fn a_single_pass_is_the_mean_of_new_sums_after_pass_zero() {
+        let (scene, opts) = setup();
+        let opts = RenderOptions { samples: 1, ..opts };
+        let tracer = SceneTracer::new(&scene);
+        let single =
+            render_single_pass(&tracer, &scene.camera, &opts, &|| false).expect("nobody cancels");
+        assert_eq!(single, first_pass(&tracer, &scene, &opts).mean());
+        let asked = AtomicUsize::new(0);
+        let cancelled = || asked.fetch_add(1, Ordering::Relaxed) >= 1;
+        assert!(render_single_pass(&tracer, &scene.camera, &opts, &cancelled).is_none());
     }
 
     #[test]

@@ -352,6 +352,27 @@ fn frames(
                 read_back,
             } => {
                 let start = Instant::now();
+                let cancelled = || wanted.load(Ordering::Relaxed) != generation;
+                if gpu.is_none() && options.samples == 1 && sample == 0 {
+                    // One sample is the whole image (a preview): the pass writes the image
+                    // itself, the same bits as the mean of its sums, without the sums.
+                    if let Some((_, _, _, Some(old))) = sums.take() {
+                        spare = Some(old);
+                    }
+                    match pool
+                        .install(|| cpu::render_single_pass(tracer, &camera, &options, &cancelled))
+                    {
+                        Some(image) => report(Report::Frame {
+                            generation,
+                            sample,
+                            image: Some(Box::new(image)),
+                            on_device: None,
+                            elapsed: start.elapsed(),
+                        }),
+                        None => report(Report::Abandoned),
+                    }
+                    continue;
+                }
                 let continues = sums.as_ref().is_some_and(|(g, o, added, _)| {
                     sample != 0 && *g == generation && *o == options && *added == sample
                 });
@@ -363,7 +384,6 @@ fn frames(
                     }
                     sums = Some((generation, options, 0, None));
                 }
-                let cancelled = || wanted.load(Ordering::Relaxed) != generation;
                 let (_, _, added, acc) = sums.as_mut().expect("set above");
                 let mut outcome = Ok(true);
                 while outcome.as_ref().is_ok_and(|&done| done) && *added <= sample {
