@@ -92,6 +92,17 @@ fn same(a: f32, b: f32) -> bool {
     a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()) || (a == 0.0 && b == 0.0)
 }
 
+/// Up to eight points as SIMD lanes: x, y and z across them (unused lanes zero).
+fn lanes_of(points: &[Vec3]) -> [[f32; 8]; 3] {
+    let mut xyz = [[0.0f32; 8]; 3];
+    for (i, p) in points.iter().enumerate() {
+        for a in 0..3 {
+            xyz[a][i] = p[a];
+        }
+    }
+    xyz
+}
+
 #[test]
 fn simd_lanes_give_the_scalar_bits_on_every_shipped_object() {
     let mut rng = Rng::new(11);
@@ -102,12 +113,7 @@ fn simd_lanes_give_the_scalar_bits_on_every_shipped_object() {
             .collect();
         for level in levels() {
             for chunk in pts.chunks(8) {
-                let mut xyz = [[0.0f32; 8]; 3];
-                for (i, p) in chunk.iter().enumerate() {
-                    for a in 0..3 {
-                        xyz[a][i] = p[a];
-                    }
-                }
+                let xyz = lanes_of(chunk);
                 let got = eval8(level, &s.tape, &xyz[0], &xyz[1], &xyz[2], &mut regs);
                 for (i, p) in chunk.iter().enumerate() {
                     let want = s.tape.eval(*p);
@@ -149,12 +155,7 @@ fn simd_materials_give_the_scalar_bits_on_every_shipped_object() {
             let pts: Vec<Vec3> = (0..512).map(|_| c + rng.vec3_in(-r, r)).collect();
             for level in levels() {
                 for chunk in pts.chunks(8) {
-                    let mut xyz = [[0.0f32; 8]; 3];
-                    for (i, p) in chunk.iter().enumerate() {
-                        for a in 0..3 {
-                            xyz[a][i] = p[a];
-                        }
-                    }
+                    let xyz = lanes_of(chunk);
                     let got = material8(level, tape, &xyz[0], &xyz[1], &xyz[2], &table, &mut regs);
                     for (i, p) in chunk.iter().enumerate() {
                         let (_, want) = tape.eval_material(*p, &table);

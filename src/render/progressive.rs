@@ -543,14 +543,9 @@ mod tests {
                 .collect();
             let mut bands = banded.bands_mut(side);
             assert_eq!(bands.len() as u32, h.div_ceil(side));
-            // a band's tiles in order, the bands out of order
-            for (tile, px) in done
-                .iter()
-                .rev()
-                .collect::<Vec<_>>()
-                .chunk_by(|a, b| a.0.y0 == b.0.y0)
-                .flat_map(|band| band.iter().rev())
-            {
+            // the tiles out of order, as a pass's threads finish them (each writes only its
+            // own pixels, once a pass)
+            for (tile, px) in done.iter().rev() {
                 bands[(tile.y0 / side) as usize].add_tile(*tile, px);
             }
             for (t, px) in &done {
