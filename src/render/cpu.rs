@@ -9,7 +9,7 @@ use crate::scene::camera::Camera;
 use crate::sdf::tape::MaterialVec;
 use crate::shade::integrator::Surfaced;
 use crate::shade::integrator::{
-    self, CameraSample, Deferral, DeferredShading, Primary, trace_camera_ray_from,
+    self, CameraSample, Deferral, DeferredShading, Primary, SETTLE_AT, trace_camera_ray_from,
 };
 use crate::shade::{
     ShadingTracer, occlusion_from, occlusion_reach, occlusion_sample, shadow_query,
@@ -222,7 +222,8 @@ const BAND_ROWS: u32 = 4;
 /// [`SceneTracer::closest_hits`]), and so do the mirror reflections the paths follow from
 /// those hits ([`integrator::first_reflection`]); then each ray's path is followed on its
 /// own, putting off the local shading of its later hits ([`DeferredShading`]), whose shadow
-/// rays are then answered by one more call for the band. The answers are those of tracing
+/// rays are then answered by one more call for the band (or sooner, once
+/// [`SETTLE_AT`] surfaces wait). The answers are those of tracing
 /// every ray alone, so the image does not depend on this grouping.
 fn render_tile<T: ShadingTracer + Sync + ?Sized>(
     tracer: &T,
@@ -254,7 +255,6 @@ fn render_tile<T: ShadingTracer + Sync + ?Sized>(
     let mut visibility = vec![1.0f32; band * lights];
     // the local shading of the paths' later hits, lit together once the band's paths are done
     let mut deferred = DeferredShading::default();
-    let mut deferred_visibility = Vec::new();
     for y0 in (tile.y0..tile.y0 + tile.h).step_by(BAND_ROWS as usize) {
         rays.clear();
         for y in y0..(y0 + BAND_ROWS).min(tile.y0 + tile.h) {
@@ -370,19 +370,11 @@ fn render_tile<T: ShadingTracer + Sync + ?Sized>(
                 &mut out[slot],
                 Some(defer),
             );
-        }
-        if !deferred.is_empty() {
-            deferred.shadow_queries(scene, &mut queries, &mut owners);
-            answers.resize(queries.len(), 0.0);
-            tracer.visibilities(&queries, &mut answers);
-            deferred_visibility.clear();
-            deferred_visibility.resize(deferred.points() * lights, 1.0);
-            for (&at, &v) in owners.iter().zip(&answers) {
-                deferred_visibility[at] = v;
+            if deferred.waiting() >= SETTLE_AT {
+                deferred.settle(tracer, out);
             }
-            deferred.finish(tracer, out, &deferred_visibility);
         }
-        deferred.clear();
+        deferred.settle(tracer, out);
     }
 }
 

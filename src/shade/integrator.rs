@@ -79,19 +79,33 @@ type PathStack = ArrayVec<PendingRay, { MAX_BOUNCES as usize + 2 }>;
 const MIN_WEIGHT: f32 = 1e-3;
 
 /// The local shading of hits whose lights' visibilities a caller answers later, together:
-/// the CPU renderer collects a band's, asks [`ShadingTracer::visibilities`] once for all
-/// their shadow rays (on our tracer, ray bundles), then adds every term to its sample
-/// ([`Self::finish`]) in the order its path made them, so that each sample's sum is the one
-/// shading on the spot gives, bit for bit. (Shaded on the spot, one shadow ray at a time, the
-/// reflections and refractions of glass.ron spent 40 % of its frames in single-ray penumbra
-/// marches.)
+/// the CPU renderer collects a band's, then [`Self::settle`] asks
+/// [`ShadingTracer::visibilities`] once for all their shadow rays (on our tracer, ray
+/// bundles) and adds every term to its sample in the order its path made them, so that each
+/// sample's sum is the one shading on the spot gives, bit for bit. (Shaded on the spot, one
+/// shadow ray at a time, the reflections and refractions of glass.ron spent 40 % of its
+/// frames in single-ray penumbra marches.)
+///
+/// Memory: the caller settles once [`SETTLE_AT`] surfaces wait, after the path that reached
+/// it; one path has at most 2^(bounces + 1) − 1 hits (each pops one ray and pushes at most
+/// two), so at most [`SETTLE_AT`] + 131,071 surfaces (about 20 MB) wait at any time.
 #[derive(Debug, Default)]
 pub struct DeferredShading {
     /// Radiance to add, in the order of the paths that made the terms.
     terms: Vec<Term>,
     /// The surfaces of the [`Term::Shade`] terms.
     points: Vec<SurfacePoint>,
+    /// Scratch of [`Self::settle`]: the shadow rays, the surface and light each belongs to
+    /// (surface · lights + light), their answers, and the visibilities by surface and light.
+    queries: Vec<super::ShadowQuery>,
+    owners: Vec<usize>,
+    answers: Vec<f32>,
+    visibility: Vec<f32>,
 }
+
+/// How many waiting surfaces make a caller of [`DeferredShading`] settle them (a few bands'
+/// worth of reflections: the bundles stay full, the memory small).
+pub const SETTLE_AT: usize = 1024;
 
 /// One addition to a sample's radiance, put off by [`DeferredShading`].
 #[derive(Debug, Clone, Copy)]
@@ -110,59 +124,44 @@ enum Term {
 pub struct Deferral<'d> {
     /// The terms of the caller's samples so far.
     pub shading: &'d mut DeferredShading,
-    /// This path's sample, as the caller numbers them ([`DeferredShading::finish`]).
+    /// This path's sample, as the caller numbers them ([`DeferredShading::settle`]).
     pub slot: usize,
 }
 
 impl DeferredShading {
-    /// No terms.
-    pub fn clear(&mut self) {
-        self.terms.clear();
-        self.points.clear();
-    }
-
-    /// Whether no path put off any shading.
-    pub fn is_empty(&self) -> bool {
-        self.points.is_empty()
-    }
-
-    /// The surfaces whose shading was put off.
-    pub fn points(&self) -> usize {
+    /// The surfaces whose shading waits.
+    pub fn waiting(&self) -> usize {
         self.points.len()
     }
 
-    /// The shadow rays the put-off shading casts: query `queries[k]` belongs to light
-    /// `owners[k] % lights` of surface `owners[k] / lights` (`lights` the scene's number of
-    /// lights), as [`Self::finish`] reads the answers. Both vectors are cleared first.
-    pub fn shadow_queries(
-        &self,
-        scene: &crate::scene::Scene,
-        queries: &mut Vec<super::ShadowQuery>,
-        owners: &mut Vec<usize>,
-    ) {
-        queries.clear();
-        owners.clear();
+    /// Answers the waiting surfaces' shadow rays together and adds every term to
+    /// `samples[slot]`, in order; nothing waits afterwards.
+    pub fn settle<T: ShadingTracer + ?Sized>(&mut self, tracer: &T, samples: &mut [CameraSample]) {
+        if self.points.is_empty() {
+            self.terms.clear();
+            return;
+        }
+        let scene = tracer.scene();
         let lights = scene.lights.len();
+        self.queries.clear();
+        self.owners.clear();
         for light in 0..lights {
             for (j, point) in self.points.iter().enumerate() {
                 if let Some(q) = super::shadow_query(scene, point, light) {
-                    queries.push(q);
-                    owners.push(j * lights + light);
+                    self.queries.push(q);
+                    self.owners.push(j * lights + light);
                 }
             }
         }
-    }
-
-    /// Adds every term to `samples[slot]`, in order, with `visibility[j·lights + light]` the
-    /// visibility of `light` from surface j (answers to [`Self::shadow_queries`]; the entries
-    /// no query asked for are not read).
-    pub fn finish<T: ShadingTracer + ?Sized>(
-        &self,
-        tracer: &T,
-        samples: &mut [CameraSample],
-        visibility: &[f32],
-    ) {
-        let lights = tracer.scene().lights.len();
+        self.answers.clear();
+        self.answers.resize(self.queries.len(), 0.0);
+        tracer.visibilities(&self.queries, &mut self.answers);
+        // the entries no query asked for are not read
+        self.visibility.clear();
+        self.visibility.resize(self.points.len() * lights, 1.0);
+        for (&at, &v) in self.owners.iter().zip(&self.answers) {
+            self.visibility[at] = v;
+        }
         for term in &self.terms {
             match *term {
                 Term::Add { slot, radiance } => samples[slot].radiance += radiance,
@@ -171,12 +170,14 @@ impl DeferredShading {
                     weight,
                     point,
                 } => {
-                    let v = &visibility[point * lights..(point + 1) * lights];
+                    let v = &self.visibility[point * lights..(point + 1) * lights];
                     let local = shade_with(tracer, &self.points[point], None, |light, _| v[light]);
                     samples[slot].radiance += weight * local;
                 }
             }
         }
+        self.terms.clear();
+        self.points.clear();
     }
 }
 
