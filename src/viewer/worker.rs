@@ -323,8 +323,9 @@ fn frames(
     // sums (made by the first CPU pass: the GPU accumulates on its own)
     let mut sums: Option<(u64, RenderOptions, u32, Option<SampleSums>)> = None;
     // The CPU sums of the last accumulation, kept for the next one of the same size: memory
-    // new to the process costs a page fault per 4 KiB on first touch, and a moving camera
-    // starts an accumulation every frame (a 640×360 image's sums are 11 MB).
+    // new to the process costs a page fault per 4 KiB on first touch, and every rest of the
+    // camera starts an accumulation at the window's size (a 640×360 image's sums are 11 MB;
+    // one-sample previews have no sums).
     let mut spare: Option<SampleSums> = None;
     loop {
         let Ok(job) = inbox.recv() else {
