@@ -142,7 +142,7 @@ pub fn eval8_interpreted(
     }
 }
 
-/// [`Tape::material_lanes`] at 8 points with the widest evaluator `level` allows: entry k
+/// [`Tape::eval_material_lanes`]' material at 8 points with the widest evaluator `level` allows: entry k
 /// of the result holds material float k of each point, the bits [`Tape::eval_material`]
 /// gives there.
 pub fn material8(
@@ -161,7 +161,7 @@ pub fn material8(
             unsafe { x86::material8_avx2(tape, x, y, z, materials, regs.as_lanes()) }
         }
         _ => {
-            let m = tape.material_lanes(
+            let (_, m) = tape.eval_material_lanes(
                 Array8(*x),
                 Array8(*y),
                 Array8(*z),
@@ -225,7 +225,7 @@ mod x86 {
         regs: &mut [Avx; MAX_REGISTERS],
     ) -> [[f32; 8]; MATERIAL_FLOATS] {
         let load = |s: &[f32; 8]| Avx(unsafe { _mm256_loadu_ps(s.as_ptr()) });
-        let m = tape.material_lanes(load(x), load(y), load(z), materials, regs);
+        let (_, m) = tape.eval_material_lanes(load(x), load(y), load(z), materials, regs);
         m.map(|v| {
             let mut out = [0.0f32; 8];
             unsafe { _mm256_storeu_ps(out.as_mut_ptr(), v.0) };

@@ -473,28 +473,15 @@ impl Tape {
     pub fn eval_material(&self, p: Vec3, materials: &[MaterialVec]) -> (f32, MaterialVec) {
         // the value registers from the pool (zeroing 1 KiB for every hit showed in profiles)
         let mut pooled = Registers::pooled();
-        self.distance_and_material_lanes(p.x, p.y, p.z, materials, &mut (*pooled).0)
+        self.eval_material_lanes(p.x, p.y, p.z, materials, &mut (*pooled).0)
     }
 
-    /// [`Self::eval_material`]'s material on lanes: lane i holds, in each of the
-    /// [`MATERIAL_FLOATS`] entries, the bits a scalar evaluation at (x[i], y[i], z[i]) gives.
+    /// [`Self::eval_material`] on lanes: lane i of the distance and of each of the
+    /// [`MATERIAL_FLOATS`] material entries holds the bits a scalar evaluation at
+    /// (x[i], y[i], z[i]) gives (each lane's operations are the scalar's, in the same order).
     /// `r` is scratch.
     #[inline(always)]
-    pub fn material_lanes<L: Lanes>(
-        &self,
-        x: L,
-        y: L,
-        z: L,
-        materials: &[MaterialVec],
-        r: &mut [L; MAX_REGISTERS],
-    ) -> [L; MATERIAL_FLOATS] {
-        self.distance_and_material_lanes(x, y, z, materials, r).1
-    }
-
-    /// The distance and the blended material on lanes, each lane's operations those of a
-    /// scalar evaluation, in the same order (so the same bits).
-    #[inline(always)]
-    fn distance_and_material_lanes<L: Lanes>(
+    pub fn eval_material_lanes<L: Lanes>(
         &self,
         x: L,
         y: L,
