@@ -120,7 +120,7 @@ fn shipped_scenes_render_as_with_whole_tapes() {
 #[test]
 fn huge_and_exploding_trees_render_or_are_refused_with_the_limit() {
     // 100,000 spheres in one union: lowered as a balanced tree, it fits (a few live values per
-    // level); it loads, builds its octree within the memory bound, and renders (a few pixels:
+    // level); it loads, builds its octrees within the memory bound, and renders (a few pixels:
     // so dense a union is not pruned by intervals over boxes wider than its spacing, and each
     // sample evaluates long tapes).
     let mut shapes = Vec::with_capacity(100_000);
@@ -137,19 +137,40 @@ fn huge_and_exploding_trees_render_or_are_refused_with_the_limit() {
             z * 0.01 - 0.05
         ));
     }
-    let src = format!(
-        "Scene(camera: Orthographic(position: (0, 0, 3), look_at: (0, 0, 0), height: 1.2),
-               objects: [(shape: Union([{}]))])",
-        shapes.join(", ")
-    );
-    let scene = Scene::from_source(&src, Path::new("many.ron")).unwrap_or_else(|e| panic!("{e}"));
-    let tracer = SceneTracer::new(&scene);
-    let stats = tracer.fields()[0].octree.as_ref().unwrap().stats();
-    assert!(stats.bytes < 200 << 20, "{stats:?}");
-    let fb = cpu::render_with(&tracer, &RenderOptions::single_sample(8, 8)).unwrap();
-    assert_eq!(fb.depth.len(), 64);
-    let centre = scene.camera.ray(0.5, 0.5, 1.0);
-    assert!(tracer.closest_hit(&centre, 0.0, f32::INFINITY).is_some());
+    // Opaque, the union is traced as groups of neighbouring spheres; transparent, it stays one
+    // field, whose octree is held to its memory bound.
+    for material in ["", "material: \"glass\", "] {
+        let src = format!(
+            "Scene(camera: Orthographic(position: (0, 0, 3), look_at: (0, 0, 0), height: 1.2),
+                   materials: {{ \"glass\": (transparency: 0.5) }},
+                   objects: [({material}shape: Union([{}]))])",
+            shapes.join(", ")
+        );
+        let scene =
+            Scene::from_source(&src, Path::new("many.ron")).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(scene.sdf_object_count(), 1);
+        let parts = scene.objects.len();
+        if material.is_empty() {
+            assert!(
+                (2..=hytrace::sdf::parts::MAX_PARTS).contains(&parts),
+                "{parts}"
+            );
+        } else {
+            assert_eq!(parts, 1);
+        }
+        let tracer = SceneTracer::new(&scene);
+        let bytes: usize = (tracer.fields().iter())
+            .map(|f| f.octree.as_ref().map_or(0, |t| t.stats().bytes))
+            .sum();
+        assert!(
+            bytes < 200 << 20,
+            "{bytes} bytes of octrees in {parts} parts"
+        );
+        let fb = cpu::render_with(&tracer, &RenderOptions::single_sample(8, 8)).unwrap();
+        assert_eq!(fb.depth.len(), 64);
+        let centre = scene.camera.ray(0.5, 0.5, 1.0);
+        assert!(tracer.closest_hit(&centre, 0.0, f32::INFINITY).is_some());
+    }
     // Repetition nested twelve deep would copy its sphere 8¹² times: refused at the node where
     // the program outgrows its limit, naming the file and the limit, with no memory blow-up.
     let mut node = "Sphere(radius: 0.1)".to_string();
@@ -195,13 +216,25 @@ fn a_union_of_thousands_of_translated_boxes_fits_in_registers_and_traces_right()
             ));
         }
     }
-    let src = format!(
-        "Scene(camera: Orthographic(position: (0, 0, 3), look_at: (0, 0, 0), height: 2),
-               objects: [(shape: Union([{}]))])",
-        shapes.join(", ")
-    );
-    let scene = Scene::from_source(&src, Path::new("tiles.ron")).unwrap_or_else(|e| panic!("{e}"));
-    let tracer = SceneTracer::new(&scene);
+    // transparent, the union is one tape (the case of the registers); opaque, its parts
+    for material in ["material: \"glass\", ", ""] {
+        let src = format!(
+            "Scene(camera: Orthographic(position: (0, 0, 3), look_at: (0, 0, 0), height: 2),
+                   materials: {{ \"glass\": (transparency: 0.5) }},
+                   objects: [({material}shape: Union([{}]))])",
+            shapes.join(", ")
+        );
+        let scene =
+            Scene::from_source(&src, Path::new("tiles.ron")).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(scene.objects.len() == 1, !material.is_empty());
+        traces_tiles_right(&scene, wx, wy, &depth);
+    }
+}
+
+/// Camera rays onto the tiles of [`a_union_of_thousands_of_translated_boxes_fits_in_registers_and_traces_right`]
+/// hit the top of the tile below them.
+fn traces_tiles_right(scene: &Scene, wx: f32, wy: f32, depth: &dyn Fn(usize, usize) -> f32) {
+    let tracer = SceneTracer::new(scene);
     for k in 0..400 {
         // off the tiles' edges, where the taller neighbour may be hit first
         let (u, v) = (

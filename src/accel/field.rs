@@ -450,18 +450,25 @@ impl FieldOctree {
     /// for an empty or unbounded region. A short tape gets a single leaf: its gradient bound
     /// still shortens the steps (to one step on a plane).
     pub fn build(program: &SsaTape, region: Aabb) -> Option<FieldOctree> {
+        Self::build_shared(program, region, 1.0)
+    }
+
+    /// [`Self::build`] within `share` (in (0, 1]) of an object's budget of nodes and
+    /// instructions: the part of an object split into several ([`ObjectField::build_shared`]).
+    pub fn build_shared(program: &SsaTape, region: Aabb, share: f64) -> Option<FieldOctree> {
         if !region.min.is_finite() || !region.max.is_finite() || region.is_empty() {
             return None;
         }
         // A little room around the bounds, so that surface points on them are inside.
         let pad = 1e-4 * (region.max - region.min).max_element() + 1e-6;
         let (lo, hi) = (region.min - Vec3::splat(pad), region.max + Vec3::splat(pad));
+        let of = |budget: usize| ((budget as f64 * share.clamp(0.0, 1.0)) as usize).max(1);
         Some(Self::build_within(
             program,
             lo,
             hi,
-            MAX_NODES,
-            MAX_INSTRUCTIONS,
+            of(MAX_NODES),
+            of(MAX_INSTRUCTIONS),
         ))
     }
 
@@ -1184,9 +1191,18 @@ impl ObjectField {
     /// the object's bounds, or its bounds clipped to a finite box for an unbounded object)
     /// when one pays.
     pub fn build(lowered: &LoweredSdf, region: Aabb) -> Self {
+        Self::build_shared(lowered, region, 1.0)
+    }
+
+    /// [`Self::build`] within `share` (in (0, 1]) of an object's budgets ([`MAX_NODES`],
+    /// [`MAX_INSTRUCTIONS`], and [`NATIVE_CODE_BYTES`] in [`Self::compile_native_shared`]):
+    /// the parts of an object split into several share its budgets, so that the object's
+    /// fields together stay within them (a union of 100,000 spheres made 1,021 parts whose
+    /// octrees, each within a whole budget, took 352 MB).
+    pub fn build_shared(lowered: &LoweredSdf, region: Aabb, share: f64) -> Self {
         let outside = gradient_everywhere(&lowered.program);
         ObjectField {
-            octree: FieldOctree::build(&lowered.program, region),
+            octree: FieldOctree::build_shared(&lowered.program, region, share),
             whole: lowered.distance.clone(),
             whole_shading: lowered.shading.clone(),
             convex: lowered.convex.then(|| RoundingModel::of(&lowered.distance)),
@@ -1199,7 +1215,13 @@ impl ObjectField {
     /// the CPU runs it ([`crate::sdf::jit`]): the same values, without the interpreter's
     /// dispatch, within [`NATIVE_CODE_BYTES`] of code per object.
     pub fn compile_native(&mut self) {
-        let mut budget = NATIVE_CODE_BYTES;
+        self.compile_native_shared(1.0);
+    }
+
+    /// [`Self::compile_native`] within `share` (in (0, 1]) of [`NATIVE_CODE_BYTES`] (see
+    /// [`Self::build_shared`]).
+    pub fn compile_native_shared(&mut self, share: f64) {
+        let mut budget = (NATIVE_CODE_BYTES as f64 * share.clamp(0.0, 1.0)) as usize;
         budget -= crate::sdf::jit::compile_all(std::slice::from_mut(&mut self.whole), budget);
         if let Some(tree) = &mut self.octree {
             crate::sdf::jit::compile_all(&mut tree.tapes, budget);
@@ -1707,7 +1729,9 @@ pub(crate) mod tests {
         tiles_scene(nx, ny).objects[0].lowered.clone()
     }
 
-    /// [`tiles`] as a scene of one object, for the tracer's tests.
+    /// [`tiles`] as a scene of one object traced as one field, for the tracer's tests (the
+    /// scene loader would trace each tile as an object of its own: these tests are about the
+    /// octree of a union of many shapes).
     pub(crate) fn tiles_scene(nx: usize, ny: usize) -> crate::scene::Scene {
         let (wx, wy) = (1.8 / nx as f32, 1.8 / ny as f32);
         let shapes: Vec<String> = (0..nx * ny)
@@ -1728,8 +1752,18 @@ pub(crate) mod tests {
                    objects: [(shape: Union([{}]))])",
             shapes.join(", ")
         );
-        crate::scene::Scene::from_source(&src, std::path::Path::new("tiles.ron"))
-            .unwrap_or_else(|e| panic!("{e}"))
+        let mut scene = crate::scene::Scene::from_source(&src, std::path::Path::new("tiles.ron"))
+            .unwrap_or_else(|e| panic!("{e}"));
+        let node =
+            crate::sdf::SdfNode::Union(scene.objects.iter().map(|o| o.node.clone()).collect());
+        let lowered = crate::sdf::lower(&node, &|_| Some(0), 0).unwrap_or_else(|e| panic!("{e}"));
+        scene.objects = vec![crate::scene::SdfObject {
+            name: "tiles".into(),
+            node,
+            lowered,
+            part: None,
+        }];
+        scene
     }
 
     #[test]
@@ -1828,12 +1862,10 @@ pub(crate) mod tests {
         let mut trees: Vec<FieldOctree> = sources
             .iter()
             .map(|shape| {
-                let src = format!(
-                    "Scene(camera: Orthographic(position: (0, 0, 3), look_at: (0, 0, 0), height: 2), objects: [(shape: {shape})])"
-                );
-                let scene = crate::scene::Scene::from_source(&src, std::path::Path::new("t.ron"))
-                    .unwrap_or_else(|e| panic!("{e}"));
-                let lowered = &scene.objects[0].lowered;
+                // lowered as one field (a scene would trace the union's spheres one by one)
+                let node = crate::sdf::conformance::parse_node(shape);
+                let lowered =
+                    crate::sdf::lower(&node, &|_| Some(0), 0).unwrap_or_else(|e| panic!("{e}"));
                 FieldOctree::build(&lowered.program, lowered.bounds).expect("a finite object")
             })
             .collect();

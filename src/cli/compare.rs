@@ -291,7 +291,7 @@ pub fn run(args: CompareArgs) -> Result<()> {
     for (i, why) in embree.skipped() {
         notes.push(format!(
             "SDF object #{i} `{}` is missing from the Embree image: {why}",
-            scene.objects[i].name
+            scene.objects[i].label()
         ));
     }
     if mesh_hits > 0 {

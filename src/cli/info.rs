@@ -50,9 +50,18 @@ pub fn run(args: InfoArgs) -> Result<()> {
         .iter()
         .filter(|o| !o.bounds().is_finite())
         .count();
+    // an object split into parts is one object of the file, traced as several
+    let traced = if scene.objects.len() == scene.sdf_object_count() {
+        String::new()
+    } else {
+        format!(
+            "; traced as {} objects, unions split into their members",
+            scene.objects.len()
+        )
+    };
     println!(
-        "SDF objects  {} ({} nodes, {} tape instructions, {} unbounded)",
-        scene.objects.len(),
+        "SDF objects  {} ({} nodes, {} tape instructions, {} unbounded{traced})",
+        scene.sdf_object_count(),
         nodes,
         instrs,
         unbounded
@@ -129,7 +138,7 @@ fn print_fields(scene: &hytrace::scene::Scene, tracer: &SceneTracer) {
                 "SDF octree   {}: {} nodes, {} leaves ({} empty, {} full, {} crossed), {} tapes, \
                  crossed leaves' tapes {:.1} of {whole} instructions on average (sphere tracing \
                  {}), {:.1} KiB, native code {:.1} KiB",
-                object.name,
+                object.label(),
                 st.nodes,
                 st.leaves,
                 st.empty,

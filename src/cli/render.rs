@@ -190,7 +190,7 @@ fn describe(ctx: &hytrace::gpu::context::GpuContext) -> String {
 /// What the scene holds, for the summary line: SDF objects and mesh instances.
 fn contents(scene: &hytrace::scene::Scene) -> String {
     let plural = |n: usize, one: &str| format!("{n} {one}{}", if n == 1 { "" } else { "s" });
-    let sdf = plural(scene.objects.len(), "SDF object");
+    let sdf = plural(scene.sdf_object_count(), "SDF object");
     match scene.meshes.instances.len() {
         0 => sdf,
         n if scene.objects.is_empty() => plural(n, "mesh instance"),

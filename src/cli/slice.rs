@@ -121,7 +121,7 @@ pub fn run(args: SliceArgs) -> Result<()> {
             opts.height,
             opts.size,
             opts.spacing,
-            scene.objects.len(),
+            scene.sdf_object_count(),
             elapsed.as_secs_f64(),
             args.output.display()
         );

@@ -1045,7 +1045,7 @@ impl EmbreeScene {
                             checks.push(SdfCheck::Skipped {
                                 why: format!(
                                     "object {i} ({}) cannot be meshed: {why}",
-                                    object.name
+                                    object.label()
                                 ),
                             });
                             continue;

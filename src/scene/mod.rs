@@ -223,21 +223,92 @@ pub struct ShadingSettings {
 /// The largest accepted `shading.max_bounces`.
 pub const MAX_BOUNCES: u32 = 16;
 
-/// An SDF object ready to trace.
+/// An SDF object ready to trace: an object of the file, or one part of an object whose shape
+/// is a union of opaque members ([`sdf::parts`]).
 #[derive(Debug, Clone)]
 pub struct SdfObject {
-    /// Name from the file, or `object N`.
+    /// Name from the file, or `object N` (every part of an object has its name).
     pub name: String,
     /// The tree in world space (the object's transform wrapped around the shape).
     pub node: SdfNode,
     /// Tapes and bounds.
     pub lowered: LoweredSdf,
+    /// Which part of its file object this is, when the object was split.
+    pub part: Option<Part>,
+}
+
+/// The place of an [`SdfObject`] among the parts of the file object it was split from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Part {
+    /// Index among the parts, from 0.
+    pub index: usize,
+    /// How many parts the file object was split into.
+    pub count: usize,
 }
 
 impl SdfObject {
     /// World-space bounds (possibly infinite).
     pub fn bounds(&self) -> Aabb {
         self.lowered.bounds
+    }
+
+    /// The name, with the part for a part: `spiral (part 3 of 400)`.
+    pub fn label(&self) -> String {
+        match self.part {
+            None => self.name.clone(),
+            Some(p) => format!("{} (part {} of {})", self.name, p.index + 1, p.count),
+        }
+    }
+
+    /// Whether this is the first traced object of its file object (every object but the
+    /// second and later parts): counting these counts the file's SDF objects.
+    pub fn starts_file_object(&self) -> bool {
+        self.part.is_none_or(|p| p.index == 0)
+    }
+
+    /// The objects that trace `node` (the object's transform folded in), lowered with
+    /// `material_index` and `default_material`: `node` as one object, or, when its root is a
+    /// union ([`sdf::parts::union_members`]) whose materials are all opaque (`opaque` of a
+    /// material index: no transparency, full coverage — a transparent union's inside is
+    /// one, its members' insides overlap), one object per part ([`sdf::parts::parts`]). The
+    /// union is lowered whole first, so that an error names its place in the whole tree.
+    pub fn split(
+        name: &str,
+        node: SdfNode,
+        material_index: &dyn Fn(&str) -> Option<u32>,
+        default_material: u32,
+        opaque: &dyn Fn(u32) -> bool,
+    ) -> Result<Vec<SdfObject>, sdf::LowerError> {
+        let lowered = sdf::lower(&node, material_index, default_material)?;
+        let members = sdf::parts::union_members(&node);
+        let all_opaque = opaque(default_material)
+            && sdf::parts::material_names(&node)
+                .into_iter()
+                .all(|m| material_index(m).is_some_and(opaque));
+        if members.len() < 2 || !all_opaque {
+            return Ok(vec![SdfObject {
+                name: name.to_string(),
+                node,
+                lowered,
+                part: None,
+            }]);
+        }
+        drop(lowered);
+        let parts = sdf::parts::parts(members);
+        let count = parts.len();
+        parts
+            .into_iter()
+            .enumerate()
+            .map(|(index, node)| {
+                let lowered = sdf::lower(&node, material_index, default_material)?;
+                Ok(SdfObject {
+                    name: name.to_string(),
+                    node,
+                    lowered,
+                    part: Some(Part { index, count }),
+                })
+            })
+            .collect()
     }
 }
 
@@ -630,36 +701,37 @@ impl Scene {
             } else {
                 shape.clone()
             };
-            let lowered = sdf::lower(&node, &index_of, material).map_err(|e| {
-                // Point at the failing node (or field) by following its path in the text; the
-                // object's own translate/rotate/scale wrapper does not appear there.
-                let mut steps = e.path.as_slice();
-                if wrapped {
-                    steps = steps.get(2..).unwrap_or(&[]);
-                }
-                let mut nav = vec![locate::Nav::Field("shape")];
-                nav.extend(steps.iter().map(|s| match s {
-                    Step::Node(k) => locate::Nav::Node(k),
-                    Step::Field(f) => locate::Nav::Field(f),
-                    Step::Index(i) => locate::Nav::Index(*i),
-                }));
-                let pos = locate::follow(source, span.0, &nav);
-                let extra = if e.message.starts_with("unknown material") {
-                    format!(" (defined: {})", defined(&material_names))
-                } else {
-                    String::new()
-                };
-                let shown = sdf::LowerError {
-                    path: steps.to_vec(),
-                    message: e.message.clone(),
-                };
-                at(pos, format!("{name}: {shown}{extra}"))
-            })?;
-            objects.push(SdfObject {
-                name,
-                node,
-                lowered,
-            });
+            let opaque = |m: u32| {
+                let m = &materials[m as usize];
+                m.transparency <= 0.0 && m.opacity >= 1.0
+            };
+            let parts =
+                SdfObject::split(&name, node, &index_of, material, &opaque).map_err(|e| {
+                    // Point at the failing node (or field) by following its path in the text; the
+                    // object's own translate/rotate/scale wrapper does not appear there.
+                    let mut steps = e.path.as_slice();
+                    if wrapped {
+                        steps = steps.get(2..).unwrap_or(&[]);
+                    }
+                    let mut nav = vec![locate::Nav::Field("shape")];
+                    nav.extend(steps.iter().map(|s| match s {
+                        Step::Node(k) => locate::Nav::Node(k),
+                        Step::Field(f) => locate::Nav::Field(f),
+                        Step::Index(i) => locate::Nav::Index(*i),
+                    }));
+                    let pos = locate::follow(source, span.0, &nav);
+                    let extra = if e.message.starts_with("unknown material") {
+                        format!(" (defined: {})", defined(&material_names))
+                    } else {
+                        String::new()
+                    };
+                    let shown = sdf::LowerError {
+                        path: steps.to_vec(),
+                        message: e.message.clone(),
+                    };
+                    at(pos, format!("{name}: {shown}{extra}"))
+                })?;
+            objects.extend(parts);
         }
 
         materials.extend(meshes.materials.iter().map(|m| m.params));
@@ -692,6 +764,14 @@ impl Scene {
             shading,
             meshes,
         })
+    }
+
+    /// The SDF objects of the file: an object split into parts counts once.
+    pub fn sdf_object_count(&self) -> usize {
+        self.objects
+            .iter()
+            .filter(|o| o.starts_file_object())
+            .count()
     }
 
     /// Bounds of everything finite in the scene (infinite objects are left out).

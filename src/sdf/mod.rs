@@ -14,6 +14,7 @@ pub mod lower;
 pub mod math;
 pub mod native;
 pub mod node;
+pub mod parts;
 pub mod simd;
 pub mod simplify;
 pub mod ssa;

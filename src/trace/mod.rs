@@ -143,22 +143,44 @@ pub fn field_region(object: &SdfObject, scene_box: &Aabb) -> Aabb {
 /// its tapes compiled to native code if `native`.
 pub fn build_fields(scene: &Scene, specialise: bool, native: bool) -> Vec<ObjectField> {
     let scene_box = scene.finite_bounds();
+    let shares = budget_shares(scene);
     scene
         .objects
         .par_iter()
-        .map(|o| {
+        .zip(shares)
+        .map(|(o, share)| {
             let l = &o.lowered;
             let mut field = if specialise {
-                ObjectField::build(l, field_region(o, &scene_box))
+                ObjectField::build_shared(l, field_region(o, &scene_box), share)
             } else {
                 ObjectField::whole(&l.distance, &l.shading)
             };
             if native {
-                field.compile_native();
+                field.compile_native_shared(share);
             }
             field
         })
         .collect()
+}
+
+/// Each object's share of an object's budgets for its field ([`ObjectField::build_shared`]):
+/// 1 for an object of the file, and for the parts of an object split into several
+/// ([`crate::scene::Part`]), their shares of it in proportion to their tapes.
+fn budget_shares(scene: &Scene) -> Vec<f64> {
+    let mut shares = vec![1.0; scene.objects.len()];
+    let mut first = 0;
+    while first < scene.objects.len() {
+        let count = scene.objects[first].part.map_or(1, |p| p.count);
+        let parts = &scene.objects[first..(first + count).min(scene.objects.len())];
+        if count > 1 {
+            let total: usize = parts.iter().map(|o| o.lowered.distance.len().max(1)).sum();
+            for (k, o) in parts.iter().enumerate() {
+                shares[first + k] = o.lowered.distance.len().max(1) as f64 / total as f64;
+            }
+        }
+        first += parts.len();
+    }
+    shares
 }
 
 /// Answers ray queries against a scene's SDF objects and meshes on the CPU.

@@ -171,18 +171,14 @@ fn twisted_bent() -> String {
 /// Lowers trees to objects the way the scene loader does, every material name resolved to the
 /// default material (the peer renders geometry, not materials).
 pub fn lower_objects(nodes: &[(String, SdfNode)]) -> anyhow::Result<Vec<SdfObject>> {
-    nodes
-        .iter()
-        .map(|(name, node)| {
-            let lowered = crate::sdf::lower(node, &|_| Some(0), 0)
-                .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
-            Ok(SdfObject {
-                name: name.clone(),
-                node: node.clone(),
-                lowered,
-            })
-        })
-        .collect()
+    let mut objects = Vec::new();
+    for (name, node) in nodes {
+        // split as a scene file's object is, the default material being opaque
+        let parts = SdfObject::split(name, node.clone(), &|_| Some(0), 0, &|_| true)
+            .map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
+        objects.extend(parts);
+    }
+    Ok(objects)
 }
 
 /// An object more than this many times larger (largest side of its bounds) than all the others
@@ -190,15 +186,51 @@ pub fn lower_objects(nodes: &[(String, SdfNode)]) -> anyhow::Result<Vec<SdfObjec
 /// would shrink the rest to a few pixels.
 pub const GROUND_RATIO: f32 = 10.0;
 
+/// An SDF object of the scene file: its parts put back together.
+struct FileObject {
+    name: String,
+    node: SdfNode,
+    bounds: crate::geom::Aabb,
+}
+
+/// The scene's SDF objects as the file has them: an object split into parts is the union of
+/// its parts again (the peer gets the model as written; [`lower_objects`] splits it as the
+/// scene loader did).
+fn file_objects(scene: &Scene) -> Vec<FileObject> {
+    let mut out: Vec<FileObject> = Vec::new();
+    for o in &scene.objects {
+        match o.part {
+            Some(p) if p.index > 0 => {
+                let last = out.last_mut().expect("a later part follows the first");
+                if let SdfNode::Union(members) = &mut last.node {
+                    members.push(o.node.clone());
+                }
+                last.bounds = last.bounds.union(&o.bounds());
+            }
+            Some(_) => out.push(FileObject {
+                name: o.name.clone(),
+                node: SdfNode::Union(vec![o.node.clone()]),
+                bounds: o.bounds(),
+            }),
+            None => out.push(FileObject {
+                name: o.name.clone(),
+                node: o.node.clone(),
+                bounds: o.bounds(),
+            }),
+        }
+    }
+    out
+}
+
 /// The peer version of `scene` at `size`²: its finite SDF objects (infinite ones, such as
 /// planes, a ground per [`GROUND_RATIO`] and meshes are left out and named in `left_out`), the
 /// orthographic view of their bounding cube, one directional light, no shadows, no bounces, the
 /// default material. `None` when no finite SDF object is left.
 pub fn peer_model(name: &str, scene: &Scene, size: u32) -> anyhow::Result<Option<PeerModel>> {
     let mut left = Vec::new();
-    let mut kept: Vec<&SdfObject> = Vec::new();
-    for o in &scene.objects {
-        if o.bounds().is_finite() && !o.bounds().is_empty() {
+    let mut kept: Vec<FileObject> = Vec::new();
+    for o in file_objects(scene) {
+        if o.bounds.is_finite() && !o.bounds.is_empty() {
             kept.push(o);
         } else {
             left.push(format!("{} (infinite)", o.name));
@@ -207,16 +239,14 @@ pub fn peer_model(name: &str, scene: &Scene, size: u32) -> anyhow::Result<Option
     let side = |b: crate::geom::Aabb| (b.max - b.min).max_element();
     if kept.len() >= 2 {
         let largest = (0..kept.len())
-            .max_by(|&a, &b| side(kept[a].bounds()).total_cmp(&side(kept[b].bounds())))
+            .max_by(|&a, &b| side(kept[a].bounds).total_cmp(&side(kept[b].bounds)))
             .unwrap_or(0);
         let rest = kept
             .iter()
             .enumerate()
             .filter(|&(i, _)| i != largest)
-            .fold(crate::geom::Aabb::EMPTY, |acc, (_, o)| {
-                acc.union(&o.bounds())
-            });
-        let ratio = side(kept[largest].bounds()) / side(rest);
+            .fold(crate::geom::Aabb::EMPTY, |acc, (_, o)| acc.union(&o.bounds));
+        let ratio = side(kept[largest].bounds) / side(rest);
         if ratio > GROUND_RATIO {
             left.push(format!(
                 "{} (ground, {ratio:.0}× the rest)",
@@ -227,11 +257,8 @@ pub fn peer_model(name: &str, scene: &Scene, size: u32) -> anyhow::Result<Option
     }
     let bounds = kept
         .iter()
-        .fold(crate::geom::Aabb::EMPTY, |acc, o| acc.union(&o.bounds()));
-    let nodes: Vec<(String, SdfNode)> = kept
-        .iter()
-        .map(|o| (o.name.clone(), o.node.clone()))
-        .collect();
+        .fold(crate::geom::Aabb::EMPTY, |acc, o| acc.union(&o.bounds));
+    let nodes: Vec<(String, SdfNode)> = kept.into_iter().map(|o| (o.name, o.node)).collect();
     let meshes = scene.meshes.instances.len();
     if meshes > 0 {
         left.push(format!(

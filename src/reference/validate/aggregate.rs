@@ -329,7 +329,7 @@ pub(super) fn report(
         .enumerate()
         .map(|(index, (o, c))| ObjectEntry {
             index,
-            name: o.name.clone(),
+            name: o.label(),
             check: c.clone(),
         })
         .collect();
@@ -368,7 +368,7 @@ fn examples(scene: &Scene, options: &Options, rays: &[Classified]) -> Vec<Exampl
     let describe = |h: &Option<QueryHit>, ray: &Ray| {
         h.map(|h| {
             let object = match h.object {
-                ObjectId::Sdf(i) => format!("SDF #{i} `{}`", scene.objects[i].name),
+                ObjectId::Sdf(i) => format!("SDF #{i} `{}`", scene.objects[i].label()),
                 ObjectId::MeshInstance(k) => format!(
                     "mesh instance #{k} `{}`",
                     scene
