@@ -199,13 +199,22 @@ pub struct Prepared {
     pub jit_build: f64,
 }
 
-/// The min of every object's converted distance.
-pub fn tree_of(model: &PeerModel) -> Tree {
-    let mut trees = model
-        .scene
-        .objects
-        .iter()
-        .map(|o| to_tree(&o.lowered.program));
+/// The distance programs fidget is given: each object of the file lowered whole (a union
+/// that hytrace traces as its members is one balanced tree of them, as fidget's interval
+/// pruning wants it, not a chain of its parts' minima).
+pub fn programs_of(model: &PeerModel) -> Vec<SsaTape> {
+    (model.nodes.iter())
+        .map(|(name, node)| {
+            crate::sdf::lower(node, &|_| Some(0), 0)
+                .unwrap_or_else(|e| panic!("{name} was lowered before: {e}"))
+                .program
+        })
+        .collect()
+}
+
+/// The min of the programs' converted distances.
+pub fn tree_of(programs: &[SsaTape]) -> Tree {
+    let mut trees = programs.iter().map(to_tree);
     let first = trees.next().unwrap_or_else(|| Tree::constant(1.0));
     trees.fold(first, |acc, t| acc.min(t))
 }
@@ -232,11 +241,12 @@ fn config(model: &PeerModel) -> fidget::raster::voxel::RenderConfig {
 impl Prepared {
     /// Converts and builds both CPU shapes of `model`.
     pub fn new(model: &PeerModel) -> Prepared {
+        let programs = programs_of(model);
         let start = Instant::now();
-        let vm = Shape::<fidget::vm::VmFunction>::from(tree_of(model));
+        let vm = Shape::<fidget::vm::VmFunction>::from(tree_of(&programs));
         let vm_build = start.elapsed().as_secs_f64();
         let start = Instant::now();
-        let jit = Shape::<fidget::jit::JitFunction>::from(tree_of(model));
+        let jit = Shape::<fidget::jit::JitFunction>::from(tree_of(&programs));
         let jit_build = start.elapsed().as_secs_f64();
         Prepared {
             vm,
@@ -316,7 +326,7 @@ impl GpuPeer {
             queue: ctx.queue.clone(),
         };
         let context = fidget::wgpu::voxel::Context::new(&gpu);
-        let vm = fidget::vm::VmShape::from(tree_of(model));
+        let vm = fidget::vm::VmShape::from(tree_of(&programs_of(model)));
         let shape = fidget::wgpu::RenderShape::new(&vm)?;
         let mut workspace = context.workspace();
         let out = gpu.read_buffer_for(workspace.output());
