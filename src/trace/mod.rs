@@ -1028,7 +1028,8 @@ impl Candidates {
                 }
             }
         }
-        pending.sort_by_key(|&(i, r, _, _)| (i, r));
+        // a ray has at most one entry per round, so the keys differ: any sort gives one order
+        pending.sort_unstable_by_key(|&(i, r, _, _)| (i, r));
         !pending.is_empty()
     }
 
