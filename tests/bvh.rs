@@ -1010,6 +1010,116 @@ fn a_few_boxes_are_scanned_with_the_walks_answers() {
     }
 }
 
+/// Rays visited many at a time (culled in groups where a tree holds 9 to 64 boxes, walked one
+/// by one elsewhere) meet exactly the boxes a scan finds, each with its interval, the
+/// unbounded ones first and the others nearest entry first: for coherent groups (neighbouring
+/// camera rays, parallel shadow rays from nearby points), incoherent ones, rays with a zero
+/// direction component or starting on box planes, empty and NaN ranges, and grown boxes.
+#[test]
+fn rays_visited_together_meet_the_boxes_each_meets_alone() {
+    let mut rng = Rng::new(4242);
+    for set in 0..240 {
+        let n = 1 + set % 70;
+        let mut boxes: Vec<Aabb> = (0..n)
+            .map(|k| {
+                let c = rng.vec3_in(-3.0, 3.0);
+                let mut h = rng.vec3_in(0.0, 1.0);
+                if k % 5 == 1 {
+                    h[k % 3] = 0.0;
+                }
+                Aabb::new(c - h, c + h)
+            })
+            .collect();
+        if set % 3 == 0 {
+            boxes.push(Aabb::new(
+                Vec3::new(f32::NEG_INFINITY, -3.5, f32::NEG_INFINITY),
+                Vec3::new(f32::INFINITY, -3.0, f32::INFINITY),
+            ));
+        }
+        let bvh = AabbBvh::build(&boxes);
+        let count = 1 + rng.below(40) as usize;
+        let kind = set % 4;
+        let base = rng.vec3_in(-6.0, 6.0);
+        let towards = rng.direction();
+        let mut rays = Vec::new();
+        let (mut tmins, mut tmaxs, mut margins) = (Vec::new(), Vec::new(), Vec::new());
+        for i in 0..count {
+            let (o, d) = match kind {
+                // a camera's neighbouring rays
+                0 => (base, towards + 0.02 * rng.vec3_in(-1.0, 1.0)),
+                // parallel rays from nearby points
+                1 => (base + 0.3 * rng.vec3_in(-1.0, 1.0), towards),
+                // incoherent
+                2 => (rng.vec3_in(-6.0, 6.0), rng.direction()),
+                // axis-parallel from box corners
+                _ => {
+                    let b = boxes[rng.below(n as u64) as usize];
+                    let mut d = Vec3::ZERO;
+                    d[rng.below(3) as usize] = if rng.next_f32() < 0.5 { 1.0 } else { -1.0 };
+                    (b.min, d)
+                }
+            };
+            rays.push(Ray {
+                origin: o,
+                direction: d,
+            });
+            let (tmin, tmax) = match i % 7 {
+                0 => (0.5, 15.0),
+                1 => (2.0, 1.0),
+                2 => (f32::NAN, 4.0),
+                _ => (0.0, if i % 2 == 0 { f32::INFINITY } else { 8.0 }),
+            };
+            tmins.push(tmin);
+            tmaxs.push(tmax);
+            margins.push(if set % 2 == 0 {
+                0.0
+            } else {
+                0.25 * (i % 3) as f32
+            });
+        }
+        let mut got: Vec<Vec<(usize, f32, f32)>> = vec![Vec::new(); count];
+        let mut last = 0;
+        bvh.visit_rays_within(
+            &rays,
+            &tmins,
+            &tmaxs,
+            |r| margins[r],
+            |r, k, t0, t1| {
+                assert!(r >= last, "ray after ray");
+                last = r;
+                got[r].push((k, t0, t1));
+            },
+        );
+        for r in 0..count {
+            let visited = &got[r];
+            // the unbounded boxes first, then the others nearest entry first
+            let unbounded = visited
+                .iter()
+                .take_while(|e| !boxes[e.0].is_finite())
+                .count();
+            assert!(visited[unbounded..].iter().all(|e| boxes[e.0].is_finite()));
+            // (a big tree's walk orders its nodes, not each box)
+            let entries: Vec<f32> = visited[unbounded..].iter().map(|e| e.1).collect();
+            let finite = boxes.iter().filter(|b| b.is_finite()).count();
+            if finite <= hytrace::accel::bvh::GROUPED_BOXES {
+                assert!(entries.is_sorted(), "set {set} ray {r}: {entries:?}");
+            }
+            let mut sorted = visited.clone();
+            sorted.sort_by_key(|e| e.0);
+            let (tmin, tmax) = (tmins[r], tmaxs[r]);
+            let expect = if tmin.is_nan() || tmax.is_nan() || tmin > tmax {
+                Vec::new()
+            } else {
+                brute_boxes(&boxes, &rays[r], tmin, tmax, margins[r])
+            };
+            assert_eq!(
+                sorted, expect,
+                "set {set} ({n} boxes, kind {kind}), ray {r}"
+            );
+        }
+    }
+}
+
 #[test]
 fn aabb_bvh_keeps_unbounded_and_drops_empty_boxes() {
     let slab = Aabb::new(

@@ -1270,6 +1270,119 @@ pub fn ray_box_interval(b: &Aabb, ray: &Ray, tmin: f32, tmax: f32) -> Option<(f3
 /// At most this many finite boxes are scanned, not walked: see [`FewBoxes`].
 const FEW_BOXES: usize = 8;
 
+/// Rays culled together in [`AabbBvh::visit_rays_within`].
+pub const RAY_GROUP: usize = 16;
+
+/// At most this many finite boxes are culled group by group in
+/// [`AabbBvh::visit_rays_within`] (beyond, each ray walks the tree: a group would test every
+/// box).
+pub const GROUPED_BOXES: usize = 64;
+
+/// What interval arithmetic says of the slab parameters of a group of rays at once (the
+/// packet culling of Wald, Boulos & Shirley, "Ray tracing deformable scenes using dynamic
+/// bounding volume hierarchies", 2007, §4.2: bounds on the origins and reciprocal directions
+/// bound every ray's entry and exit of a box).
+#[derive(Debug, Clone, Copy)]
+struct GroupBounds {
+    /// Whether the group holds a ray that can cross anything.
+    any: bool,
+    o_lo: Vec3,
+    o_hi: Vec3,
+    inv_lo: Vec3,
+    inv_hi: Vec3,
+    /// Per axis: every ray's reciprocal direction is finite, and all of one sign (else the
+    /// axis bounds nothing).
+    usable: [bool; 3],
+    tmin: f32,
+    tmax: f32,
+    margin: f32,
+}
+
+impl GroupBounds {
+    /// The bounds of the rays `(ray, tmin, tmax, margin)`; those `visit_within` would not
+    /// walk (a NaN or empty interval) are left out.
+    fn of<'a>(rays: impl Iterator<Item = (&'a Ray, f32, f32, f32)>) -> Self {
+        let mut g = GroupBounds {
+            any: false,
+            o_lo: Vec3::INFINITY,
+            o_hi: Vec3::NEG_INFINITY,
+            inv_lo: Vec3::INFINITY,
+            inv_hi: Vec3::NEG_INFINITY,
+            usable: [true; 3],
+            tmin: f32::INFINITY,
+            tmax: f32::NEG_INFINITY,
+            margin: 0.0,
+        };
+        for (ray, tmin, tmax, margin) in rays {
+            if tmin.is_nan() || tmax.is_nan() || tmin > tmax {
+                continue;
+            }
+            g.any = true;
+            let inv = Vec3::ONE / ray.direction;
+            g.o_lo = g.o_lo.min(ray.origin);
+            g.o_hi = g.o_hi.max(ray.origin);
+            g.inv_lo = g.inv_lo.min(inv);
+            g.inv_hi = g.inv_hi.max(inv);
+            for axis in 0..3 {
+                g.usable[axis] &= inv[axis].is_finite() && ray.origin[axis].is_finite();
+            }
+            g.tmin = g.tmin.min(tmin);
+            g.tmax = g.tmax.max(tmax);
+            // a NaN margin grows nothing in `visit_within` either (`margin > 0` fails)
+            if margin > g.margin {
+                g.margin = margin;
+            }
+        }
+        for axis in 0..3 {
+            g.usable[axis] &= g.inv_lo[axis] > 0.0 || g.inv_hi[axis] < 0.0;
+        }
+        g
+    }
+
+    /// False only when no ray of the group crosses `b` (grown by its margin) within its
+    /// interval. Each ray's entry into a slab, fl(fl(lo − o)·inv), is monotone in o and in
+    /// inv (correctly rounded operations keep the order of their exact values), so its least
+    /// value over the group is at a corner of the origins' and reciprocals' bounds; likewise
+    /// the largest exit.
+    fn may_cross(&self, b: &Aabb) -> bool {
+        if !self.any {
+            return false;
+        }
+        if !self.margin.is_finite() {
+            return true;
+        }
+        let b = if self.margin > 0.0 {
+            b.expand(self.margin)
+        } else {
+            *b
+        };
+        let (mut near, mut far) = (self.tmin, self.tmax);
+        for axis in 0..3 {
+            if !self.usable[axis] {
+                continue;
+            }
+            let (o_lo, o_hi) = (self.o_lo[axis], self.o_hi[axis]);
+            let (i_lo, i_hi) = (self.inv_lo[axis], self.inv_hi[axis]);
+            // the slab entered at `enter` and left at `leave` (swapped for negative rays)
+            let (enter, leave) = if i_lo > 0.0 {
+                (b.min[axis], b.max[axis])
+            } else {
+                (b.max[axis], b.min[axis])
+            };
+            let corners = |plane: f32| {
+                let (a, c) = (plane - o_hi, plane - o_lo);
+                [a * i_lo, a * i_hi, c * i_lo, c * i_hi]
+            };
+            let n = corners(enter).into_iter().fold(f32::INFINITY, f32::min);
+            let f = corners(leave).into_iter().fold(f32::NEG_INFINITY, f32::max);
+            near = near.max(n);
+            far = far.min(f);
+        }
+        // a NaN keeps the box
+        near.partial_cmp(&far) != Some(std::cmp::Ordering::Greater)
+    }
+}
+
 /// The finite boxes of an [`AabbBvh`] that holds at most [`FEW_BOXES`] of them, by axis, in
 /// leaf order.
 ///
@@ -1522,6 +1635,97 @@ impl AabbBvh {
             wide::traverse::<true>(&self.nodes, &nr, tmin, tmax, margin, leaf);
         } else {
             wide::traverse::<false>(&self.nodes, &nr, tmin, tmax, 0.0, leaf);
+        }
+    }
+
+    /// [`AabbBvh::visit_within`] for many rays, ray after ray: `visit(ray, index, t_enter,
+    /// t_exit)` for every box ray `r` crosses within `[tmins[r], tmaxs[r]]`, grown by
+    /// `margin(r)`, with the intervals [`AabbBvh::visit_within`] gives (`visit` cannot lower
+    /// `tmax` here). Each ray's unbounded boxes come first, then its finite ones nearest entry
+    /// first (ties in leaf order).
+    ///
+    /// Where the tree holds more than [`FEW_BOXES`] boxes (which one ray scans at once) and
+    /// at most [`GROUPED_BOXES`], runs of [`RAY_GROUP`] rays (a band's camera rays, the shadow
+    /// rays of neighbouring pixels) first drop together the boxes none of them can cross
+    /// ([`GroupBounds`]), and each ray then tests only the boxes left: the walk of every ray
+    /// through the tree was a tenth of a showcase frame, for rays of which most cross none of
+    /// its fourteen boxes. (Over four boxes, the groups cost hybrid.ron 1–3 % more than the
+    /// scan.)
+    pub fn visit_rays_within(
+        &self,
+        rays: &[Ray],
+        tmins: &[f32],
+        tmaxs: &[f32],
+        margin: impl Fn(usize) -> f32,
+        mut visit: impl FnMut(usize, usize, f32, f32),
+    ) {
+        if self.few.is_some() || self.boxes.len() > GROUPED_BOXES {
+            // ray by ray (the loop of `SdfAccel::visit_rays_within`'s linear scan: one helper
+            // taking the walk as a closure called the visitor through a pointer, 1–2 % of a
+            // frame of 400 spheres)
+            for (r, ray) in rays.iter().enumerate() {
+                let mut tmax = tmaxs[r];
+                self.visit_within(ray, tmins[r], &mut tmax, margin(r), |i, t0, t1, _| {
+                    visit(r, i, t0, t1);
+                    ControlFlow::Continue(())
+                });
+            }
+            return;
+        }
+        let mut left: ArrayVec<u32, GROUPED_BOXES> = ArrayVec::new();
+        let mut crossed: ArrayVec<(f32, f32, u32), GROUPED_BOXES> = ArrayVec::new();
+        for first in (0..rays.len()).step_by(RAY_GROUP) {
+            let group = first..(first + RAY_GROUP).min(rays.len());
+            let bounds = GroupBounds::of(
+                group
+                    .clone()
+                    .map(|r| (&rays[r], tmins[r], tmaxs[r], margin(r))),
+            );
+            left.clear();
+            for (k, (_, b)) in self.boxes.iter().enumerate() {
+                if bounds.may_cross(b) {
+                    left.push(k as u32);
+                }
+            }
+            for r in group {
+                let (ray, tmin, tmax, margin) = (&rays[r], tmins[r], tmaxs[r], margin(r));
+                if tmin.is_nan() || tmax.is_nan() || tmin > tmax {
+                    continue;
+                }
+                let grow = margin > 0.0;
+                // the unbounded boxes as `visit_within` visits them
+                for (&i, b) in self.unbounded.iter().zip(&self.unbounded_boxes) {
+                    let interval = if b.min.is_nan() || b.max.is_nan() {
+                        Some((tmin, tmax))
+                    } else if grow {
+                        ray_box_interval(&b.expand(margin), ray, tmin, tmax)
+                    } else {
+                        ray_box_interval(b, ray, tmin, tmax)
+                    };
+                    if let Some((t0, t1)) = interval {
+                        visit(r, i as usize, t0, t1);
+                    }
+                }
+                // the boxes left, each with the walk's interval, sorted by entry (insertion:
+                // stable, so ties keep leaf order)
+                let inv = Vec3::ONE / ray.direction;
+                crossed.clear();
+                for &k in &left {
+                    let (i, b) = &self.boxes[k as usize];
+                    let b = if grow { b.expand(margin) } else { *b };
+                    if let Some((t0, t1)) = b.ray_interval_from(ray.origin, inv, tmin, tmax) {
+                        let mut at = crossed.len();
+                        crossed.push((t0, t1, *i));
+                        while at > 0 && crossed[at - 1].0 > t0 {
+                            crossed.swap(at - 1, at);
+                            at -= 1;
+                        }
+                    }
+                }
+                for &(t0, t1, i) in &crossed {
+                    visit(r, i as usize, t0, t1);
+                }
+            }
         }
     }
 

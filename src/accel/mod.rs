@@ -76,6 +76,31 @@ impl SdfAccel {
         }
     }
 
+    /// [`SdfAccel::visit_within`] for many rays, ray after ray ([`bvh::AabbBvh::visit_rays_within`]
+    /// for the BVH): `visit(ray, object, t_enter, t_exit)` for every object whose bounds,
+    /// grown by `margin(ray)`, ray `r` crosses within `[tmins[r], tmaxs[r]]`.
+    pub fn visit_rays_within(
+        &self,
+        rays: &[Ray],
+        tmins: &[f32],
+        tmaxs: &[f32],
+        margin: impl Fn(usize) -> f32,
+        mut visit: impl FnMut(usize, usize, f32, f32),
+    ) {
+        match self {
+            SdfAccel::Bvh(b) => b.visit_rays_within(rays, tmins, tmaxs, margin, visit),
+            SdfAccel::Linear(_) => {
+                for (r, ray) in rays.iter().enumerate() {
+                    let mut tmax = tmaxs[r];
+                    self.visit_within(ray, tmins[r], &mut tmax, margin(r), |i, t0, t1, _| {
+                        visit(r, i, t0, t1);
+                        ControlFlow::Continue(())
+                    });
+                }
+            }
+        }
+    }
+
     /// Nodes of the BVH (0 for the linear scan).
     pub fn node_count(&self) -> usize {
         match self {

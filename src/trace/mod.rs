@@ -994,16 +994,20 @@ impl Candidates {
             items: Vec::new(),
             next: Vec::with_capacity(rays.len()),
         };
-        for (r, ray) in rays.iter().enumerate() {
+        // the rays come ray after ray: each ray's list starts where the items stand when its
+        // first object (or the next ray's) comes
+        accel.visit_rays_within(rays, tmins, limits, margin, |r, i, t0, t1| {
+            while c.starts.len() <= r {
+                c.starts.push(c.items.len());
+                c.next.push(c.items.len());
+            }
+            if !passed(r, i, t0, t1) {
+                c.items.push((i, t0, t1));
+            }
+        });
+        while c.starts.len() < rays.len() {
             c.starts.push(c.items.len());
             c.next.push(c.items.len());
-            let mut limit = limits[r];
-            accel.visit_within(ray, tmins[r], &mut limit, margin(r), |i, t0, t1, _| {
-                if !passed(r, i, t0, t1) {
-                    c.items.push((i, t0, t1));
-                }
-                ControlFlow::Continue(())
-            });
         }
         c.starts.push(c.items.len());
         c
