@@ -385,7 +385,7 @@ impl<'a> SceneTracer<'a> {
             .iter()
             .map(|h| h.as_ref().map_or(limit, |h| h.t))
             .collect();
-        let mut candidates = Candidates::new(&self.accel, rays, tmin, &limits, |_| 0.0);
+        let mut candidates = Candidates::new(&self.accel, rays, tmin, &limits);
         let mut best: Vec<Option<(f32, usize)>> = vec![None; n];
         let mut steps = vec![0u32; n];
         let mut pending = Vec::with_capacity(n);
@@ -634,7 +634,7 @@ impl<'a> SceneTracer<'a> {
         told: impl Fn(&ObjectField, &Ray, f32, f32, &mut Registers) -> bool,
     ) -> Candidates {
         let mut regs = Registers::pooled();
-        Candidates::with_tmins(&self.accel, rays, tmins, limits, margin, |r, i, t0, t1| {
+        Candidates::of_shadow_rays(&self.accel, rays, tmins, limits, margin, |r, i, t0, t1| {
             told(&self.fields[i], &rays[r], t0, t1, &mut regs)
         })
     }
@@ -962,7 +962,10 @@ fn shadow_key(s: Shadow) -> (u8, u32) {
 
 /// Every ray's SDF objects in the order its own BVH walk visits them (with the interval its
 /// bounds give), taken a round at a time: the next object of each ray still marching, so that
-/// the rays at one object are marched as packets while each keeps its own order.
+/// the rays at one object are marched as packets while each keeps its own order. (Shadow rays
+/// take their objects from [`SdfAccel::visit_rays_within`], nearest entry first: a shadow's
+/// answer does not depend on the order, while a closest hit's march is bounded by the hits
+/// before it, and a hit confirmed near that bound may differ in its last bits.)
 struct Candidates {
     starts: Vec<usize>,
     items: Vec<(usize, f32, f32)>,
@@ -970,18 +973,33 @@ struct Candidates {
 }
 
 impl Candidates {
-    fn new(
-        accel: &SdfAccel,
-        rays: &[Ray],
-        tmin: f32,
-        limits: &[f32],
-        margin: impl Fn(usize) -> f32,
-    ) -> Self {
-        let tmins = vec![tmin; rays.len()];
-        Self::with_tmins(accel, rays, &tmins, limits, margin, |_, _, _, _| false)
+    /// The candidates of closest-hit rays, each ray's in its own walk's order.
+    fn new(accel: &SdfAccel, rays: &[Ray], tmin: f32, limits: &[f32]) -> Self {
+        let mut c = Self::empty(rays.len());
+        for (r, ray) in rays.iter().enumerate() {
+            c.starts.push(c.items.len());
+            c.next.push(c.items.len());
+            let mut limit = limits[r];
+            accel.visit_within(ray, tmin, &mut limit, 0.0, |i, t0, t1, _| {
+                c.items.push((i, t0, t1));
+                ControlFlow::Continue(())
+            });
+        }
+        c.starts.push(c.items.len());
+        c
     }
 
-    fn with_tmins(
+    fn empty(rays: usize) -> Self {
+        Candidates {
+            starts: Vec::with_capacity(rays + 1),
+            items: Vec::new(),
+            next: Vec::with_capacity(rays),
+        }
+    }
+
+    /// The candidates of shadow rays (whose answers do not depend on the order of their
+    /// objects), leaving out those `passed(ray, object, t0, t1)` settles.
+    fn of_shadow_rays(
         accel: &SdfAccel,
         rays: &[Ray],
         tmins: &[f32],
@@ -989,11 +1007,7 @@ impl Candidates {
         margin: impl Fn(usize) -> f32,
         mut passed: impl FnMut(usize, usize, f32, f32) -> bool,
     ) -> Self {
-        let mut c = Candidates {
-            starts: Vec::with_capacity(rays.len() + 1),
-            items: Vec::new(),
-            next: Vec::with_capacity(rays.len()),
-        };
+        let mut c = Self::empty(rays.len());
         // the rays come ray after ray: each ray's list starts where the items stand when its
         // first object (or the next ray's) comes
         accel.visit_rays_within(rays, tmins, limits, margin, |r, i, t0, t1| {
