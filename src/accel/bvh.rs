@@ -1641,16 +1641,18 @@ impl AabbBvh {
     /// [`AabbBvh::visit_within`] for many rays, ray after ray: `visit(ray, index, t_enter,
     /// t_exit)` for every box ray `r` crosses within `[tmins[r], tmaxs[r]]`, grown by
     /// `margin(r)`, with the intervals [`AabbBvh::visit_within`] gives (`visit` cannot lower
-    /// `tmax` here). Each ray's unbounded boxes come first, then its finite ones nearest entry
-    /// first (ties in leaf order).
+    /// `tmax` here). Each ray's unbounded boxes come first, then its finite ones: nearest
+    /// entry first (ties in leaf order) up to [`GROUPED_BOXES`] boxes, in the walk's order
+    /// past them. The order is not [`AabbBvh::visit_within`]'s for 9 to 64 boxes: the shadow
+    /// rays that take it get the same answers in any order (a closest hit's march is bounded
+    /// by the hits before it, so its last bits may depend on the order).
     ///
     /// Where the tree holds more than [`FEW_BOXES`] boxes (which one ray scans at once) and
-    /// at most [`GROUPED_BOXES`], runs of [`RAY_GROUP`] rays (a band's camera rays, the shadow
-    /// rays of neighbouring pixels) first drop together the boxes none of them can cross
-    /// ([`GroupBounds`]), and each ray then tests only the boxes left: the walk of every ray
-    /// through the tree was a tenth of a showcase frame, for rays of which most cross none of
-    /// its fourteen boxes. (Over four boxes, the groups cost hybrid.ron 1–3 % more than the
-    /// scan.)
+    /// at most [`GROUPED_BOXES`], runs of [`RAY_GROUP`] rays (the shadow rays of neighbouring
+    /// pixels) first drop together the boxes none of them can cross ([`GroupBounds`]), and
+    /// each ray then tests only the boxes left: the walk of every shadow ray through the tree
+    /// was a tenth of a showcase frame, for rays of which most cross none of its fourteen
+    /// boxes. (Over four boxes, the groups cost hybrid.ron 1–3 % more than the scan.)
     pub fn visit_rays_within(
         &self,
         rays: &[Ray],
