@@ -117,6 +117,19 @@ fn shipped_scenes_render_as_with_whole_tapes() {
     }
 }
 
+/// A scene of one object, the union of `shapes`, seen along −z by an orthographic camera of
+/// the given height; `material` is empty or the object's `material: "glass", ` (a
+/// transparent material, which keeps the union one field).
+fn one_union(shapes: &[String], height: f32, material: &str, file: &str) -> Scene {
+    let src = format!(
+        "Scene(camera: Orthographic(position: (0, 0, 3), look_at: (0, 0, 0), height: {height}),
+               materials: {{ \"glass\": (transparency: 0.5) }},
+               objects: [({material}shape: Union([{}]))])",
+        shapes.join(", ")
+    );
+    Scene::from_source(&src, Path::new(file)).unwrap_or_else(|e| panic!("{e}"))
+}
+
 #[test]
 fn huge_and_exploding_trees_render_or_are_refused_with_the_limit() {
     // 100,000 spheres in one union: lowered as a balanced tree, it fits (a few live values per
@@ -140,14 +153,7 @@ fn huge_and_exploding_trees_render_or_are_refused_with_the_limit() {
     // Opaque, the union is traced as groups of neighbouring spheres; transparent, it stays one
     // field, whose octree is held to its memory bound.
     for material in ["", "material: \"glass\", "] {
-        let src = format!(
-            "Scene(camera: Orthographic(position: (0, 0, 3), look_at: (0, 0, 0), height: 1.2),
-                   materials: {{ \"glass\": (transparency: 0.5) }},
-                   objects: [({material}shape: Union([{}]))])",
-            shapes.join(", ")
-        );
-        let scene =
-            Scene::from_source(&src, Path::new("many.ron")).unwrap_or_else(|e| panic!("{e}"));
+        let scene = one_union(&shapes, 1.2, material, "many.ron");
         assert_eq!(scene.sdf_object_count(), 1);
         let parts = scene.objects.len();
         if material.is_empty() {
@@ -218,14 +224,7 @@ fn a_union_of_thousands_of_translated_boxes_fits_in_registers_and_traces_right()
     }
     // transparent, the union is one tape (the case of the registers); opaque, its parts
     for material in ["material: \"glass\", ", ""] {
-        let src = format!(
-            "Scene(camera: Orthographic(position: (0, 0, 3), look_at: (0, 0, 0), height: 2),
-                   materials: {{ \"glass\": (transparency: 0.5) }},
-                   objects: [({material}shape: Union([{}]))])",
-            shapes.join(", ")
-        );
-        let scene =
-            Scene::from_source(&src, Path::new("tiles.ron")).unwrap_or_else(|e| panic!("{e}"));
+        let scene = one_union(&shapes, 2.0, material, "tiles.ron");
         assert_eq!(scene.objects.len() == 1, !material.is_empty());
         traces_tiles_right(&scene, wx, wy, &depth);
     }

@@ -1267,6 +1267,26 @@ pub fn ray_box_interval(b: &Aabb, ray: &Ray, tmin: f32, tmax: f32) -> Option<(f3
     b.ray_interval(ray, tmin, tmax)
 }
 
+/// The interval of `ray` within [tmin, tmax] in an unbounded box grown by `margin` (when
+/// `margin > 0`, through [`Aabb::expand`]): [`ray_box_interval`], or all of [tmin, tmax] for a
+/// box with a NaN coordinate, whose extent is unknown.
+#[inline]
+fn unbounded_interval(
+    b: &Aabb,
+    ray: &Ray,
+    tmin: f32,
+    tmax: f32,
+    margin: f32,
+) -> Option<(f32, f32)> {
+    if b.min.is_nan() || b.max.is_nan() {
+        Some((tmin, tmax))
+    } else if margin > 0.0 {
+        ray_box_interval(&b.expand(margin), ray, tmin, tmax)
+    } else {
+        ray_box_interval(b, ray, tmin, tmax)
+    }
+}
+
 /// At most this many finite boxes are scanned, not walked: see [`FewBoxes`].
 const FEW_BOXES: usize = 8;
 
@@ -1602,14 +1622,7 @@ impl AabbBvh {
             if tmin.is_nan() || tmax.is_nan() || tmin > *tmax {
                 return;
             }
-            let interval = if b.min.is_nan() || b.max.is_nan() {
-                Some((tmin, *tmax))
-            } else if grow {
-                ray_box_interval(&b.expand(margin), ray, tmin, *tmax)
-            } else {
-                ray_box_interval(b, ray, tmin, *tmax)
-            };
-            if let Some((t0, t1)) = interval {
+            if let Some((t0, t1)) = unbounded_interval(b, ray, tmin, *tmax, margin) {
                 if visit(i as usize, t0, t1, tmax).is_break() {
                     return;
                 }
@@ -1697,14 +1710,7 @@ impl AabbBvh {
                 let grow = margin > 0.0;
                 // the unbounded boxes as `visit_within` visits them
                 for (&i, b) in self.unbounded.iter().zip(&self.unbounded_boxes) {
-                    let interval = if b.min.is_nan() || b.max.is_nan() {
-                        Some((tmin, tmax))
-                    } else if grow {
-                        ray_box_interval(&b.expand(margin), ray, tmin, tmax)
-                    } else {
-                        ray_box_interval(b, ray, tmin, tmax)
-                    };
-                    if let Some((t0, t1)) = interval {
+                    if let Some((t0, t1)) = unbounded_interval(b, ray, tmin, tmax, margin) {
                         visit(r, i as usize, t0, t1);
                     }
                 }
