@@ -430,22 +430,28 @@ impl SsaTape {
     /// allocator's rematerialisation, Briggs, Cooper & Torczon 1992, instead of spilling: the
     /// interpreters have no memory beyond their registers). That is what a union of many
     /// translated primitives needs: the coordinate offsets that rows of them share would
-    /// otherwise stay alive across the whole union.
+    /// otherwise stay alive across the whole union. When that is not enough, dearer values
+    /// are recomputed too (up to [`REMAT_COST_FALLBACK`] operations): under an object's
+    /// rotation or scale, the rotated coordinates that members of one orientation share cost
+    /// a dozen operations of the inputs, and a few hundred orientations outlive the registers.
     fn compile_or_rematerialise(&self, with_material: bool) -> Result<Tape, String> {
-        match self.compile_part(with_material) {
-            Err(OutOf::Registers) => self
-                .rematerialised(with_material)
-                .compile_part(with_material),
-            other => other,
+        let mut result = self.compile_part(with_material);
+        for cost in [REMAT_COST, REMAT_COST_FALLBACK] {
+            if !matches!(result, Err(OutOf::Registers)) {
+                break;
+            }
+            result = self
+                .rematerialised(with_material, cost)
+                .compile_part(with_material);
         }
-        .map_err(|e| e.to_string())
+        result.map_err(|e| e.to_string())
     }
 
-    /// The program with every value that takes at most [`REMAT_COST`] operations of the
-    /// inputs recomputed wherever its last copy is more than [`REMAT_DISTANCE`] operations old,
-    /// and emitted only where first read: such a value is never alive for long. Other values
-    /// keep their order; dead code is left out.
-    pub fn rematerialised(&self, with_material: bool) -> SsaTape {
+    /// The program with every value that takes at most `max_cost` operations of the inputs
+    /// recomputed wherever its last copy is more than [`REMAT_DISTANCE`] operations old, and
+    /// emitted only where first read: such a value is never alive for long. Other values keep
+    /// their order; dead code is left out.
+    pub fn rematerialised(&self, with_material: bool, max_cost: u32) -> SsaTape {
         let n = self.ops.len();
         let mut live = Vec::new();
         self.live_into(with_material, &mut live);
@@ -459,7 +465,7 @@ impl SsaTape {
                     op.for_each_value_operand(|v| {
                         c = c.and_then(|c| cost[v as usize].map(|k| c + k));
                     });
-                    c.filter(|&c| c <= REMAT_COST)
+                    c.filter(|&c| c <= max_cost)
                 }
             };
             cost[i] = c;
@@ -603,6 +609,11 @@ impl std::fmt::Display for OutOf {
 /// Most operations a value may take to compute from the inputs and still be recomputed by
 /// [`SsaTape::rematerialised`].
 pub const REMAT_COST: u32 = 6;
+
+/// The larger bound of the second attempt of [`SsaTape::compile`]: a value recomputed at
+/// each of its distant readers costs at most this many operations more per reader, which is
+/// the price of a program that otherwise would not run at all.
+pub const REMAT_COST_FALLBACK: u32 = 64;
 
 /// How many operations old the last copy of such a value may be and still be read.
 pub const REMAT_DISTANCE: usize = 24;
@@ -776,10 +787,65 @@ mod tests {
         // a program that fits is rewritten to the same values
         let (small, _) = grid(6, 3);
         let a = small.compile_part(false).unwrap();
-        let b = small.rematerialised(false).compile_part(false).unwrap();
+        let b = small
+            .rematerialised(false, REMAT_COST)
+            .compile_part(false)
+            .unwrap();
         for _ in 0..100 {
             let p = Vec3::new(rng.range_f32(-1.0, 7.0), rng.range_f32(-1.0, 4.0), 0.0);
             assert_eq!(a.eval(p).to_bits(), b.eval(p).to_bits(), "at {p}");
+        }
+    }
+
+    #[test]
+    fn members_of_many_orientations_under_a_rotated_object_fit_after_rematerialisation() {
+        use crate::sdf::conformance::parse_node;
+        use crate::sdf::lower::lower;
+        // 600 boxes in 90 orientations under a rotation and a scale: each orientation's
+        // rotated coordinates cost a dozen operations of the inputs and are shared by members
+        // all over the union, more of them than there are registers
+        let members: Vec<String> = (0..600)
+            .map(|i| {
+                let (x, y, z) = ((i % 25) as f32 * 0.3, (i / 25) as f32 * 0.2, (i % 7) as f32);
+                format!(
+                    "Transform(translate: ({x}, {y}, {z}), rotate: ({}, {}, 0), \
+                     shape: Box(half_extents: (0.07, 0.05, 0.09)))",
+                    i % 90,
+                    i % 45
+                )
+            })
+            .collect();
+        let src = format!(
+            "Transform(rotate: (0, 20, 0), scale: 0.9, shape: Union([{}]))",
+            members.join(", ")
+        );
+        let node = parse_node(&src);
+        let lowered = lower(&node, &|_| Some(0), 0).expect("fits after rematerialisation");
+        // the same distances as the members' minimum, each member lowered alone
+        let one = |i: usize| {
+            let m = format!(
+                "Transform(rotate: (0, 20, 0), scale: 0.9, shape: Union([{}]))",
+                members[i]
+            );
+            lower(&parse_node(&m), &|_| Some(0), 0).unwrap().distance
+        };
+        let singles: Vec<Tape> = (0..members.len()).map(one).collect();
+        let mut rng = crate::rng::Rng::new(11);
+        for _ in 0..50 {
+            let p = Vec3::new(
+                rng.range_f32(-1.0, 8.0),
+                rng.range_f32(-1.0, 5.0),
+                rng.range_f32(-1.0, 7.0),
+            );
+            let least = singles
+                .iter()
+                .map(|t| t.eval(p))
+                .fold(f32::INFINITY, f32::min);
+            assert_eq!(
+                lowered.distance.eval(p).to_bits(),
+                least.to_bits(),
+                "at {p}"
+            );
         }
     }
 
@@ -802,11 +868,11 @@ mod tests {
     fn too_many_live_values_is_an_error() {
         let mut b = Builder::new();
         let [x, ..] = b.point();
-        // each value costs more than REMAT_COST operations, so none is recomputed
+        // each value costs more than REMAT_COST_FALLBACK operations, so none is recomputed
         let vals: Vec<V> = (0..300)
             .map(|i| {
                 let mut v = b.with_imm(Op::AddImm, x, i as f32 + 0.5);
-                for _ in 0..REMAT_COST {
+                for _ in 0..REMAT_COST_FALLBACK {
                     v = b.unary(Op::Sin, v);
                 }
                 v
