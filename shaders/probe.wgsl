@@ -31,5 +31,8 @@ fn probe_main(@builtin(global_invocation_id) id: vec3<u32>) {
     } else {
         r.distance = scene_distance(ray.origin, 1.0);
     }
+    // (chunk.count < 2³¹: the shift is 0; the first pass starts the flag)
+    let cut = select(0u, 1u, loops_were_cut(chunk.count >> 31u));
+    r.cut = select(r.cut | cut, cut, chunk.part == 0u);
     probe_results[i] = r;
 }

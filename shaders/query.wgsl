@@ -23,5 +23,7 @@ fn query_main(@builtin(global_invocation_id) id: vec3<u32>) {
     if (chunk.queries & QUERY_OCCLUDED) != 0u {
         result.occluded = select(0u, 1u, scene_occluded(ray.origin, ray.direction, ray.tmin, ray.tmax));
     }
+    // (chunk.count < 2³¹: the shift is 0)
+    result.cut = select(0u, 1u, loops_were_cut(chunk.count >> 31u));
     query_results[i] = result;
 }

@@ -223,7 +223,7 @@ fn render_tile_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let ray = camera_ray((f32(x) + offset.x) / width, (f32(y) + offset.y) / height, width / height);
     let sample = trace_camera_ray(ray.origin, ray.direction);
     let i = (y - tile.sums_y0) * tile.sums_width + (x - tile.sums_x0);
-    var sum = RenderPixel(vec3<f32>(0.0), -1.0, vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0.0);
+    var sum = RenderPixel(vec3<f32>(0.0), -1.0, vec3<f32>(0.0), 0.0, vec3<f32>(0.0), 0.0, 0u, 0u, 0u, 0u);
     if tile.accumulate != 0u {
         sum = render_pixels[i];
     }
@@ -235,6 +235,10 @@ fn render_tile_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     // the nearest depth; negative: every sample so far missed (∞ on the CPU side)
     if sample.depth >= 0.0 && (sum.depth < 0.0 || sample.depth < sum.depth) {
         sum.depth = sample.depth;
+    }
+    // (tile.w < 2³¹: the shift is 0)
+    if loops_were_cut(tile.w >> 31u) {
+        sum.cut += 1u;
     }
     render_pixels[i] = sum;
 }

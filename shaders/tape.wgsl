@@ -5,6 +5,24 @@
 // register of SELECT and MATMIX, or a material number). Registers live in private arrays of
 // the generated sizes; registers 0–2 hold the sample point on entry.
 
+// Whether the driver ended this invocation's loops early. llvmpipe (Mesa's lavapipe) counts
+// the iterations of every loop of a kernel invocation together, for its whole SIMD group, and
+// once 65,535 are spent (gallivm's LP_MAX_TGSI_LOOP_ITERATIONS) every loop stops after its
+// first iteration: marches, walks and the tape interpreter then answer wrongly, and nothing
+// says so. A loop that has to run twice tells: called last in a kernel, it runs once only when
+// the budget is gone. `zero` is 0 at run time but unknown to the compiler, so the loop cannot
+// be unrolled away.
+fn loops_were_cut(zero: u32) -> bool {
+    var n = 0u;
+    loop {
+        n = n + 1u;
+        if n >= 2u + zero {
+            break;
+        }
+    }
+    return n < 2u;
+}
+
 var<private> regs: array<f32, MAX_REGISTERS>;
 var<private> mat_regs: array<MaterialLanes, MAX_MATERIAL_REGISTERS>;
 

@@ -60,10 +60,28 @@ fn gpu() -> Gpu {
 }
 
 impl Gpu {
+    /// The GPU image; the pixels llvmpipe cannot trace at all (its loop budget, traced on
+    /// the CPU instead) must stay a few, or the image would test the CPU.
     fn render(&self, scene: &Scene, opts: &RenderOptions) -> Framebuffer {
-        self.renderer
-            .render(&self.ctx, scene, opts)
-            .unwrap_or_else(|e| panic!("{}: {e:#}", scene.source_name))
+        let gpu = self
+            .renderer
+            .render_tiled(&self.ctx, scene, opts, hytrace::gpu::render::GPU_TILE)
+            .unwrap_or_else(|e| panic!("{}: {e:#}", scene.source_name));
+        let pixels = (opts.width * opts.height) as usize;
+        if !gpu.on_cpu.is_empty() {
+            println!(
+                "{}: {} of {pixels} pixels traced on the CPU (the driver's loop budget)",
+                scene.source_name,
+                gpu.on_cpu.len()
+            );
+        }
+        assert!(
+            gpu.on_cpu.len() * 1000 <= pixels,
+            "{}: {} of {pixels} pixels could not be traced on the GPU",
+            scene.source_name,
+            gpu.on_cpu.len()
+        );
+        gpu.image
     }
 }
 
@@ -349,11 +367,13 @@ fn many_small_tiles_give_the_same_image_as_few_large_ones() {
     let small = gpu
         .renderer
         .render_tiled(&gpu.ctx, &scene, &opts, 8)
-        .unwrap();
+        .unwrap()
+        .image;
     let large = gpu
         .renderer
         .render_tiled(&gpu.ctx, &scene, &opts, 128)
-        .unwrap();
+        .unwrap()
+        .image;
     let bits = |fb: &Framebuffer| -> Vec<u32> {
         let v3 = |v: &[glam::Vec3]| -> Vec<u32> {
             v.iter()

@@ -306,16 +306,30 @@ pub fn run(args: CompareArgs) -> Result<()> {
         match hytrace::gpu::context::GpuContext::new() {
             Ok(ctx) => {
                 let start = Instant::now();
-                let fb = hytrace::gpu::render::render(&scene, &opts, &ctx)?;
-                backends.push(Backend {
-                    name: "gpu",
-                    description: format!(
-                        "our WGSL tracer through wgpu on {} (time includes the kernel compile)",
-                        ctx.adapter_name()
-                    ),
-                    image: shaded(&fb),
-                    seconds: start.elapsed().as_secs_f64(),
-                });
+                // (a scene the adapter cannot trace leaves the other images to compare)
+                match hytrace::gpu::render::render(&scene, &opts, &ctx) {
+                    Ok(gpu) => {
+                        if let Some(note) =
+                            hytrace::gpu::render::on_cpu_note(&gpu, ctx.adapter_name())
+                        {
+                            notes.push(format!("gpu image: {note}"));
+                        }
+                        backends.push(Backend {
+                            name: "gpu",
+                            description: format!(
+                                "our WGSL tracer through wgpu on {} (time includes the \
+                                 kernel compile)",
+                                ctx.adapter_name()
+                            ),
+                            image: shaded(&gpu.image),
+                            seconds: start.elapsed().as_secs_f64(),
+                        })
+                    }
+                    Err(e) if args.gpu == GpuChoice::Auto => {
+                        notes.push(format!("no GPU image on {}: {e}", ctx.adapter_name()));
+                    }
+                    Err(e) => bail!("--gpu always: {e}"),
+                }
             }
             Err(e) if args.gpu == GpuChoice::Auto => {
                 notes.push(format!("no GPU image: {e}"));

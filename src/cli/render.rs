@@ -278,7 +278,13 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let (fb, used) = match &backend {
         Chosen::Cpu => (cpu::render(&scene, &opts)?, "CPU"),
         #[cfg(feature = "gpu")]
-        Chosen::Gpu(ctx) => (hytrace::gpu::render::render(&scene, &opts, ctx)?, "GPU"),
+        Chosen::Gpu(ctx) => {
+            let image = hytrace::gpu::render::render(&scene, &opts, ctx)?;
+            if let Some(note) = hytrace::gpu::render::on_cpu_note(&image, ctx.adapter_name()) {
+                eprintln!("note: {note}");
+            }
+            (image.image, "GPU")
+        }
     };
     let elapsed = start.elapsed();
     write_image(

@@ -48,4 +48,19 @@ pub enum GpuError {
     /// Reading a result buffer back failed.
     #[error("reading GPU results back failed: {0}")]
     ReadBack(String),
+    /// The driver ended kernel invocations' loops early, so some answers are wrong: llvmpipe
+    /// (lavapipe) stops every loop of an invocation once 65,535 iterations are spent (see
+    /// `loops_were_cut` in shaders/tape.wgsl). Long tapes (large smooth unions, big CSG
+    /// trees) reach that; hardware drivers have no such limit.
+    #[error(
+        "the GPU driver cut the shader loops of {count} {what} short (llvmpipe ends every loop \
+         of a shader invocation after 65,535 iterations in all), so they would be wrong; \
+         render this scene with --backend cpu"
+    )]
+    LoopsCut {
+        /// How many pixels or rays.
+        count: usize,
+        /// "pixels" or "rays".
+        what: &'static str,
+    },
 }

@@ -188,6 +188,8 @@ pub struct GpuQuery<'a> {
     kernel: Kernel,
     chunk: u32,
     objects: u32,
+    /// Rays [`GpuQuery::run`] ran again alone because the driver cut their work short.
+    rerun: std::cell::Cell<usize>,
 }
 
 impl<'a> GpuQuery<'a> {
@@ -209,6 +211,7 @@ impl<'a> GpuQuery<'a> {
             kernel: Kernel::new(ctx, &QUERY_KERNEL)?,
             chunk: DEFAULT_CHUNK,
             objects: data.objects.len() as u32,
+            rerun: std::cell::Cell::new(0),
         })
     }
 
@@ -223,28 +226,67 @@ impl<'a> GpuQuery<'a> {
         &self.scene
     }
 
+    /// How many rays [`GpuQuery::run`] has run again alone so far because the driver cut
+    /// their work short in the batch (see `loops_were_cut` in shaders/tape.wgsl).
+    pub fn rays_rerun(&self) -> usize {
+        self.rerun.get()
+    }
+
     /// Runs the query kernel over rays with per-ray intervals; `queries` is a set of
-    /// `QUERY_*` bits.
+    /// `QUERY_*` bits. Fails with [`GpuError::LoopsCut`] when the
+    /// driver cut some rays' work short.
     pub fn run(&self, rays: &[QueryRay], queries: u32) -> Result<Vec<QueryResult>, GpuError> {
         let args = KernelArgs {
             queries,
             ..Default::default()
         };
-        self.run_kernel(&self.kernel, rays, args, 1)
+        let mut results: Vec<QueryResult> = self.run_kernel(&self.kernel, rays, args, 1)?;
+        // Rays whose invocations the driver cut short (llvmpipe's loop budget, see
+        // `loops_were_cut` in shaders/tape.wgsl), again one by one: the budget is spent by a
+        // whole SIMD group together, and a ray alone spends only its own.
+        let mut still_cut = 0;
+        for i in 0..results.len() {
+            if results[i].cut != 0 {
+                self.rerun.set(self.rerun.get() + 1);
+                let alone: Vec<QueryResult> =
+                    self.run_kernel(&self.kernel, &rays[i..=i], args, 1)?;
+                results[i] = alone[0];
+                still_cut += (alone[0].cut != 0) as usize;
+            }
+        }
+        if still_cut > 0 {
+            return Err(GpuError::LoopsCut {
+                count: still_cut,
+                what: "rays",
+            });
+        }
+        Ok(results)
     }
 
     /// Runs the probe kernel (`shaders/probe.wgsl`: material, exit, soft visibilities with
-    /// sharpness `k`, distance) over rays; compiles it on each call.
+    /// sharpness `k`, distance) over rays; compiles it on each call. A ray whose work the
+    /// driver cuts short even when probed alone comes back with [`ProbeResult::cut`] set.
     pub fn probe(&self, rays: &[QueryRay], k: f32) -> Result<Vec<ProbeResult>, GpuError> {
         let kernel = Kernel::new(self.ctx, &PROBE_KERNEL)?;
-        // One pass per query, each its own dispatch: with all queries in one invocation,
-        // lavapipe (Mesa 22.3) returned wrong values for some lanes on glass.ron — the same
-        // driver trouble the render kernel met with several samples per invocation.
+        // One pass per query, each its own dispatch, so that one invocation spends less of
+        // llvmpipe's loop budget (see `loops_were_cut` in shaders/tape.wgsl): with all
+        // queries in one invocation it ran out on glass.ron, as the render kernel did with
+        // several samples per invocation.
         let args = KernelArgs {
             penumbra_k: k,
             ..Default::default()
         };
-        self.run_kernel(&kernel, rays, args, PROBE_PASSES)
+        let mut results: Vec<ProbeResult> = self.run_kernel(&kernel, rays, args, PROBE_PASSES)?;
+        // Rays the driver cut short, again one by one, as in `run`; those it cuts even alone
+        // keep `cut` set for the caller to leave out.
+        for i in 0..results.len() {
+            if results[i].cut != 0 {
+                let alone: Vec<ProbeResult> =
+                    self.run_kernel(&kernel, &rays[i..=i], args, PROBE_PASSES)?;
+                results[i] = alone[0];
+            }
+        }
+        Ok(results)
     }
 
     /// Runs the field probe kernel (`shaders/field_probe.wgsl`: the field and its leaf at

@@ -331,7 +331,7 @@ gpu_struct! {
 
 gpu_struct! {
     /// The answer to one query ray.
-    pub struct QueryResult(32) {
+    pub struct QueryResult(48) {
         /// Unit normal at the hit.
         pub normal: [f32; 3],
         /// Hit distance (meaningless on a miss).
@@ -344,6 +344,15 @@ gpu_struct! {
         pub occluded: u32,
         /// Sphere-tracing steps.
         pub steps: u32,
+        /// 1 when the driver cut the kernel invocation short (`loops_were_cut` in
+        /// shaders/tape.wgsl): the answer is wrong.
+        pub cut: u32,
+        /// Unused.
+        pub pad0: u32,
+        /// Unused.
+        pub pad1: u32,
+        /// Unused.
+        pub pad2: u32,
     }
 }
 
@@ -402,7 +411,7 @@ gpu_struct! {
 gpu_struct! {
     /// The answers of the probe kernel (`shaders/probe.wgsl`) for one ray: the scene queries
     /// that shading uses, for checking them against the CPU.
-    pub struct ProbeResult(112) {
+    pub struct ProbeResult(128) {
         /// `scene_material` at the closest hit, as material lanes (zero on a miss).
         pub material: [[f32; 4]; 5],
         /// `scene_exit` from just inside the hit, along the ray: (t, normal), t < 0 for none.
@@ -415,5 +424,14 @@ gpu_struct! {
         pub distance: f32,
         /// The closest hit's kind.
         pub kind: u32,
+        /// 1 when the driver cut one of the ray's passes short (`loops_were_cut` in
+        /// shaders/tape.wgsl): some answers are wrong.
+        pub cut: u32,
+        /// Unused.
+        pub pad0: u32,
+        /// Unused.
+        pub pad1: u32,
+        /// Unused.
+        pub pad2: u32,
     }
 }

@@ -3,8 +3,9 @@
 //! back into the same [`SampleSums`] and [`Framebuffer`] the CPU fills, so PNG/EXR output,
 //! AOVs and debug views are shared with the CPU path.
 
+use super::GpuError;
 use super::context::GpuContext;
-use super::scene::{GpuScene, SceneData, scene_layout};
+use super::scene::{GpuScene, SceneData, scene_layout, supported};
 use super::shade::{
     RenderPixel, RenderTile, ShadeCamera, ShadeLight, ShadeSettings, pass_bindings,
     shading_bindings, wgsl_prelude,
@@ -45,9 +46,21 @@ pub fn render_shader_source() -> String {
 }
 
 /// Renders the scene on the GPU in tiles of [`GPU_TILE`] pixels (compiling the kernel first;
-/// keep a [`GpuRenderer`] to render several images with one compilation).
-pub fn render(scene: &Scene, opts: &RenderOptions, ctx: &GpuContext) -> Result<Framebuffer> {
-    GpuRenderer::new(ctx).render(ctx, scene, opts)
+/// keep a [`GpuRenderer`] to render several images with one compilation), with the pixels
+/// the driver could not trace ([`GpuImage::on_cpu`]).
+pub fn render(scene: &Scene, opts: &RenderOptions, ctx: &GpuContext) -> Result<GpuImage> {
+    GpuRenderer::new(ctx).render_tiled(ctx, scene, opts, GPU_TILE)
+}
+
+/// The line that says how many pixels of a GPU image the CPU traced, if any.
+pub fn on_cpu_note(image: &GpuImage, adapter: &str) -> Option<String> {
+    (!image.on_cpu.is_empty()).then(|| {
+        format!(
+            "{} pixels were traced on the CPU: {adapter} cut their shader loops short (llvmpipe \
+             ends every loop of a shader invocation after 65,535 iterations in all)",
+            image.on_cpu.len()
+        )
+    })
 }
 
 /// The compiled render kernel and its bind-group layouts; it does not depend on the scene.
@@ -64,6 +77,15 @@ pub struct GpuRenderer {
 pub struct PreparedScene {
     scene: GpuScene,
     bindings: wgpu::BindGroup,
+}
+
+/// An image of [`GpuRenderer::render_tiled`].
+pub struct GpuImage {
+    /// The image.
+    pub image: Framebuffer,
+    /// The pixels (x, y) the driver could not trace (llvmpipe's loop budget), traced by the
+    /// CPU renderer instead.
+    pub on_cpu: Vec<(u32, u32)>,
 }
 
 /// Per-pixel sums of the passes rendered so far, kept on the device between passes: the
@@ -250,37 +272,69 @@ impl GpuRenderer {
         scene: &Scene,
         opts: &RenderOptions,
     ) -> Result<Framebuffer> {
-        self.render_tiled(ctx, scene, opts, GPU_TILE)
+        Ok(self.render_tiled(ctx, scene, opts, GPU_TILE)?.image)
     }
 
     /// Renders the scene tile by tile, tiles of side `tile_side`, each with its passes
     /// 0..samples (at least one) of [`GpuRenderer::render_pass`] with the scene's camera.
     /// Every pixel depends only on its own coordinates, so the image does not depend on the
     /// tile size.
+    ///
+    /// Pixels whose kernel invocations the driver cut short (llvmpipe's loop budget, see
+    /// `loops_were_cut` in shaders/tape.wgsl) are rendered again one by one: the budget is
+    /// spent by a whole SIMD group together, and a pixel alone spends only its own. Those
+    /// cut even alone are traced by the CPU renderer with the same acceleration structures
+    /// (the image the GPU would have made, as the backends agree) and listed in the result.
     pub fn render_tiled(
         &self,
         ctx: &GpuContext,
         scene: &Scene,
         opts: &RenderOptions,
         tile_side: u32,
-    ) -> Result<Framebuffer> {
+    ) -> Result<GpuImage> {
         if tile_side == 0 {
             bail!("GPU tile size must be at least 1 pixel");
         }
-        let prepared = self.prepare(ctx, scene)?;
+        supported(scene)?;
+        let tracer = SceneTracer::new(scene);
+        let prepared = self.prepare_with(ctx, &tracer)?;
         let all = crate::render::tiles(opts.width, opts.height, tile_side);
         let bar = progress_bar(opts.progress, all.len() as u64)?;
         let mut sums = SampleSums::new(opts.width, opts.height);
+        let mut cut = Vec::new();
         for tile in all {
-            let mut target = GpuPasses::covering(ctx, self, opts.width, opts.height, tile)?;
-            for sample in 0..opts.samples.max(1) {
-                self.render_pass(ctx, &prepared, &scene.camera, opts, sample, &mut target)?;
-            }
-            target.read_into(ctx, &mut sums)?;
+            let target = self.render_region(ctx, &prepared, scene, opts, tile)?;
+            cut.extend(target.read_into(ctx, &mut sums)?);
             bar.inc(1);
         }
+        let mut on_cpu = Vec::new();
+        for (x0, y0) in cut {
+            let alone = Tile { x0, y0, w: 1, h: 1 };
+            let target = self.render_region(ctx, &prepared, scene, opts, alone)?;
+            on_cpu.extend(target.read_into(ctx, &mut sums)?);
+        }
+        crate::render::cpu::render_pixels(&tracer, &scene.camera, opts, &on_cpu, &mut sums);
         bar.finish_and_clear();
-        Ok(sums.mean())
+        Ok(GpuImage {
+            image: sums.mean(),
+            on_cpu,
+        })
+    }
+
+    /// All the samples of the pixels of `region`.
+    fn render_region(
+        &self,
+        ctx: &GpuContext,
+        prepared: &PreparedScene,
+        scene: &Scene,
+        opts: &RenderOptions,
+        region: Tile,
+    ) -> Result<GpuPasses> {
+        let mut target = GpuPasses::covering(ctx, self, opts.width, opts.height, region)?;
+        for sample in 0..opts.samples.max(1) {
+            self.render_pass(ctx, prepared, &scene.camera, opts, sample, &mut target)?;
+        }
+        Ok(target)
     }
 }
 
@@ -388,29 +442,47 @@ impl GpuPasses {
         self.passes = 0;
     }
 
-    /// The sums of the passes so far, read back from the device (waiting for them).
+    /// The sums of the passes so far, read back from the device (waiting for them). Fails
+    /// with [`GpuError::LoopsCut`] when the driver cut some pixels' work short.
     pub fn read(&self, ctx: &GpuContext) -> Result<SampleSums> {
         let mut sums = SampleSums::new(self.width, self.height);
-        self.read_into(ctx, &mut sums)?;
+        let cut = self.read_into(ctx, &mut sums)?.len();
+        if cut > 0 {
+            return Err(GpuError::LoopsCut {
+                count: cut,
+                what: "pixels",
+            }
+            .into());
+        }
         Ok(sums)
     }
 
-    /// Reads the sums back into their rectangle of `sums`, an image-sized accumulator.
-    fn read_into(&self, ctx: &GpuContext, sums: &mut SampleSums) -> Result<()> {
+    /// Reads the sums back into their rectangle of `sums`, an image-sized accumulator;
+    /// returns the pixels (x, y) whose sums the driver cut short (their sums are read too).
+    fn read_into(&self, ctx: &GpuContext, sums: &mut SampleSums) -> Result<Vec<(u32, u32)>> {
         if self.passes == 0 {
             // nothing written yet: the buffer holds no sums
-            return Ok(());
+            return Ok(Vec::new());
         }
         let bytes = ctx.read_buffer(&self.sums, self.sums.size())?;
         let pixels: &[RenderPixel] = bytemuck::cast_slice(&bytes);
         let region = self.region;
+        let mut cut = Vec::new();
         for (j, row) in pixels.chunks_exact(region.w as usize).enumerate() {
-            let start = ((region.y0 + j as u32) * sums.width + region.x0) as usize;
-            for (into, p) in sums.pixels[start..start + row.len()].iter_mut().zip(row) {
+            let y = region.y0 + j as u32;
+            let start = (y * sums.width + region.x0) as usize;
+            for (i, (into, p)) in sums.pixels[start..start + row.len()]
+                .iter_mut()
+                .zip(row)
+                .enumerate()
+            {
                 *into = pixel_sums(p, self.passes);
+                if p.cut != 0 {
+                    cut.push((region.x0 + i as u32, y));
+                }
             }
         }
-        Ok(())
+        Ok(cut)
     }
 }
 

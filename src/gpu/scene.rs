@@ -505,7 +505,7 @@ impl SceneData {
 /// Whether the GPU tracer handles the scene's settings: it implements Hart's stepper only; the
 /// over-relaxed ones and segment tracing (which needs the interval evaluator of
 /// `sdf::interval`) are CPU steppers measured by `hytrace bench`.
-fn supported(scene: &Scene) -> Result<(), GpuError> {
+pub(crate) fn supported(scene: &Scene) -> Result<(), GpuError> {
     if scene.tracer.stepper != crate::scene::Stepper::Hart {
         return Err(GpuError::Unsupported(format!(
             "tracer.stepper {:?}: the GPU traces with Hart's stepper only (use --backend cpu)",

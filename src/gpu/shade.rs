@@ -123,7 +123,7 @@ crate::gpu_struct! {
 crate::gpu_struct! {
     /// One rendered pixel: the sums over its samples so far (`render::progressive::PixelSums`,
     /// which the host divides by the count) and the nearest depth, < 0 while every sample missed.
-    pub struct RenderPixel (48) {
+    pub struct RenderPixel (64) {
         /// Sum of linear radiance.
         pub radiance: [f32; 3],
         /// Nearest first-hit distance, or −1.
@@ -136,6 +136,15 @@ crate::gpu_struct! {
         pub albedo: [f32; 3],
         /// Sum of |∇f| at the first hits.
         pub gradient: f32,
+        /// Samples whose kernel invocation the driver cut short (`loops_were_cut` in
+        /// shaders/tape.wgsl): their sums are wrong.
+        pub cut: u32,
+        /// Unused.
+        pub pad0: u32,
+        /// Unused.
+        pub pad1: u32,
+        /// Unused.
+        pub pad2: u32,
     }
 }
 

@@ -1,7 +1,7 @@
 //! The CPU backend: rayon over tiles, one camera path per sample, the image built up one
 //! sample pass at a time.
 
-use super::progressive::{FramebufferRows, SampleSums, SumsRows};
+use super::progressive::{FramebufferRows, PixelSums, SampleSums, SumsRows};
 use super::{Framebuffer, RenderOptions, TILE, Tile, sample_offset, tiles};
 use crate::geom::Ray;
 use crate::scene::Scene;
@@ -146,6 +146,41 @@ fn pass<T: ShadingTracer + Sync + ?Sized>(
             Some(())
         })
         .is_some()
+}
+
+/// Every sample of each pixel (x, y) of `pixels`, in place of what `sums` held for it: there,
+/// the sums [`render`] adds. (For the GPU backend's pixels its driver could not trace, see
+/// `crate::gpu::render`.)
+pub fn render_pixels(
+    tracer: &SceneTracer,
+    camera: &Camera,
+    opts: &RenderOptions,
+    pixels: &[(u32, u32)],
+    sums: &mut SampleSums,
+) {
+    let materials = tracer.scene().material_table();
+    let mut samples = Vec::new();
+    for &(x, y) in pixels {
+        sums.pixels[(y * sums.width + x) as usize] = PixelSums::default();
+        let alone = Tile {
+            x0: x,
+            y0: y,
+            w: 1,
+            h: 1,
+        };
+        for sample in 0..opts.samples.max(1) {
+            render_tile(
+                tracer,
+                &materials,
+                camera,
+                opts,
+                alone,
+                sample,
+                &mut samples,
+            );
+            sums.add(x, y, &samples[0]);
+        }
+    }
 }
 
 thread_local! {
