@@ -201,6 +201,45 @@ fn huge_and_exploding_trees_render_or_are_refused_with_the_limit() {
 }
 
 #[test]
+fn the_parts_of_a_split_union_share_the_object_s_budget_of_tapes() {
+    // 20,000 boxes in 90 orientations under the object's rotation: a thousand parts of 20
+    // boxes, each part's tape some 500 instructions. Each part gets a thousandth of the
+    // object's budget; the octree's top levels, split whatever their children gain, used to
+    // store 64 tapes per part regardless (346 MiB here, 1.5 GB for 100,000 boxes).
+    let shapes: Vec<String> = (0..20_000)
+        .map(|i| {
+            let h = |k: u32| ((i as u32).wrapping_mul(2_654_435_761).rotate_left(k) % 1000) as f32;
+            format!(
+                "Transform(translate: ({}, {}, {}), rotate: ({}, {}, 0), \
+                 shape: Box(half_extents: (0.02, 0.015, 0.025)))",
+                h(0) * 0.008 - 4.0,
+                h(11) * 0.003 - 0.8,
+                h(22) * 0.006 - 4.0,
+                i % 90,
+                i % 45
+            )
+        })
+        .collect();
+    let src = format!(
+        "Scene(camera: Perspective(position: (0, 5, 11), look_at: (0, 0.5, 0), fov: 45),
+               objects: [(rotate: (0, 20, 0), scale: 0.9, shape: Union([{}]))])",
+        shapes.join(", ")
+    );
+    let scene =
+        Scene::from_source(&src, Path::new("orientations.ron")).unwrap_or_else(|e| panic!("{e}"));
+    assert!(scene.objects.len() > 500, "{} parts", scene.objects.len());
+    let tracer = SceneTracer::new(&scene);
+    let bytes: usize = (tracer.fields().iter())
+        .map(|f| f.octree.as_ref().map_or(0, |t| t.stats().bytes))
+        .sum();
+    // the object's budget: MAX_INSTRUCTIONS of 8 bytes
+    let budget = hytrace::accel::field::MAX_INSTRUCTIONS * 8;
+    assert!(bytes <= budget, "{bytes} bytes of octrees, budget {budget}");
+    let fb = cpu::render_with(&tracer, &RenderOptions::single_sample(16, 12)).unwrap();
+    assert!(fb.depth.iter().any(|d| d.is_finite()), "something is hit");
+}
+
+#[test]
 fn a_union_of_thousands_of_translated_boxes_fits_in_registers_and_traces_right() {
     // 60 × 40 boxes tiling [-0.9, 0.9]², row by row, of 97 different depths: the column
     // offsets x − cᵢ and the depth terms |z| − hₖ are shared across the union, so without

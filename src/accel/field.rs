@@ -856,8 +856,16 @@ fn build_top(job: Job) -> Top {
             simplifier.specialise(&job.sp.program, clo, chi)
         })
         .collect();
+    // Split whatever the children gain, but not past the budget: eight tapes where one was
+    // afforded. A part of a union split into a thousand gets a thousandth of the object's
+    // budget, and its top levels' 64 tapes of a few thousand instructions took 1.5 GB for a
+    // union of 100,000 rotated boxes.
+    let total = children.iter().map(|c| c.len).sum::<usize>();
+    if total > job.instructions {
+        return Top::Subtree(build_subtree(job));
+    }
     drop(job.sp);
-    let total = children.iter().map(|c| c.len).sum::<usize>().max(1) as u128;
+    let total = total.max(1) as u128;
     let nodes = (job.nodes - 8) / 8;
     let jobs: Vec<Job> = children
         .into_iter()
