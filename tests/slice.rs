@@ -100,6 +100,58 @@ fn field_is_the_minimum_over_objects() {
     }
 }
 
+/// The slice leaves out, square by square, the objects whose interval enclosure cannot reach
+/// the least upper end of the others': the values stay those of every object evaluated at
+/// every pixel, bit for bit. A union of 300 rotated boxes (traced as its members), a smooth
+/// union, an implicit and a ground plane, on three planes.
+#[test]
+fn objects_left_out_by_their_enclosures_change_no_value() {
+    let boxes: Vec<String> = (0..300)
+        .map(|i| {
+            let a = i as f32 * 0.37;
+            format!(
+                "Transform(translate: ({:.3}, {:.3}, {:.3}), rotate: ({}, {}, 0), \
+                 shape: Box(half_extents: (0.08, 0.05, 0.1)))",
+                1.8 * a.cos(),
+                -0.5 + 0.004 * i as f32,
+                1.8 * a.sin(),
+                i % 90,
+                i % 45
+            )
+        })
+        .collect();
+    let s = scene(&format!(
+        "(shape: Union([{}])), \
+         (shape: SmoothUnion(k: 0.3, shapes: [Sphere(radius: 0.5), \
+            Transform(translate: (0.6, 0, 0), shape: Sphere(radius: 0.4))])), \
+         (translate: (0, 0.8, 0), shape: Implicit(expr: \"x*x + y*y*2 + z*z - 0.3\", \
+            half_extents: (1, 1, 1))), \
+         (shape: Plane(normal: (0, 1, 0), offset: -1))",
+        boxes.join(", ")
+    ));
+    assert!(s.objects.len() > 300, "the union is traced as its members");
+    let opts = SliceOptions::new(70, 45, 2.5);
+    let mut regs = Default::default();
+    for plane in [
+        Plane::new(Axis::Y, -0.3),
+        Plane::new(Axis::Z, 0.2),
+        Plane::new(Axis::X, 1.1),
+    ] {
+        let field = sample(&s, plane, &opts);
+        for y in -1..=45i64 {
+            for x in -1..=70i64 {
+                let uv = opts.to_plane(x as f32 + 0.5, y as f32 + 0.5);
+                let want = hytrace::render::slice::distance(&s, plane.point(uv), &mut regs);
+                assert_eq!(
+                    field.at(x, y).to_bits(),
+                    want.to_bits(),
+                    "{plane} ({x}, {y})"
+                );
+            }
+        }
+    }
+}
+
 #[test]
 fn axes_follow_the_documented_convention() {
     // y = 0 is seen from +y: z rightwards, x upwards.

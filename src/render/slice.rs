@@ -23,6 +23,7 @@
 //! | `y = c` | +z | +x | +y |
 
 use crate::scene::{MAX_IMAGE_SIDE, MAX_PIXELS, Scene};
+use crate::sdf::interval::{Interval, IntervalRegisters, eval_box};
 use crate::sdf::tape::Registers;
 use glam::{Vec2, Vec3};
 use image::RgbImage;
@@ -331,20 +332,63 @@ impl Field {
     }
 }
 
+/// Side in samples of the squares of the grid over which [`sample`] leaves out the objects
+/// that cannot be the nearest.
+const SQUARE: usize = 16;
+
 /// Samples the scene's distance on `plane` at every pixel centre of the view described by
-/// `opts` (which should pass [`SliceOptions::validate`]), rows in parallel.
+/// `opts` (which should pass [`SliceOptions::validate`]), bands of rows in parallel: the
+/// values of [`distance`], bit for bit.
+///
+/// In each square of [`SQUARE`]² samples only the objects whose interval enclosure over the
+/// square may reach below the least upper end of all their enclosures are evaluated: the
+/// others are above some object everywhere there, so the minimum is the same number. A union
+/// traced as its members is a thousand objects, and evaluating each at every pixel took
+/// 168 s for 20,000 boxes at 512².
 pub fn sample(scene: &Scene, plane: Plane, opts: &SliceOptions) -> Field {
     let gw = opts.width as usize + 2;
     let gh = opts.height as usize + 2;
     let mut values = vec![0.0f32; gw * gh];
-    values.par_chunks_mut(gw).enumerate().for_each(|(j, row)| {
-        let mut regs = Registers::new();
-        let y = j as f32 - 0.5; // grid row j is pixel row j − 1, centre at (j − 1) + 0.5
-        for (i, v) in row.iter_mut().enumerate() {
-            let uv = opts.to_plane(i as f32 - 0.5, y);
-            *v = distance(scene, plane.point(uv), &mut regs);
-        }
-    });
+    // grid row j is pixel row j − 1, centre at (j − 1) + 0.5; likewise columns
+    let at = |i: usize, j: usize| plane.point(opts.to_plane(i as f32 - 0.5, j as f32 - 0.5));
+    let tapes: Vec<_> = scene.objects.iter().map(|o| &o.lowered.distance).collect();
+    values
+        .par_chunks_mut(gw * SQUARE)
+        .enumerate()
+        .for_each(|(band, rows)| {
+            let mut regs = Registers::new();
+            let mut iregs = IntervalRegisters::<Interval>::new();
+            let mut near = Vec::with_capacity(tapes.len());
+            let j0 = band * SQUARE;
+            let band_rows = rows.len() / gw;
+            for i0 in (0..gw).step_by(SQUARE) {
+                let (i1, j1) = ((i0 + SQUARE).min(gw) - 1, j0 + band_rows - 1);
+                let (a, b) = (at(i0, j0), at(i1, j1));
+                let (lo, hi) = (a.min(b), a.max(b));
+                let enclosures: Vec<Interval> = (tapes.iter())
+                    .map(|t| eval_box(t, lo, hi, &mut iregs))
+                    .collect();
+                // (a NaN end tells nothing: such an object is kept)
+                let least_top = (enclosures.iter())
+                    .map(|e| e.hi)
+                    .filter(|h| !h.is_nan())
+                    .fold(f32::INFINITY, f32::min);
+                near.clear();
+                near.extend(
+                    (tapes.iter().zip(&enclosures))
+                        .filter(|(_, e)| !(e.lo > least_top))
+                        .map(|(t, _)| *t),
+                );
+                for (dj, row) in rows.chunks_mut(gw).enumerate() {
+                    for (di, v) in row[i0..=i1].iter_mut().enumerate() {
+                        let p = at(i0 + di, j0 + dj);
+                        *v = (near.iter())
+                            .map(|t| t.eval_in(p, &mut regs))
+                            .fold(f32::INFINITY, f32::min);
+                    }
+                }
+            }
+        });
     Field {
         width: opts.width,
         height: opts.height,
