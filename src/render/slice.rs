@@ -376,7 +376,7 @@ pub fn sample(scene: &Scene, plane: Plane, opts: &SliceOptions) -> Field {
                 near.clear();
                 near.extend(
                     (tapes.iter().zip(&enclosures))
-                        .filter(|(_, e)| !(e.lo > least_top))
+                        .filter(|(_, e)| e.lo <= least_top || e.lo.is_nan())
                         .map(|(t, _)| *t),
                 );
                 for (dj, row) in rows.chunks_mut(gw).enumerate() {
