@@ -22,6 +22,11 @@ pub use context::GpuContext;
 pub use query::{GpuQuery, GpuSdfEvaluator};
 pub use scene::{GpuScene, SceneData};
 
+/// What llvmpipe (lavapipe) does to long kernels, as errors and notes say it (see
+/// `loops_were_cut` in shaders/tape.wgsl).
+pub const LOOP_BUDGET: &str =
+    "llvmpipe ends every loop of a shader invocation after 65,535 iterations in all";
+
 /// What can go wrong on the GPU side.
 #[derive(Debug, thiserror::Error)]
 pub enum GpuError {
@@ -53,9 +58,8 @@ pub enum GpuError {
     /// `loops_were_cut` in shaders/tape.wgsl). Long tapes (large smooth unions, big CSG
     /// trees) reach that; hardware drivers have no such limit.
     #[error(
-        "the GPU driver cut the shader loops of {count} {what} short (llvmpipe ends every loop \
-         of a shader invocation after 65,535 iterations in all), so they would be wrong; \
-         render this scene with --backend cpu"
+        "the GPU driver cut the shader loops of {count} {what} short ({LOOP_BUDGET}), so they \
+         would be wrong; render this scene with --backend cpu"
     )]
     LoopsCut {
         /// How many pixels or rays.

@@ -188,7 +188,7 @@ pub struct GpuQuery<'a> {
     kernel: Kernel,
     chunk: u32,
     objects: u32,
-    /// Rays [`GpuQuery::run`] ran again alone because the driver cut their work short.
+    /// Rays run again alone because the driver cut their work short.
     rerun: std::cell::Cell<usize>,
 }
 
@@ -226,8 +226,9 @@ impl<'a> GpuQuery<'a> {
         &self.scene
     }
 
-    /// How many rays [`GpuQuery::run`] has run again alone so far because the driver cut
-    /// their work short in the batch (see `loops_were_cut` in shaders/tape.wgsl).
+    /// How many rays [`GpuQuery::run`] and [`GpuQuery::probe`] have run again alone so far
+    /// because the driver cut their work short in the batch (see `loops_were_cut` in
+    /// shaders/tape.wgsl).
     pub fn rays_rerun(&self) -> usize {
         self.rerun.get()
     }
@@ -241,19 +242,8 @@ impl<'a> GpuQuery<'a> {
             ..Default::default()
         };
         let mut results: Vec<QueryResult> = self.run_kernel(&self.kernel, rays, args, 1)?;
-        // Rays whose invocations the driver cut short (llvmpipe's loop budget, see
-        // `loops_were_cut` in shaders/tape.wgsl), again one by one: the budget is spent by a
-        // whole SIMD group together, and a ray alone spends only its own.
-        let mut still_cut = 0;
-        for i in 0..results.len() {
-            if results[i].cut != 0 {
-                self.rerun.set(self.rerun.get() + 1);
-                let alone: Vec<QueryResult> =
-                    self.run_kernel(&self.kernel, &rays[i..=i], args, 1)?;
-                results[i] = alone[0];
-                still_cut += (alone[0].cut != 0) as usize;
-            }
-        }
+        let still_cut =
+            self.rerun_cut_alone(&self.kernel, rays, args, 1, &mut results, |r| r.cut != 0)?;
         if still_cut > 0 {
             return Err(GpuError::LoopsCut {
                 count: still_cut,
@@ -277,15 +267,10 @@ impl<'a> GpuQuery<'a> {
             ..Default::default()
         };
         let mut results: Vec<ProbeResult> = self.run_kernel(&kernel, rays, args, PROBE_PASSES)?;
-        // Rays the driver cut short, again one by one, as in `run`; those it cuts even alone
-        // keep `cut` set for the caller to leave out.
-        for i in 0..results.len() {
-            if results[i].cut != 0 {
-                let alone: Vec<ProbeResult> =
-                    self.run_kernel(&kernel, &rays[i..=i], args, PROBE_PASSES)?;
-                results[i] = alone[0];
-            }
-        }
+        // those cut even alone keep `cut` set for the caller to leave out
+        self.rerun_cut_alone(&kernel, rays, args, PROBE_PASSES, &mut results, |r| {
+            r.cut != 0
+        })?;
         Ok(results)
     }
 
@@ -320,6 +305,31 @@ impl<'a> GpuQuery<'a> {
             ..Default::default()
         };
         self.run_kernel(&kernel, rays, args, 1)
+    }
+
+    /// Runs again, one by one, the rays whose results `cut` says the driver cut short
+    /// (llvmpipe's loop budget, see `loops_were_cut` in shaders/tape.wgsl: it is spent by a
+    /// whole SIMD group together, and a ray alone spends only its own), each result replaced
+    /// by its own run's; returns how many are cut even alone.
+    fn rerun_cut_alone<T: bytemuck::Pod>(
+        &self,
+        kernel: &Kernel,
+        rays: &[QueryRay],
+        args: KernelArgs,
+        passes: u32,
+        results: &mut [T],
+        cut: impl Fn(&T) -> bool,
+    ) -> Result<usize, GpuError> {
+        let mut still_cut = 0;
+        for (i, result) in results.iter_mut().enumerate() {
+            if cut(result) {
+                self.rerun.set(self.rerun.get() + 1);
+                let alone: Vec<T> = self.run_kernel(kernel, &rays[i..=i], args, passes)?;
+                *result = alone[0];
+                still_cut += cut(result) as usize;
+            }
+        }
+        Ok(still_cut)
     }
 
     /// Runs `passes` passes of `kernel` (`chunk.part` = 0, 1, …) over the rays into one result

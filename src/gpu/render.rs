@@ -56,9 +56,10 @@ pub fn render(scene: &Scene, opts: &RenderOptions, ctx: &GpuContext) -> Result<G
 pub fn on_cpu_note(image: &GpuImage, adapter: &str) -> Option<String> {
     (!image.on_cpu.is_empty()).then(|| {
         format!(
-            "{} pixels were traced on the CPU: {adapter} cut their shader loops short (llvmpipe \
-             ends every loop of a shader invocation after 65,535 iterations in all)",
-            image.on_cpu.len()
+            "{} pixels were traced on the CPU: {adapter} cut their shader loops short \
+             ({})",
+            image.on_cpu.len(),
+            super::LOOP_BUDGET
         )
     })
 }

@@ -358,6 +358,7 @@ pub fn sample(scene: &Scene, plane: Plane, opts: &SliceOptions) -> Field {
         .for_each(|(band, rows)| {
             let mut regs = Registers::new();
             let mut iregs = IntervalRegisters::<Interval>::new();
+            let mut enclosures: Vec<Interval> = Vec::with_capacity(tapes.len());
             let mut near = Vec::with_capacity(tapes.len());
             let j0 = band * SQUARE;
             let band_rows = rows.len() / gw;
@@ -365,9 +366,8 @@ pub fn sample(scene: &Scene, plane: Plane, opts: &SliceOptions) -> Field {
                 let (i1, j1) = ((i0 + SQUARE).min(gw) - 1, j0 + band_rows - 1);
                 let (a, b) = (at(i0, j0), at(i1, j1));
                 let (lo, hi) = (a.min(b), a.max(b));
-                let enclosures: Vec<Interval> = (tapes.iter())
-                    .map(|t| eval_box(t, lo, hi, &mut iregs))
-                    .collect();
+                enclosures.clear();
+                enclosures.extend(tapes.iter().map(|t| eval_box(t, lo, hi, &mut iregs)));
                 // (a NaN end tells nothing: such an object is kept)
                 let least_top = (enclosures.iter())
                     .map(|e| e.hi)
