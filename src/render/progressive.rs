@@ -91,15 +91,27 @@ impl FramebufferRows<'_> {
     /// row in `samples`: what [`SampleSums::mean`] gives after adding that sample to new
     /// sums, bit for bit (the sample is added to zero sums and divided by one, as there).
     pub fn write_single_samples(&mut self, tile: Tile, samples: &[CameraSample]) {
+        self.write_tile(tile, samples, PixelMean::of_one);
+    }
+
+    /// Writes the pixels of `tile` (within these rows) from their sums, row by row in
+    /// `sums`: the means [`SampleSums::mean`] gives for those sums, bit for bit.
+    pub fn write_tile_means(&mut self, tile: Tile, sums: &[PixelSums]) {
+        self.write_tile(tile, sums, PixelSums::mean);
+    }
+
+    /// Writes the pixels of `tile` (within these rows) from one value each, row by row in
+    /// `values`, made into the pixel by `mean`.
+    fn write_tile<V>(&mut self, tile: Tile, values: &[V], mean: impl Fn(&V) -> PixelMean) {
         assert_eq!(
-            samples.len(),
+            values.len(),
             (tile.w * tile.h) as usize,
-            "one sample a pixel"
+            "one value a pixel"
         );
-        for (j, row) in samples.chunks_exact(tile.w as usize).enumerate() {
+        for (j, row) in values.chunks_exact(tile.w as usize).enumerate() {
             let start = ((tile.y0 - self.first_row + j as u32) * self.width + tile.x0) as usize;
-            for (k, sample) in row.iter().enumerate() {
-                self.put(start + k, PixelMean::of_one(sample));
+            for (k, value) in row.iter().enumerate() {
+                self.put(start + k, mean(value));
             }
         }
     }
