@@ -1,5 +1,5 @@
-//! The CPU backend: rayon over tiles, one camera path per sample, the image built up one
-//! sample pass at a time.
+//! The CPU backend: rayon over tiles, one camera path per sample; a whole image is rendered a
+//! tile at a time, every sample of the tile at once, and the viewer's one sample pass at a time.
 
 use super::progressive::{FramebufferRows, PixelSums, SampleSums, SumsRows};
 use super::{Framebuffer, RenderOptions, TILE, Tile, sample_offset, tiles};
@@ -31,8 +31,9 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> anyhow::Result<Framebuffer
 }
 
 /// [`render`] with a tracer built by the caller (kept across frames, or built with other
-/// [`crate::trace::AccelOptions`]), on the current rayon pool: the passes 0..n of
-/// [`render_pass`] with the scene's camera, averaged.
+/// [`crate::trace::AccelOptions`]), on the current rayon pool: bit for bit the passes 0..n of
+/// [`render_pass`] with the scene's camera, averaged (rendered a tile at a time, every
+/// sample of a tile at once).
 pub fn render_with(tracer: &SceneTracer, opts: &RenderOptions) -> anyhow::Result<Framebuffer> {
     render_through(tracer, opts)
 }
