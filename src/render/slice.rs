@@ -24,7 +24,9 @@
 
 use crate::scene::{MAX_IMAGE_SIDE, MAX_PIXELS, Scene};
 use crate::sdf::interval::{Interval, IntervalRegisters, eval_box};
-use crate::sdf::tape::Registers;
+use crate::sdf::simplify::Simplifier;
+use crate::sdf::ssa::SsaTape;
+use crate::sdf::tape::{Registers, Tape};
 use glam::{Vec2, Vec3};
 use image::RgbImage;
 use rayon::prelude::*;
@@ -336,15 +338,28 @@ impl Field {
 /// that cannot be the nearest.
 const SQUARE: usize = 16;
 
+/// Longest distance tape a slice evaluates as it is over a square of samples; a longer one is
+/// specialised to the square first ([`sample`]).
+const SPECIALISE_FROM: usize = 24;
+
 /// Samples the scene's distance on `plane` at every pixel centre of the view described by
 /// `opts` (which should pass [`SliceOptions::validate`]), bands of rows in parallel: the
-/// values of [`distance`], bit for bit.
+/// values of [`distance`], bit for bit up to the sign of a zero.
 ///
 /// In each square of [`SQUARE`]² samples only the objects whose interval enclosure over the
 /// square may reach below the least upper end of all their enclosures are evaluated: the
 /// others are above some object everywhere there, so the minimum is the same number. A union
 /// traced as its members is a thousand objects, and evaluating each at every pixel took
 /// 168 s for 20,000 boxes at 512².
+///
+/// An object kept whose tape is longer than [`SPECIALISE_FROM`] instructions is evaluated
+/// through its program specialised to the square ([`Simplifier::specialise`]: the branches of
+/// `min`, `max` and the like that the whole square takes, the rest dropped), which gives the
+/// whole tape's values there up to the sign of a zero; a union of 400 spheres under a `Round`
+/// took 0.66 s at 512² through its whole tape, 0.05 s so. Where a specialisation does not
+/// halve the tape (a long smooth union, whose blends interval arithmetic seldom decides), the
+/// object's whole tape serves the rest of the band of squares: specialising each square
+/// cost such a union a third more time.
 pub fn sample(scene: &Scene, plane: Plane, opts: &SliceOptions) -> Field {
     let gw = opts.width as usize + 2;
     let gh = opts.height as usize + 2;
@@ -352,14 +367,24 @@ pub fn sample(scene: &Scene, plane: Plane, opts: &SliceOptions) -> Field {
     // grid row j is pixel row j − 1, centre at (j − 1) + 0.5; likewise columns
     let at = |i: usize, j: usize| plane.point(opts.to_plane(i as f32 - 0.5, j as f32 - 0.5));
     let tapes: Vec<_> = scene.objects.iter().map(|o| &o.lowered.distance).collect();
+    // the programs of the long tapes, to be specialised square by square
+    let programs: Vec<Option<SsaTape>> = (scene.objects.iter())
+        .map(|o| {
+            (o.lowered.distance.len() > SPECIALISE_FROM).then(|| o.lowered.program.distance_only())
+        })
+        .collect();
     values
         .par_chunks_mut(gw * SQUARE)
         .enumerate()
         .for_each(|(band, rows)| {
             let mut regs = Registers::new();
             let mut iregs = IntervalRegisters::<Interval>::new();
+            let mut simplifier = Simplifier::new();
             let mut enclosures: Vec<Interval> = Vec::with_capacity(tapes.len());
-            let mut near = Vec::with_capacity(tapes.len());
+            let mut specialised: Vec<Tape> = Vec::new();
+            let mut kept: Vec<Kept> = Vec::with_capacity(tapes.len());
+            // whether specialising each object still pays in this band
+            let mut pays: Vec<bool> = programs.iter().map(Option::is_some).collect();
             let j0 = band * SQUARE;
             let band_rows = rows.len() / gw;
             for i0 in (0..gw).step_by(SQUARE) {
@@ -373,12 +398,34 @@ pub fn sample(scene: &Scene, plane: Plane, opts: &SliceOptions) -> Field {
                     .map(|e| e.hi)
                     .filter(|h| !h.is_nan())
                     .fold(f32::INFINITY, f32::min);
-                near.clear();
-                near.extend(
-                    (tapes.iter().zip(&enclosures))
-                        .filter(|(_, e)| e.lo <= least_top || e.lo.is_nan())
-                        .map(|(t, _)| *t),
-                );
+                specialised.clear();
+                kept.clear();
+                for (k, e) in enclosures.iter().enumerate() {
+                    if !(e.lo <= least_top || e.lo.is_nan()) {
+                        continue;
+                    }
+                    let special = (programs[k].as_ref())
+                        .filter(|_| pays[k])
+                        .and_then(|program| {
+                            let sp = simplifier.specialise(program, lo, hi);
+                            pays[k] = 2 * sp.len <= tapes[k].len();
+                            // (a program that fit whole fits shortened; if not, the whole tape)
+                            pays[k].then(|| sp.program.compile_distance().ok())?
+                        });
+                    kept.push(match special {
+                        Some(tape) => {
+                            specialised.push(tape);
+                            Kept::Specialised(specialised.len() - 1)
+                        }
+                        None => Kept::Whole(k),
+                    });
+                }
+                let near: Vec<&Tape> = (kept.iter())
+                    .map(|w| match *w {
+                        Kept::Whole(k) => tapes[k],
+                        Kept::Specialised(i) => &specialised[i],
+                    })
+                    .collect();
                 for (dj, row) in rows.chunks_mut(gw).enumerate() {
                     for (di, v) in row[i0..=i1].iter_mut().enumerate() {
                         let p = at(i0 + di, j0 + dj);
@@ -396,6 +443,15 @@ pub fn sample(scene: &Scene, plane: Plane, opts: &SliceOptions) -> Field {
         spacing: opts.spacing,
         size: opts.size,
     }
+}
+
+/// The tape [`sample`] evaluates a kept object of a square by.
+#[derive(Debug, Clone, Copy)]
+enum Kept {
+    /// The object's whole tape (object index).
+    Whole(usize),
+    /// Its tape specialised to the square (index into the square's specialised tapes).
+    Specialised(usize),
 }
 
 /// Draws the scene's signed distance on `plane`: [`sample`], then [`Field::image`].
