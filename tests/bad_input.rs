@@ -1538,3 +1538,72 @@ fn implicit_undefined_inside_its_box() {
         &["expression", "NaN", "defined everywhere"],
     );
 }
+
+/// Objects whose coordinates are finite but beyond what the acceleration trees are built over
+/// (10¹⁸): an SDF object there loads and renders, tested by every ray; a mesh there is refused
+/// with one line naming the file. Both once panicked in the tree builder (a sphere translated
+/// to 3·10³⁸, a triangle spanning ±10³⁸).
+#[test]
+fn coordinates_beyond_the_trees_reach() {
+    let dir = TempDir::new("far");
+    let far = dir.write(
+        "far.ron",
+        scene(
+            "    objects: [\n        (shape: Sphere(radius: 1), translate: (3e38, 0, 0)),\n        \
+             (shape: Box(half_extents: (1e19, 1e19, 1)), translate: (0, 0, -3)),\n    ],\n",
+        ),
+    );
+    let png = dir.path("far.png");
+    let out = hytrace(&[
+        "render".as_ref(),
+        far.as_os_str(),
+        "--backend".as_ref(),
+        "cpu".as_ref(),
+        "--width".as_ref(),
+        "16".as_ref(),
+        "--height".as_ref(),
+        "12".as_ref(),
+        "-o".as_ref(),
+        png.as_os_str(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // the wall 10¹⁹ wide, beyond the tree's reach, is still met by the rays
+    let s = Scene::load(&far).expect("loads");
+    let tracer = hytrace::trace::SceneTracer::new(&s);
+    let ray = hytrace::geom::Ray::new(glam::Vec3::new(0.3, -0.2, 5.0), -glam::Vec3::Z);
+    let hit = hytrace::trace::query::RayQuery::closest_hit(&tracer, &ray, 0.0, f32::INFINITY)
+        .expect("the wall is hit");
+    assert!((hit.t - 7.0).abs() < 1e-3, "{}", hit.t);
+
+    for (name, obj) in [
+        ("wide.obj", "v 1e38 0 0\nv -1e38 1 0\nv 0 0 1\nf 1 2 3\n"),
+        ("far.obj", "v 3e37 0 0\nv 3e37 1 0\nv 3e37 0 1\nf 1 2 3\n"),
+    ] {
+        let mesh = dir.write(name, obj);
+        let message = render_fails(&[mesh.as_os_str()]);
+        assert!(
+            message.lines().count() == 1
+                && message.contains(name)
+                && message.contains("beyond ±1e18"),
+            "{message}"
+        );
+    }
+    // a mesh the scene places beyond the reach
+    let small = dir.write("small.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let placed = dir.write(
+        "placed.ron",
+        scene(&format!(
+            "    objects: [\n        (mesh: {:?}, scale: 1e37),\n    ],\n",
+            small.display().to_string()
+        )),
+    );
+    let message = render_fails(&[placed.as_os_str()]);
+    assert!(
+        message.contains("placed.ron:") && message.contains("as the scene places it"),
+        "{message}"
+    );
+}

@@ -1527,8 +1527,9 @@ impl FewBoxes {
 /// Finite boxes go into the tree. Boxes with an infinite or NaN coordinate cannot be bounded:
 /// they are kept in a separate list ([`AabbBvh::unbounded`]) and offered to every walk before
 /// the tree (an infinite box through [`ray_box_interval`], a NaN box as `[tmin, tmax]`: its
-/// extent is unknown). Empty boxes (min > max on an axis) contain nothing and are never
-/// visited.
+/// extent is unknown). So are finite boxes with a coordinate beyond
+/// [`crate::geom::LARGEST_TREE_COORDINATE`], which the builder's arithmetic cannot take. Empty boxes
+/// (min > max on an axis) contain nothing and are never visited.
 #[derive(Debug, Clone)]
 pub struct AabbBvh {
     nodes: Vec<WideNode>,
@@ -1562,7 +1563,7 @@ impl AabbBvh {
         for (i, b) in boxes.iter().enumerate() {
             if b.min.cmpgt(b.max).any() {
                 stats.dropped_degenerate += 1;
-            } else if !b.is_finite() {
+            } else if !b.is_finite() || b.reach() > crate::geom::LARGEST_TREE_COORDINATE {
                 unbounded.push(i as u32);
             } else {
                 kept.push((i as u32, *b));

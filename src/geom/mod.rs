@@ -8,6 +8,13 @@ pub use icosphere::icosphere;
 
 use glam::{Affine3A, Vec3};
 
+/// Largest magnitude of a coordinate the acceleration trees are built over. obvhs adds,
+/// halves and multiplies box coordinates (centroids, extents, surface areas): an object
+/// translated to 3·10³⁸ made a centroid infinite and the build panic, and the areas of boxes
+/// wider than about 10¹⁹ overflow. SDF objects beyond it are tested by every ray instead of
+/// sitting in the tree; meshes beyond it are refused at load.
+pub const LARGEST_TREE_COORDINATE: f32 = 1e18;
+
 /// An axis-aligned bounding box; components may be infinite for unbounded shapes (planes,
 /// infinite repetition). An empty box has `min > max`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -43,6 +50,11 @@ impl Aabb {
     /// Whether every component of both corners is finite.
     pub fn is_finite(&self) -> bool {
         self.min.is_finite() && self.max.is_finite()
+    }
+
+    /// The largest magnitude of its corners' coordinates (NaN-free boxes).
+    pub fn reach(&self) -> f32 {
+        self.min.abs().max(self.max.abs()).max_element()
     }
 
     /// Whether the box contains no point.

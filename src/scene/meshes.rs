@@ -110,8 +110,31 @@ impl SceneMeshes {
             );
         }
         let file = &self.loaded[&key];
+        let too_large = |what: String, reach: f32| MeshError::TooLarge {
+            file: path.to_path_buf(),
+            what,
+            reach,
+        };
         for (mesh, local, node) in &file.instances {
             let world = transform * *local;
+            // the trees over the meshes' triangles and over the placed meshes take only so
+            // large coordinates (NaN and infinite vertices are dropped as broken triangles)
+            let m = &self.meshes[*mesh];
+            let own = (m.positions.iter())
+                .filter(|p| p.is_finite())
+                .fold(Aabb::EMPTY, |b, &p| Aabb::new(b.min.min(p), b.max.max(p)));
+            let limit = crate::geom::LARGEST_TREE_COORDINATE;
+            if !own.is_empty() && own.reach() > limit {
+                return Err(too_large(format!("mesh {:?}", m.name), own.reach()));
+            }
+            let placed = own.transformed(&world);
+            // (a placement that overflows to ∞ or NaN is beyond it too)
+            if !own.is_empty() && (placed.reach() > limit || placed.reach().is_nan()) {
+                return Err(too_large(
+                    format!("mesh {:?} as the scene places it", m.name),
+                    placed.reach(),
+                ));
+            }
             self.instances.push(SceneInstance {
                 mesh: *mesh,
                 transform: world,

@@ -46,13 +46,20 @@ impl Scene {
             None => {
                 let dir = Vec3::new(0.55, 0.45, 1.0).normalize();
                 let distance = 1.15 * radius / (0.5 * DEFAULT_FOV.to_radians()).sin();
+                // (a model whose extent overflows 32-bit floats leaves no camera to frame it)
                 Camera::look_at(
                     centre + dir * distance,
                     centre,
                     Vec3::Y,
                     Projection::perspective_degrees(DEFAULT_FOV),
                 )
-                .expect("the default camera is never degenerate")
+                .map_err(|e| SceneError::File {
+                    file: path.to_path_buf(),
+                    message: format!(
+                        "no camera can frame the model, whose coordinates reach {:e}: {e}",
+                        bounds.reach()
+                    ),
+                })?
             }
         };
         let mut lights: Vec<Light> = meshes

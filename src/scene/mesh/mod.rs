@@ -314,6 +314,21 @@ pub enum MeshError {
         /// What is wrong.
         message: String,
     },
+    /// Geometry beyond [`crate::geom::LARGEST_TREE_COORDINATE`] (in the file, or where the
+    /// scene places it).
+    #[error(
+        "{}: {what} reaches {reach:e}, beyond ±{:e}, the largest coordinate the renderer builds its trees over",
+        .file.display(),
+        crate::geom::LARGEST_TREE_COORDINATE
+    )]
+    TooLarge {
+        /// The file.
+        file: PathBuf,
+        /// What reaches so far: a mesh, or its placement.
+        what: String,
+        /// The largest magnitude of a coordinate.
+        reach: f32,
+    },
     /// Invalid OBJ data.
     #[error("{}{}: {message}", .file.display(), line_suffix(.line))]
     Obj {
