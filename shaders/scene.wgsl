@@ -273,7 +273,8 @@ fn scene_closest_hit(o: vec3<f32>, d: vec3<f32>, tmin: f32, tmax: f32) -> SceneH
     let w = sdf_walk(WALK_CLOSEST, o, d, tmin, limit, 0.0, 0.0, false, 0.0);
     let steps = w.steps;
     if w.found {
-        let g = sdf_gradient(w.object, o + d * w.t, normal_step(w.t));
+        let p = o + d * w.t;
+        let g = sdf_gradient(w.object, p, normal_step(w.t, p));
         return SceneHit(w.t, HIT_SDF, w.object, 0u, vec2<f32>(0.0), normalize_or_y(g), g, steps);
     }
     if mesh.hit {
@@ -349,7 +350,8 @@ fn scene_exit(hit: SceneHit, o: vec3<f32>, d: vec3<f32>, tmax: f32) -> vec4<f32>
     if t < 0.0 {
         return vec4<f32>(-1.0, 0.0, 0.0, 0.0);
     }
-    let n = normalize_or_y(sdf_gradient(hit.object, o + d * t, normal_step(t)));
+    let p = o + d * t;
+    let n = normalize_or_y(sdf_gradient(hit.object, p, normal_step(t, p)));
     return vec4<f32>(t, n);
 }
 

@@ -203,7 +203,7 @@ pub fn run(opts: &BenchOptions, scenes: &[(String, Scene)]) -> anyhow::Result<Sd
                 let (nrm, _) = normal::estimate(
                     &mut FieldCursor::whole(tape, &mut regs),
                     p,
-                    normal::step_for(&scene.tracer, b.t),
+                    normal::step_for(&scene.tracer, b.t, p),
                     scene.tracer.normals,
                 );
                 let cos = nrm.dot(q.ray.direction).abs().max(0.01);

@@ -81,7 +81,7 @@ impl<'a> EmbreeTracer<'a> {
                         normal::estimate(
                             &mut FieldCursor::whole(&scene.objects[i].lowered.distance, &mut regs),
                             ray.at(q.t),
-                            normal::step_for(s, q.t),
+                            normal::step_for(s, q.t, ray.at(q.t)),
                             s.normals,
                         )
                         .0
@@ -161,7 +161,7 @@ impl EmbreeTracer<'_> {
             let (n, _) = normal::estimate(
                 &mut FieldCursor::whole(field, &mut regs),
                 ray.origin,
-                normal::step_for(s, 0.0),
+                normal::step_for(s, 0.0, ray.origin),
                 s.normals,
             );
             let cos = n.dot(ray.direction).abs().max(0.05);

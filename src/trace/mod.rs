@@ -474,7 +474,7 @@ impl<'a> SceneTracer<'a> {
         let s = &self.scene.tracer;
         if let Some((t, object)) = best {
             let p = ray.at(t);
-            let h = normal::step_for(s, t);
+            let h = normal::step_for(s, t, p);
             let mut field = self.fields[object].cursor(regs);
             let (n, gradient) = normal::estimate(&mut field, p, h, s.normals);
             *out = Some(Hit {
@@ -909,7 +909,13 @@ impl<'a> SceneTracer<'a> {
         let mut regs = Registers::pooled();
         let mut field = self.fields[object].cursor(&mut regs);
         let t = sphere::exit(&mut field, ray, 0.0, tmax.min(s.max_distance), s)?;
-        let n = normal::estimate(&mut field, ray.at(t), normal::step_for(s, t), s.normals).0;
+        let n = normal::estimate(
+            &mut field,
+            ray.at(t),
+            normal::step_for(s, t, ray.at(t)),
+            s.normals,
+        )
+        .0;
         Some((t, n))
     }
 

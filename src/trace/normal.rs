@@ -59,11 +59,20 @@ fn values<const N: usize>(field: &mut FieldCursor, points: [Vec3; N]) -> [f32; N
     out
 }
 
-/// The finite-difference step at distance t: a few ε(t), so the stencil straddles the
-/// ε-shell the tracer stopped in, but never below 1e-4 where f32 cancellation dominates.
-pub fn step_for(s: &TracerSettings, t: f32) -> f32 {
-    (2.0 * epsilon_at(s, t)).max(1e-4)
+/// The finite-difference step at distance t for the point p: a few ε(t), so the stencil
+/// straddles the ε-shell the tracer stopped in, but never below [`RELATIVE_STEP`]·|p|∞, where
+/// the rounding of p's own coordinates would dominate the differences. (An absolute floor of
+/// 1e-4 stood here: 10,000 units from the origin p ± 1e-4 rounds back to p in f32, and every
+/// normal came out along an axis; on objects 1e-4 across, with ε scaled down with them, the
+/// stencil spanned the whole object.)
+pub fn step_for(s: &TracerSettings, t: f32, p: Vec3) -> f32 {
+    (2.0 * epsilon_at(s, t)).max(p.abs().max_element() * RELATIVE_STEP)
 }
+
+/// The smallest finite-difference step relative to the point's largest coordinate: 2⁻¹⁶ (exact
+/// to multiply by), at least 128 units in the last place of that coordinate, so the rounding
+/// of the two sample points moves their distance 2h by under 0.4 %.
+pub const RELATIVE_STEP: f32 = 1.0 / 65536.0;
 
 /// The unit normal at p by the chosen estimator, and the gradient's length; a zero gradient
 /// (e.g. the centre of a sphere) gives +y rather than NaN.
@@ -127,6 +136,45 @@ mod tests {
             let k = tetrahedral(&mut field, p, 1e-3).normalize();
             assert!((c - n).length() < 1e-3, "central {c} vs {n}");
             assert!((k - n).length() < 1e-3, "tetrahedral {k} vs {n}");
+        }
+    }
+
+    #[test]
+    fn normals_hold_far_from_the_origin_and_on_tiny_objects() {
+        // A unit sphere 10,000 units out, with the default ε, and a sphere 10⁻⁴ across at the
+        // origin, with ε scaled down with it: the estimate at points of the surface stays
+        // within a degree of the true normal (an absolute floor of 1e-4 on the step gave
+        // normals along the axes out there, and a stencil as wide as the small sphere).
+        let mut rng = Rng::new(11);
+        let mut regs = Registers::new();
+        for (src, centre, radius, epsilon) in [
+            (
+                "Transform(translate: (10000, 0, 10000), shape: Sphere(radius: 1.0))",
+                Vec3::new(1e4, 0.0, 1e4),
+                1.0,
+                1e-4,
+            ),
+            ("Sphere(radius: 1e-4)", Vec3::ZERO, 1e-4, 1e-8),
+        ] {
+            let t = distance_tape(&parse_node(src));
+            let scene = crate::scene::Scene::from_source(
+                "Scene(camera: Perspective(position: (0, 0, 5), look_at: (0, 0, 0)))",
+                std::path::Path::new("t.ron"),
+            )
+            .unwrap_or_else(|e| panic!("{e}"));
+            let s = TracerSettings {
+                epsilon,
+                epsilon_per_unit: 0.0,
+                ..scene.tracer
+            };
+            let mut field = FieldCursor::whole(&t, &mut regs);
+            for _ in 0..200 {
+                let n = rng.direction();
+                let p = centre + n * radius;
+                let h = step_for(&s, 5.0 * radius, p);
+                let (got, _) = estimate(&mut field, p, h, NormalMethod::Central);
+                assert!(got.dot(n) > 1f32.to_radians().cos(), "{src}: {got} vs {n}");
+            }
         }
     }
 

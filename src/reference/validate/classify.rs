@@ -375,7 +375,7 @@ where
                     &mut Registers::new(),
                 ),
                 p,
-                crate::trace::normal::step_for(s, hit.t),
+                crate::trace::normal::step_for(s, hit.t, p),
                 s.normals,
             )
             .0
