@@ -25,7 +25,8 @@ pub struct ViewArgs {
     /// README.
     #[arg(long)]
     script: Option<PathBuf>,
-    /// Close the window after this many frames.
+    /// Close the window after this many frames (or once the image has all its samples, when
+    /// that comes first: no frame follows it until something changes).
     #[arg(long)]
     frames: Option<u64>,
     /// Once the image has all its samples, write it here (.png, or .exr) and close.
@@ -135,6 +136,7 @@ fn run_viewer(args: ViewArgs) -> Result<()> {
             // a mesh file is watched too
             args.scene.clone()
         }),
+        load_options: super::load_options(),
         size,
         samples: args.image.spp,
         exposure: args.image.exposure,

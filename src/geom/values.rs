@@ -135,12 +135,25 @@ impl TryFrom<(f32, f32, f32)> for Color {
     }
 }
 
+/// `v` as a unit vector: `v` itself when it is one already to float precision (|v|² within
+/// 10⁻⁶ of 1), else `v` normalised. Normalising twice need not give the same bits (the
+/// normalised (0.3, 1, 0) alternates between two neighbours at every further normalisation),
+/// so a unit vector written out and loaded again, a camera's `up` that the viewer prints,
+/// must not be normalised again to reload bit for bit. `v` must be finite and non-zero.
+pub fn unit(v: Vec3) -> Vec3 {
+    if (v.length_squared() - 1.0).abs() <= 1e-6 {
+        v
+    } else {
+        v.normalize()
+    }
+}
+
 impl TryFrom<(f32, f32, f32)> for Direction {
     type Error = String;
     fn try_from(t: (f32, f32, f32)) -> Result<Self, String> {
         let v = finite3(t)?;
         if v.length_squared() > 1e-12 {
-            Ok(Direction(v.normalize()))
+            Ok(Direction(unit(v)))
         } else {
             Err("expected a non-zero direction, found (0, 0, 0)".to_string())
         }

@@ -380,6 +380,22 @@ impl Scene {
         Scene::from_source_with(&source, path, options)
     }
 
+    /// The mesh files a scene file's text names, resolved as a load resolves them (those whose
+    /// `$NAME` is unset left out); none when the text does not parse. For a viewer that
+    /// watches the files of a scene that failed to load (a mesh not written yet).
+    pub fn mesh_files_named(source: &str, path: &Path, options: &LoadOptions) -> Vec<PathBuf> {
+        let Ok(file) = ron::Options::default()
+            .with_default_extension(ron::extensions::Extensions::IMPLICIT_SOME)
+            .from_str::<SceneFile>(source)
+        else {
+            return Vec::new();
+        };
+        (file.objects.iter())
+            .filter_map(|o| o.mesh.as_deref())
+            .filter_map(|mesh| resolve_mesh_path(path, mesh, |v| options.variable(v)).ok())
+            .collect()
+    }
+
     /// Loads a scene from text; `path` is used in errors and mesh paths are relative to its
     /// folder.
     pub fn from_source(source: &str, path: &Path) -> Result<Scene, SceneError> {

@@ -31,6 +31,26 @@ impl Lens {
     }
 }
 
+/// The field of view, in degrees, whose projection has this `tan_half_fov`: 2·atan(t) in
+/// degrees does not round-trip (a scene's `fov: 47.1` came back as 47.099995, whose camera
+/// differed from the scene's in 24 pixels), so the `f32`s next to it are tried for one that
+/// [`Projection::perspective_degrees`] turns into the same bits; the nearest of those, else
+/// 2·atan(t) itself.
+fn fov_of(tan_half_fov: f32) -> f32 {
+    let first = 2.0 * tan_half_fov.atan().to_degrees();
+    let same = |fov: f32| {
+        matches!(Projection::perspective_degrees(fov),
+            Projection::Perspective { tan_half_fov: t } if t == tan_half_fov)
+    };
+    (0..=64u32)
+        .flat_map(|k| {
+            let (up, down) = (first.to_bits() + k, first.to_bits().saturating_sub(k));
+            [f32::from_bits(down), f32::from_bits(up)]
+        })
+        .find(|&fov| fov.is_finite() && fov > 0.0 && same(fov))
+        .unwrap_or(first)
+}
+
 /// A camera placed by position, the point it looks at (the orbit pivot) and an up direction.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Pose {
@@ -59,7 +79,7 @@ impl Pose {
     pub fn of_camera(camera: &Camera) -> Pose {
         let lens = match camera.projection {
             Projection::Perspective { tan_half_fov } => Lens::Perspective {
-                fov: 2.0 * tan_half_fov.atan().to_degrees(),
+                fov: fov_of(tan_half_fov),
             },
             Projection::Orthographic { height } => Lens::Orthographic { height },
         };
@@ -78,7 +98,11 @@ impl Pose {
     /// The camera the scene loader would build from [`Pose::to_ron`]'s text: the same
     /// constructor, the same normalisation of `up`, the same field-of-view conversion.
     pub fn camera(&self) -> Camera {
-        let up = self.up.normalize_or(Vec3::Y);
+        let up = if self.up.is_finite() && self.up.length_squared() > 1e-12 {
+            crate::geom::values::unit(self.up)
+        } else {
+            Vec3::Y
+        };
         Camera::look_at(self.position, self.pivot, up, self.lens.projection()).unwrap_or_else(
             |_| {
                 // a pose is kept away from the poles and off its pivot; should rounding put it
@@ -278,12 +302,30 @@ mod tests {
 
     #[test]
     fn the_scene_camera_is_the_starting_camera() {
-        let scene =
-            scene_with("camera: Perspective(position: (1, 2, 6), look_at: (0, 0.5, 0), fov: 40),");
-        let camera = Pose::of_camera(&scene.camera).camera();
-        let (a, b) = (camera.ray(0.3, 0.6, 1.5), scene.camera.ray(0.3, 0.6, 1.5));
-        assert!((a.origin - b.origin).length() < 1e-6);
-        assert!((a.direction - b.direction).length() < 1e-5);
+        // bit for bit, so the first picture (and `R`'s) is `render`'s: fields of view whose
+        // 2·atan(tan(fov/2)) does not round-trip, and tilted up vectors
+        for fov in [40.0, 47.1, 30.0, 55.0, 60.0, 42.0, 1.5, 178.9] {
+            for up in [
+                "(0, 1, 0)",
+                "(0.3, 1, 0)",
+                "(0, 1, 0.5)",
+                "(-0.2, 0.9, 0.35)",
+            ] {
+                let scene = scene_with(&format!(
+                    "camera: Perspective(position: (1, 2, 6), look_at: (0, 0.5, 0), up: {up}, \
+                     fov: {fov}),"
+                ));
+                assert_eq!(
+                    Pose::of_camera(&scene.camera).camera(),
+                    scene.camera,
+                    "fov {fov}, up {up}"
+                );
+            }
+        }
+        let ortho = scene_with(
+            "camera: Orthographic(position: (0, 0, 5), look_at: (0, 0, 0), up: (0, 0.3, 1), height: 3),",
+        );
+        assert_eq!(Pose::of_camera(&ortho.camera).camera(), ortho.camera);
     }
 
     #[test]

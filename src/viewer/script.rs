@@ -99,12 +99,21 @@ fn parse_line(line: &str, steps: &mut Vec<Step>) -> Result<(), String> {
             ))
         }
     };
-    let file = |args: &[&str]| -> Result<PathBuf, String> {
-        if args.len() == 1 {
-            Ok(PathBuf::from(args[0]))
-        } else {
-            Err(format!("`{command}` takes one file name"))
+    // one file name, of one of the `kinds` of image the step writes (as `--screenshot` asks)
+    let file = |args: &[&str], kinds: &[&str]| -> Result<PathBuf, String> {
+        let [name] = args else {
+            return Err(format!("`{command}` takes one file name"));
+        };
+        let path = PathBuf::from(name);
+        let ext = (path.extension().and_then(|e| e.to_str())).map(str::to_ascii_lowercase);
+        if !ext.is_some_and(|e| kinds.contains(&e.as_str())) {
+            let names = kinds.iter().map(|k| format!(".{k}")).collect::<Vec<_>>();
+            return Err(format!(
+                "{command} {name}: use a {} file name",
+                names.join(" or ")
+            ));
         }
+        Ok(path)
     };
     match command {
         "wait" => {
@@ -184,8 +193,8 @@ fn parse_line(line: &str, steps: &mut Vec<Step>) -> Result<(), String> {
             arity(0..=0)?;
             steps.push(Step::PrintCamera);
         }
-        "screenshot" => steps.push(Step::Screenshot(file(args)?)),
-        "window-shot" => steps.push(Step::WindowShot(file(args)?)),
+        "screenshot" => steps.push(Step::Screenshot(file(args, &["png", "exr"])?)),
+        "window-shot" => steps.push(Step::WindowShot(file(args, &["png"])?)),
         "wait-reload" => {
             arity(0..=0)?;
             steps.push(Step::WaitReload);
@@ -265,5 +274,11 @@ mod tests {
                 .contains("unknown key")
         );
         assert!(parse("screenshot").is_err());
+        // the image kinds the steps write, as `--screenshot` asks
+        assert!(parse("screenshot a.exr").is_ok() && parse("screenshot A.PNG").is_ok());
+        for bad in ["screenshot a.jpg", "screenshot a", "window-shot a.exr"] {
+            let (_, e) = parse(bad).expect_err(bad);
+            assert!(e.contains("use a .png"), "{bad}: {e}");
+        }
     }
 }

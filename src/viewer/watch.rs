@@ -51,6 +51,12 @@ impl FileWatch {
     pub fn files(&self) -> &[PathBuf] {
         &self.files
     }
+
+    /// Whether the files watched are `files`, as a set.
+    pub fn watches(&self, files: &[PathBuf]) -> bool {
+        let want: HashSet<PathBuf> = files.iter().map(|f| absolute(f)).collect();
+        want == self.files.iter().cloned().collect()
+    }
 }
 
 /// `path` made absolute, its folder resolved through symbolic links (the file itself may be

@@ -38,6 +38,9 @@ pub struct ViewerConfig {
     pub load: Loader,
     /// The scene file itself, watched for changes (None for the built-in showcase).
     pub scene_file: Option<PathBuf>,
+    /// How the scene file's mesh paths resolve, as `load` resolves them (for the mesh files
+    /// a scene that fails to load names, which are watched too).
+    pub load_options: crate::scene::LoadOptions,
     /// Window size in pixels (None: the scene's image size).
     pub size: Option<(u32, u32)>,
     /// Samples per pixel of the refined image (None: the scene's).
@@ -169,6 +172,8 @@ struct Viewer {
     reloads: u64,
     reload_at: Option<Instant>,
     watch: Option<FileWatch>,
+    /// The files of the last scene that loaded (the scene file and its meshes).
+    good_files: Vec<PathBuf>,
     screenshots: Vec<PathBuf>,
     next_screenshot: u32,
     script: Option<ScriptRun>,
@@ -237,6 +242,7 @@ impl Viewer {
             reloads: 0,
             reload_at: None,
             watch,
+            good_files: files,
             screenshots: Vec::new(),
             next_screenshot: 1,
             script,
@@ -647,12 +653,8 @@ impl Viewer {
                     self.schedule.samples = scene.image.samples.max(1);
                 }
                 let files = watched_files(self.config.scene_file.as_deref(), &scene);
-                if self.watch.as_ref().map(|w| w.files().len()) != Some(files.len()) {
-                    match watch(&files, &self.proxy) {
-                        Ok(w) => self.watch = w,
-                        Err(e) => eprintln!("error: {e}"),
-                    }
-                }
+                self.watch_files(&files);
+                self.good_files = files;
                 self.worker.send(Job::Scene(scene, self.controls.switches));
                 self.ready = false;
                 self.changed();
@@ -660,8 +662,32 @@ impl Viewer {
             Err(e) => {
                 eprintln!("error: {e}");
                 self.error = Some(e);
+                // the broken file's own mesh files too: saving a mesh it names but that was
+                // missing must reload it, not only a save of the scene file
+                if let Some(scene_file) = self.config.scene_file.clone() {
+                    let mut files = self.good_files.clone();
+                    if let Ok(source) = std::fs::read_to_string(&scene_file) {
+                        files.extend(Scene::mesh_files_named(
+                            &source,
+                            &scene_file,
+                            &self.config.load_options,
+                        ));
+                    }
+                    self.watch_files(&files);
+                }
                 self.compose();
             }
+        }
+    }
+
+    /// Watches `files` from now on, unless they are the files watched already.
+    fn watch_files(&mut self, files: &[PathBuf]) {
+        if self.watch.as_ref().is_some_and(|w| w.watches(files)) {
+            return;
+        }
+        match watch(files, &self.proxy) {
+            Ok(w) => self.watch = w,
+            Err(e) => eprintln!("error: {e}"),
         }
     }
 
@@ -879,7 +905,18 @@ impl ApplicationHandler<Wake> for Viewer {
             self.reload();
         }
         self.run_script(event_loop);
-        if self.config.frames.is_some_and(|n| self.frames_shown >= n) {
+        // N frames shown, or fewer once no more will come: a converged image is not
+        // rendered again until something changes (waiting for the Nth frame there hung)
+        let settled = self.schedule.converged()
+            && self.in_flight.is_none()
+            && self.reload_at.is_none()
+            && self.script.is_none()
+            && self.frames_shown > 0;
+        if self
+            .config
+            .frames
+            .is_some_and(|n| self.frames_shown >= n || settled)
+        {
             self.quit = true;
         }
         if self.quit {
