@@ -159,6 +159,12 @@ fn trace_camera_ray(origin: vec3<f32>, direction: vec3<f32>) -> CameraSample {
             sample.gradient = length(hit.gradient);
             primary = false;
         }
+        if hit.t == 0.0 && hit.kind == HIT_SDF && m.transparency > 0.0 {
+            // the ray starts inside a transparent solid: it travels inside it as a refracted
+            // ray would (integrator::trace_camera_ray_from)
+            spawn(item, max_bounces, item.origin, d, item.weight * m.color, 1u, hit, m.ior);
+            continue;
+        }
         let cos_i = clamp(-dot(d, n), 0.0, 1.0);
         // integrator::mirror_reflectance: Schlick from R₀ = r (Phong) or r·F(f₀) (PBR), and
         // the share left to local shading (1 − F_r for Phong, all of it for PBR)

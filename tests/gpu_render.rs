@@ -196,6 +196,28 @@ struct Outcome {
     problems: Vec<String>,
 }
 
+/// The eye inside a glass dome: rays that start inside a transparent solid travel inside it
+/// on both backends (they had "hit" it at t = 0 and refracted at a surface that is not there).
+#[test]
+fn an_eye_inside_glass_sees_the_same_on_cpu_and_gpu() {
+    let gpu = gpu();
+    let scene = Scene::from_source(INSIDE_GLASS, Path::new("inside.ron")).unwrap();
+    report(&[compare_scene("eye inside glass", &scene, &gpu)]);
+}
+
+/// A camera inside a glass sphere looking at an orange ball outside it.
+const INSIDE_GLASS: &str = "Scene(
+    image: (width: 48, height: 36, samples: 1, background: (0.5, 0.6, 0.8)),
+    camera: Perspective(position: (0.3, 0.2, 0), look_at: (0, 0, -1), fov: 60),
+    lights: [Ambient(intensity: 0.3), Directional(direction: (-0.3, -1, -0.6), intensity: 0.9)],
+    materials: { \"a\": (color: (0.8, 0.3, 0.1)),
+                 \"glass\": (color: (1, 1, 1), transparency: 0.95, ior: 1.33) },
+    objects: [
+        (material: \"glass\", shape: Sphere(radius: 5)),
+        (material: \"a\", translate: (0, 0, -8), shape: Sphere(radius: 1)),
+    ],
+)";
+
 fn compare_scene(name: &str, scene: &Scene, gpu: &Gpu) -> Outcome {
     let spp = scene.image.samples.min(MAX_SPP);
     let start = Instant::now();

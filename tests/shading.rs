@@ -214,6 +214,42 @@ fn lossless_mirrors_and_glass_vanish_in_a_white_environment() {
     }
 }
 
+/// An eye inside a glass dome sees the ball outside it, as from just outside the dome: a ray
+/// that starts inside a transparent solid travels inside it (it had "hit" the solid at t = 0
+/// and refracted at a surface that is not there, which hid the scene behind a grey band).
+#[test]
+fn an_eye_inside_glass_sees_out() {
+    let scene_at = |z: f32| {
+        let src = format!(
+            "Scene(
+                image: (width: 48, height: 36, background: (0.5, 0.6, 0.8)),
+                camera: Perspective(position: (0, 0, {z}), look_at: (0, 0, -8), fov: 40),
+                lights: [Ambient(intensity: 1)],
+                materials: {{ \"a\": (color: (0.8, 0.3, 0.1)),
+                             \"glass\": (color: (1, 1, 1), transparency: 1, ior: 1.33) }},
+                objects: [
+                    (material: \"glass\", shape: Sphere(radius: 5)),
+                    (material: \"a\", translate: (0, 0, -8), shape: Sphere(radius: 1)),
+                ],
+            )"
+        );
+        Scene::from_source(&src, Path::new("test.ron")).unwrap()
+    };
+    // from the dome's centre every ray leaves it head-on: no bending at all
+    let inside = render(&scene_at(0.0), 1);
+    let centre = (18 * 48 + 24) as usize;
+    let ball = inside.pixels[centre];
+    assert!(
+        ball.x > 2.0 * ball.z && ball.x > 0.3,
+        "the orange ball is in the middle of the view: {ball}"
+    );
+    let corner = inside.pixels[0];
+    assert!(
+        (corner - Vec3::new(0.5, 0.6, 0.8)).abs().max_element() < 0.05,
+        "the sky beyond the dome: {corner}"
+    );
+}
+
 #[test]
 fn ambient_occlusion_darkens_corners_only() {
     let scene = top_down(

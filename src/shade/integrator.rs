@@ -468,6 +468,19 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
             sample.gradient = hit.gradient;
             primary = false;
         }
+        if hit.t == 0.0 && matches!(hit.surface, Surface::Sdf(_)) && m.transparency > 0.0 {
+            // The ray starts inside a transparent solid (the eye in a glass dome): there is no
+            // surface at its origin to refract at, so it travels inside the solid as a ray
+            // refracted into it would, tinted as one (the GPU's render.wgsl alike). Its first
+            // hit, the AOVs' surface, stays the solid at t = 0, as the tracer reports it.
+            spawn(
+                &mut stack,
+                item.ray,
+                item.weight * m.color,
+                Some((hit.surface, m.ior)),
+            );
+            continue;
+        }
         let (f_t, local_weight) = (surf.f_t, surf.local_weight);
         let coverage = m.opacity.clamp(0.0, 1.0);
         let offset = surface_offset(tracer, hit.t, p);
