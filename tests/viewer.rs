@@ -654,6 +654,33 @@ fn bad_scene_and_script_are_one_line() {
         "bad script",
     );
     assert_one_line_failure(&out, "bad script", "bad.txt:2");
+    // a reload the built-in showcase can never have: refused, not waited for forever
+    std::fs::write(&script, "wait-reload\n").expect("write");
+    let out = run(
+        x.view(&["--script", script.to_str().expect("utf-8")]),
+        "wait-reload without a file",
+    );
+    assert_one_line_failure(&out, "wait-reload without a file", "no file to watch");
+}
+
+/// A screenshot asked for but not written, the window closed first by `--frames`, is an
+/// error, not a silent success.
+#[test]
+fn a_screenshot_the_window_closed_before_is_an_error() {
+    let x = Xvfb::start();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let shot = dir.path().join("never.png");
+    // one frame: a first frame never has 1,024 samples
+    let mut args = cpu_options("64", "48", "1024").to_vec();
+    args.extend([
+        "--frames",
+        "1",
+        "--screenshot",
+        shot.to_str().expect("utf-8"),
+    ]);
+    let out = run(x.view(&args), "--frames before the screenshot");
+    assert_one_line_failure(&out, "--frames before the screenshot", "not written");
+    assert!(!shot.exists());
 }
 
 #[test]

@@ -33,9 +33,10 @@ impl Lens {
 
 /// The field of view, in degrees, whose projection has this `tan_half_fov`: 2·atan(t) in
 /// degrees does not round-trip (a scene's `fov: 47.1` came back as 47.099995, whose camera
-/// differed from the scene's in 24 pixels), so the `f32`s next to it are tried for one that
-/// [`Projection::perspective_degrees`] turns into the same bits; the nearest of those, else
-/// 2·atan(t) itself.
+/// differed from the scene's in 24 pixels), so the `f32`s next to it are tried for those
+/// that [`Projection::perspective_degrees`] turns into the same bits; of those the one
+/// written shortest (`60`, not the `60.000004` that gives the same camera), else 2·atan(t)
+/// itself.
 fn fov_of(tan_half_fov: f32) -> f32 {
     let first = 2.0 * tan_half_fov.atan().to_degrees();
     let same = |fov: f32| {
@@ -47,7 +48,9 @@ fn fov_of(tan_half_fov: f32) -> f32 {
             let (up, down) = (first.to_bits() + k, first.to_bits().saturating_sub(k));
             [f32::from_bits(down), f32::from_bits(up)]
         })
-        .find(|&fov| fov.is_finite() && fov > 0.0 && same(fov))
+        .filter(|&fov| fov.is_finite() && fov > 0.0 && same(fov))
+        // (min_by_key keeps the first of equals: the nearest of the shortest)
+        .min_by_key(|fov| format!("{fov:?}").len())
         .unwrap_or(first)
 }
 
@@ -315,10 +318,14 @@ mod tests {
                     "camera: Perspective(position: (1, 2, 6), look_at: (0, 0.5, 0), up: {up}, \
                      fov: {fov}),"
                 ));
-                assert_eq!(
-                    Pose::of_camera(&scene.camera).camera(),
-                    scene.camera,
-                    "fov {fov}, up {up}"
+                let pose = Pose::of_camera(&scene.camera);
+                assert_eq!(pose.camera(), scene.camera, "fov {fov}, up {up}");
+                // and `C` prints the scene's own number (60, not the 60.000004 that gives
+                // the same camera)
+                assert!(
+                    pose.to_ron().contains(&format!("fov: {:?})", fov as f32)),
+                    "{}",
+                    pose.to_ron()
                 );
             }
         }

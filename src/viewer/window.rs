@@ -70,7 +70,8 @@ pub struct ViewerConfig {
 enum Wake {
     Worker(Report),
     FilesChanged,
-    Loaded(Result<Box<Scene>, String>),
+    /// A load finished: the number of the reload that started it, and its scene or error.
+    Loaded(u64, Result<Box<Scene>, String>),
 }
 
 /// Fails with one line when the environment names no display to open a window on (X11's
@@ -94,6 +95,12 @@ pub fn check_display() -> anyhow::Result<()> {
 /// Opens the window and runs until it closes. Fails with one line when there is no display
 /// or no adapter to present with.
 pub fn run(config: ViewerConfig) -> anyhow::Result<()> {
+    if config.scene_file.is_none() && config.script.contains(&Step::WaitReload) {
+        // it would wait forever
+        anyhow::bail!(
+            "the script waits for a reload, but the built-in showcase has no file to watch"
+        );
+    }
     let scene = (config.load)()?;
     let event_loop = EventLoop::<Wake>::with_user_event().build().map_err(|e| {
         anyhow::anyhow!(
@@ -103,8 +110,29 @@ pub fn run(config: ViewerConfig) -> anyhow::Result<()> {
     let proxy = event_loop.create_proxy();
     let mut app = Viewer::new(config, scene, proxy)?;
     event_loop.run_app(&mut app)?;
-    match app.fatal.take() {
-        Some(e) => Err(e),
+    if let Some(e) = app.fatal.take() {
+        return Err(e);
+    }
+    // screenshots asked for but never written: the window closed first (`--frames`, or a
+    // quit before the image had all its samples); a script's (and `--screenshot`'s) fail
+    for path in &app.screenshots {
+        eprintln!(
+            "screenshot {} not written: the window closed before the image had all its samples",
+            path.display()
+        );
+    }
+    let unwritten = (app.script.iter())
+        .flat_map(|run| &run.steps)
+        .find_map(|step| match step {
+            Step::Screenshot(path) => Some(path),
+            _ => None,
+        });
+    match unwritten {
+        Some(path) => Err(anyhow::anyhow!(
+            "screenshot {} not written: the window closed before the script reached it \
+             (after the frames --frames allows, or at a quit)",
+            path.display()
+        )),
         None => Ok(()),
     }
 }
@@ -170,6 +198,8 @@ struct Viewer {
     /// Frame statistics since the last script `stats`.
     stats: FrameStats,
     reloads: u64,
+    /// Loads started by a change of a watched file; only the newest one's result is applied.
+    reloads_started: u64,
     reload_at: Option<Instant>,
     watch: Option<FileWatch>,
     /// The files of the last scene that loaded (the scene file and its meshes).
@@ -240,6 +270,7 @@ impl Viewer {
             gpu_fault: None,
             stats: FrameStats::default(),
             reloads: 0,
+            reloads_started: 0,
             reload_at: None,
             watch,
             good_files: files,
@@ -625,9 +656,11 @@ impl Viewer {
     fn reload(&mut self) {
         let load = self.config.load.clone();
         let proxy = self.proxy.clone();
+        self.reloads_started += 1;
+        let number = self.reloads_started;
         std::thread::spawn(move || {
             let result = load().map(Box::new).map_err(|e| format!("{e:#}"));
-            let _ = proxy.send_event(Wake::Loaded(result));
+            let _ = proxy.send_event(Wake::Loaded(number, result));
         });
     }
 
@@ -892,7 +925,10 @@ impl ApplicationHandler<Wake> for Viewer {
                 // editors write a file in several steps: load once they have finished
                 self.reload_at = Some(Instant::now() + Duration::from_millis(100));
             }
-            Wake::Loaded(result) => self.loaded(result),
+            // loads run side by side: one slower than a later one (a large mesh saved and then
+            // taken out again) must not replace the later one's scene, which is on disk now
+            Wake::Loaded(number, result) if number == self.reloads_started => self.loaded(result),
+            Wake::Loaded(..) => {}
         }
     }
 
