@@ -71,10 +71,8 @@ pub fn run(args: InfoArgs) -> Result<()> {
     if b.is_empty() {
         println!("bounds       (nothing finite)");
     } else {
-        println!(
-            "bounds       ({:.4}, {:.4}, {:.4}) .. ({:.4}, {:.4}, {:.4})",
-            b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z
-        );
+        let v = |p: glam::Vec3| p.to_array().map(|x| super::readable(x, 4)).join(", ");
+        println!("bounds       ({}) .. ({})", v(b.min), v(b.max));
     }
     let build = Instant::now();
     let tracer = SceneTracer::new(&scene);

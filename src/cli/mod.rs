@@ -89,3 +89,27 @@ pub fn load_any(path: Option<&Path>, camera: Option<&str>) -> Result<Scene> {
         None => Scene::from_source(SHOWCASE, Path::new("<built-in showcase.ron>"))?,
     })
 }
+
+/// `x` for a summary line: `decimals` places where that shows it (zero, or magnitudes from
+/// 0.01 to 10⁶), else scientific notation with as many digits, so that a scene 10⁻⁴ across
+/// does not print as zeros.
+pub fn readable(x: f32, decimals: usize) -> String {
+    if x == 0.0 || !x.is_finite() || (0.01..1e6).contains(&x.abs()) {
+        format!("{x:.decimals$}")
+    } else {
+        format!("{x:.decimals$e}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::readable;
+
+    #[test]
+    fn small_and_large_numbers_keep_their_digits() {
+        assert_eq!(readable(-4.831, 4), "-4.8310");
+        assert_eq!(readable(0.0, 3), "0.000");
+        assert_eq!(readable(-4.049e-4, 4), "-4.0490e-4");
+        assert_eq!(readable(2.5e7, 3), "2.500e7");
+    }
+}

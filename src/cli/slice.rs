@@ -108,7 +108,11 @@ pub fn run(args: SliceArgs) -> Result<()> {
         .with_context(|| format!("writing {}", args.output.display()))?;
     if !args.quiet {
         let range = match field.range() {
-            Some((lo, hi)) => format!("d in [{lo:.3}, {hi:.3}]"),
+            Some((lo, hi)) => format!(
+                "d in [{}, {}]",
+                super::readable(lo, 3),
+                super::readable(hi, 3)
+            ),
             None => "no finite distance".to_string(),
         };
         let (r, u) = plane.image_axes();
