@@ -438,11 +438,11 @@ fn sdf_exit(object: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32) -> f32 {
     return -1.0;
 }
 
-// normal::step_for: a few ε(t), never below 1e-4 nor normal::RELATIVE_STEP (2⁻¹⁶) times p's
-// largest coordinate.
+// normal::step_for: a few ε(t), never below NORMAL_STEP_FLOOR nor NORMAL_RELATIVE_STEP times
+// p's largest coordinate (both generated from normal.rs).
 fn normal_step(t: f32, p: vec3<f32>) -> f32 {
     let a = abs(p);
-    return max(max(2.0 * epsilon_at(t), 1e-4), max(a.x, max(a.y, a.z)) * (1.0 / 65536.0));
+    return max(max(2.0 * epsilon_at(t), NORMAL_STEP_FLOOR), max(a.x, max(a.y, a.z)) * NORMAL_RELATIVE_STEP);
 }
 
 // normal::central and normal::tetrahedral: the gradient estimate at p with step h, each

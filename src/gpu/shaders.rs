@@ -333,6 +333,10 @@ pub fn wgsl_prelude() -> String {
     s += &u("LEAF_BIT", crate::accel::bvh::LEAF_BIT);
     s += &u("FIRST_MASK", crate::accel::bvh::FIRST_MASK);
     s += &format!("const WIDEN: f32 = {:?};\n", crate::accel::bvh::WIDEN);
+    // the normal's finite-difference step (crate::trace::normal::step_for)
+    let f = |name: &str, v: f32| format!("const {name}: f32 = {v:?};\n");
+    s += &f("NORMAL_STEP_FLOOR", crate::trace::normal::STEP_FLOOR);
+    s += &f("NORMAL_RELATIVE_STEP", crate::trace::normal::RELATIVE_STEP);
     s += &u("WORKGROUP_SIZE", WORKGROUP_SIZE);
     s += &u("HIT_MISS", HIT_MISS);
     s += &u("HIT_SDF", HIT_SDF);

@@ -78,10 +78,11 @@ impl<'a> EmbreeTracer<'a> {
                     Some(SdfCheck::Meshed { .. }) => {
                         let s = &scene.tracer;
                         let mut regs = Registers::new();
+                        let p = ray.at(q.t);
                         normal::estimate(
                             &mut FieldCursor::whole(&scene.objects[i].lowered.distance, &mut regs),
-                            ray.at(q.t),
-                            normal::step_for(s, q.t, ray.at(q.t)),
+                            p,
+                            normal::step_for(s, q.t, p),
                             s.normals,
                         )
                         .0

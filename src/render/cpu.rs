@@ -86,7 +86,8 @@ fn every_sample_by_tile<T: ShadingTracer + Sync + ?Sized>(
     let mut fb = Framebuffer::zeroed(opts.width, opts.height);
     let bands: Vec<Mutex<FramebufferRows>> =
         fb.bands_mut(TILE).into_iter().map(Mutex::new).collect();
-    let render = |tile: Tile, samples: &mut Vec<CameraSample>, sums: &mut Vec<PixelSums>| {
+    let render = |tile: Tile, buffers: &mut TileBuffers| {
+        let TileBuffers { samples, sums } = buffers;
         sums.clear();
         sums.resize((tile.w * tile.h) as usize, PixelSums::default());
         for sample in 0..opts.samples {
@@ -106,15 +107,7 @@ fn every_sample_by_tile<T: ShadingTracer + Sync + ?Sized>(
         .into_par_iter()
         .with_max_len(1)
         .for_each(|tile| {
-            TILE_SAMPLES.with(|buffer| {
-                TILE_SUMS.with(
-                    |sums| match (buffer.try_borrow_mut(), sums.try_borrow_mut()) {
-                        (Ok(mut samples), Ok(mut sums)) => render(tile, &mut samples, &mut sums),
-                        // a tracer that runs rayon jobs inside a tile may start another tile here
-                        _ => render(tile, &mut Vec::new(), &mut Vec::new()),
-                    },
-                )
-            });
+            with_tile_buffers(|buffers| render(tile, buffers));
         });
     drop(bands);
     fb
@@ -128,7 +121,7 @@ fn every_sample_by_tile<T: ShadingTracer + Sync + ?Sized>(
 /// averages.
 ///
 /// Each tile's samples are added to its band of the sums as soon as the tile is done, from a
-/// buffer its thread keeps ([`TILE_SAMPLES`]). (A cancelled pass has added some of its tiles:
+/// buffer its thread keeps ([`with_tile_buffers`]). (A cancelled pass has added some of its tiles:
 /// the viewer, the one caller that cancels, starts over from its new camera.)
 pub fn render_pass(
     tracer: &SceneTracer,
@@ -163,11 +156,7 @@ pub fn render_pass(
             if cancelled() {
                 return None;
             }
-            TILE_SAMPLES.with(|buffer| match buffer.try_borrow_mut() {
-                Ok(mut samples) => add(tile, &mut samples),
-                // a tracer that runs rayon jobs inside a tile may start another tile here
-                Err(_) => add(tile, &mut Vec::new()),
-            });
+            with_tile_buffers(|buffers| add(tile, &mut buffers.samples));
             Some(())
         })
         .is_some()
@@ -208,12 +197,25 @@ pub fn render_pixels(
     }
 }
 
+/// A tile's samples and, for [`every_sample_by_tile`], its sums: memory kept by the thread that
+/// renders tiles ([`with_tile_buffers`]).
+#[derive(Default)]
+struct TileBuffers {
+    samples: Vec<CameraSample>,
+    sums: Vec<PixelSums>,
+}
+
 thread_local! {
-    /// A tile's samples, on the thread that renders it ([`render_pass`], [`single_pass`],
-    /// [`every_sample_by_tile`]).
-    static TILE_SAMPLES: RefCell<Vec<CameraSample>> = const { RefCell::new(Vec::new()) };
-    /// A tile's sums, on the thread that renders it ([`every_sample_by_tile`]).
-    static TILE_SUMS: RefCell<Vec<PixelSums>> = const { RefCell::new(Vec::new()) };
+    static TILE_BUFFERS: RefCell<TileBuffers> = RefCell::new(TileBuffers::default());
+}
+
+/// Runs `f` with this thread's [`TileBuffers`], or with new ones when they are in use (a
+/// tracer that runs rayon jobs inside a tile may start another tile on the same thread).
+fn with_tile_buffers(f: impl FnOnce(&mut TileBuffers)) {
+    TILE_BUFFERS.with(|buffers| match buffers.try_borrow_mut() {
+        Ok(mut mine) => f(&mut mine),
+        Err(_) => f(&mut TileBuffers::default()),
+    });
 }
 
 /// The image of sample 0 alone of every pixel as `camera` sees the tracer's scene, in
@@ -260,11 +262,7 @@ fn single_pass<T: ShadingTracer + Sync + ?Sized>(
             if cancelled() {
                 return None;
             }
-            TILE_SAMPLES.with(|buffer| match buffer.try_borrow_mut() {
-                Ok(mut samples) => write(tile, &mut samples),
-                // a tracer that runs rayon jobs inside a tile may start another tile here
-                Err(_) => write(tile, &mut Vec::new()),
-            });
+            with_tile_buffers(|buffers| write(tile, &mut buffers.samples));
             bar.inc(1);
             Some(())
         });

@@ -409,8 +409,11 @@ pub fn sample(scene: &Scene, plane: Plane, opts: &SliceOptions) -> Field {
                         .and_then(|program| {
                             let sp = simplifier.specialise(program, lo, hi);
                             pays[k] = 2 * sp.len <= tapes[k].len();
+                            if !pays[k] {
+                                return None;
+                            }
                             // (a program that fit whole fits shortened; if not, the whole tape)
-                            pays[k].then(|| sp.program.compile_distance().ok())?
+                            sp.program.compile_distance().ok()
                         });
                     kept.push(match special {
                         Some(tape) => {

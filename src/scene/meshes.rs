@@ -115,14 +115,18 @@ impl SceneMeshes {
             what,
             reach,
         };
+        // each mesh's own bounds, once however often the file places it
+        let mut own_bounds: HashMap<usize, Aabb> = HashMap::new();
         for (mesh, local, node) in &file.instances {
             let world = transform * *local;
             // the trees over the meshes' triangles and over the placed meshes take only so
             // large coordinates (NaN and infinite vertices are dropped as broken triangles)
             let m = &self.meshes[*mesh];
-            let own = (m.positions.iter())
-                .filter(|p| p.is_finite())
-                .fold(Aabb::EMPTY, |b, &p| Aabb::new(b.min.min(p), b.max.max(p)));
+            let own = *own_bounds.entry(*mesh).or_insert_with(|| {
+                (m.positions.iter())
+                    .filter(|p| p.is_finite())
+                    .fold(Aabb::EMPTY, |b, &p| Aabb::new(b.min.min(p), b.max.max(p)))
+            });
             let limit = crate::geom::LARGEST_TREE_COORDINATE;
             if !own.is_empty() && own.reach() > limit {
                 return Err(too_large(format!("mesh {:?}", m.name), own.reach()));

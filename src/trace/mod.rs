@@ -909,13 +909,8 @@ impl<'a> SceneTracer<'a> {
         let mut regs = Registers::pooled();
         let mut field = self.fields[object].cursor(&mut regs);
         let t = sphere::exit(&mut field, ray, 0.0, tmax.min(s.max_distance), s)?;
-        let n = normal::estimate(
-            &mut field,
-            ray.at(t),
-            normal::step_for(s, t, ray.at(t)),
-            s.normals,
-        )
-        .0;
+        let p = ray.at(t);
+        let n = normal::estimate(&mut field, p, normal::step_for(s, t, p), s.normals).0;
         Some((t, n))
     }
 
