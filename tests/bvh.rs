@@ -20,7 +20,12 @@ use hytrace::accel::triangle::{self, WatertightRay};
 use hytrace::geom::{Aabb, Ray};
 use rayon::prelude::*;
 
-const QUALITIES: [BuildQuality; 3] = [BuildQuality::Fast, BuildQuality::Medium, BuildQuality::High];
+const QUALITIES: [BuildQuality; 4] = [
+    BuildQuality::Fast,
+    BuildQuality::Medium,
+    BuildQuality::High,
+    BuildQuality::Highest,
+];
 
 use hytrace::rng::Rng;
 

@@ -55,9 +55,10 @@ pub(crate) use wide::{FIRST_MASK, LEAF_BIT, WIDEN, leaf_first};
 
 pub use crate::scene::file::BuildQuality;
 
-// The scene file names the preset; how it maps onto obvhs's builder is this module's business.
+// The scene file names the preset; how it maps onto the builders is this module's business.
 impl BuildQuality {
-    /// The obvhs parameters of this preset.
+    /// The obvhs parameters of this preset: what obvhs builds the instance and box trees with
+    /// at every preset, and the mesh trees at `High` and `Highest`.
     pub fn params(self) -> BvhBuildParams {
         match self {
             BuildQuality::Fast => BvhBuildParams::fast_build(),
@@ -65,6 +66,18 @@ impl BuildQuality {
             BuildQuality::High => BvhBuildParams::slow_build(),
             BuildQuality::Highest => BvhBuildParams::very_slow_build(),
         }
+    }
+
+    /// Whether a mesh's tree comes from the binned-SAH builder (`wide::build_binned`, `Fast`
+    /// and `Medium`) rather than from obvhs with [`Self::params`] (`High`, `Highest`).
+    pub fn binned(self) -> bool {
+        matches!(self, BuildQuality::Fast | BuildQuality::Medium)
+    }
+
+    /// Whether a mesh's large triangles are split into several boxes before its tree is built
+    /// (see `split_boxes`): at every preset but `Fast`.
+    pub fn pre_split(self) -> bool {
+        !matches!(self, BuildQuality::Fast)
     }
 }
 
@@ -76,7 +89,7 @@ pub struct BuildStats {
     /// Primitives in the tree.
     pub kept: usize,
     /// Primitive references in the leaves: more than `kept` when spatial splits put one
-    /// triangle into several leaves ([`BuildQuality::High`]).
+    /// triangle into several leaves ([`BuildQuality::pre_split`]).
     pub references: usize,
     /// Triangles with a NaN or infinite coordinate, dropped.
     pub dropped_nonfinite: usize,
@@ -235,8 +248,7 @@ impl MeshBvh {
                 kept_ids.push(i as u32);
             }
         }
-        let params = quality.params();
-        let (boxes, owner) = if params.pre_split && !kept.is_empty() {
+        let (boxes, owner) = if quality.pre_split() && !kept.is_empty() {
             split_boxes(&kept)
         } else {
             let boxes = kept
@@ -245,7 +257,11 @@ impl MeshBvh {
                 .collect();
             (boxes, (0..kept.len() as u32).collect())
         };
-        let mut tree = wide::build(&boxes, &params);
+        let mut tree = if quality.binned() {
+            wide::build_binned(&boxes)
+        } else {
+            wide::build(&boxes, &quality.params())
+        };
         let tris: Vec<[Vec3; 3]> = tree
             .order
             .iter()

@@ -599,7 +599,15 @@ pub fn run(opts: &BenchOptions) -> anyhow::Result<MeshReport> {
         width: opts.width,
         height: opts.height,
         incoherent: opts.incoherent,
-        bvh: format!("{:?}", opts.bvh),
+        bvh: format!(
+            "{:?} ({})",
+            opts.bvh,
+            if opts.bvh.binned() {
+                "binned SAH, eight children per node built directly, on the rayon pool"
+            } else {
+                "obvhs's PLOC with reinsertion"
+            }
+        ),
         embree_packet,
         embree_native,
         scenes,
@@ -772,7 +780,7 @@ impl MeshReport {
         );
         let _ = writeln!(
             s,
-            "Primary rays {}×{} from a camera framing the model's bounds; AO rays (cosine-distributed, closest hit within the model's radius) and shadow rays (to a point light above) from every primary hit; {} incoherent rays (uniform origins in the bounds, uniform directions); our BVH: obvhs {} preset, watertight traversal and triangle test. Embree: build quality HIGH, in two modes, *default* (Embree's default scene flags: fastest, not watertight) and *robust* (`RTC_SCENE_FLAG_ROBUST`: watertight), each queried one ray at a time (`rtcIntersect1`/`rtcOccluded1`, \"/1\") and in packets of {packet} rays cut in order from the same 64-ray chunks ours gets, with valid masks (`rtcIntersect{packet}`/`rtcOccluded{packet}`, \"/{packet}\"; native packets in this library: {native}). Embree 4 has no stream queries (`rtcIntersect1M` was removed in 4.0).\n",
+            "Primary rays {}×{} from a camera framing the model's bounds; AO rays (cosine-distributed, closest hit within the model's radius) and shadow rays (to a point light above) from every primary hit; {} incoherent rays (uniform origins in the bounds, uniform directions); our BVH: the {} preset, watertight traversal and triangle test. Embree: build quality HIGH, in two modes, *default* (Embree's default scene flags: fastest, not watertight) and *robust* (`RTC_SCENE_FLAG_ROBUST`: watertight), each queried one ray at a time (`rtcIntersect1`/`rtcOccluded1`, \"/1\") and in packets of {packet} rays cut in order from the same 64-ray chunks ours gets, with valid masks (`rtcIntersect{packet}`/`rtcOccluded{packet}`, \"/{packet}\"; native packets in this library: {native}). Embree 4 has no stream queries (`rtcIntersect1M` was removed in 4.0).\n",
             self.width, self.height, self.incoherent, self.bvh
         );
         let _ = writeln!(

@@ -107,19 +107,13 @@ mirror_enum! {
 mirror_enum! {
     /// `--bvh`: the mesh BVH build quality.
     pub enum BvhArg mirrors BuildQuality {
-        /// `BvhBuildParams::fast_build()`: PLOC search radius 6, little reinsertion.
+        /// Binned SAH, eight children per node built directly, in parallel.
         Fast,
-        /// `BvhBuildParams::medium_build()`: PLOC radius 14, more reinsertion ("about Embree's
-        /// build time with faster traversal", says obvhs).
+        /// As `fast`, with spatial pre-splits of large triangles (the default).
         Medium,
-        /// `BvhBuildParams::slow_build()`: PLOC radius 24, 128-bit Morton codes, more
-        /// reinsertion, and spatial pre-splits of large triangles (so a triangle may sit in
-        /// several leaves; the split boxes are padded to stay conservative, see
-        /// `split_boxes`).
+        /// obvhs's PLOC with reinsertion and the spatial pre-splits.
         High,
-        /// `BvhBuildParams::very_slow_build()`: as `High`, with reinsertion over every node
-        /// (batch ratio 1) instead of a fifth of them. Several times `Medium`'s build time for
-        /// the fastest traversal; what `hytrace bench` compares with Embree's HIGH quality.
+        /// As `high`, with reinsertion over every node: several times `medium`'s build time.
         Highest,
     }
 }

@@ -1,7 +1,8 @@
 //! Mesh leaves stored eight triangles to a block and tested eight at a time.
 //!
-//! A CWBVH node has up to eight children and a leaf child holds one to three triangles, so a
-//! node's leaf children hold at most 24. [`group`] copies the triangles of each node's leaf
+//! A node has up to eight children and a leaf child holds one to four triangles (three in
+//! obvhs's CWBVH trees, four from the binned builder), so a node's leaf children hold at most
+//! 32. [`group`] copies the triangles of each node's leaf
 //! children, in slot order, into blocks of eight lanes laid out as structure of arrays (the x
 //! coordinates of the eight first vertices together, and so on), the way Embree's Triangle4/8
 //! leaves are laid out, and points every leaf slot of the node at the node's blocks. The
@@ -16,6 +17,7 @@
 //! bit for bit the scalar one; lanes where an edge function rounds to exactly 0 are handed to
 //! the scalar test, whose `f64` fallback decides them (`simd_lanes_match_the_scalar_test`).
 
+use arrayvec::ArrayVec;
 use glam::Vec3;
 
 use super::wide::{LEAF_BIT, MAX_PRIMS, WideNode};
@@ -80,8 +82,8 @@ impl Leaves {
 pub(crate) fn group(nodes: &mut [WideNode], tris: &[[Vec3; 3]], ids: &[u32]) -> Leaves {
     let mut out = Leaves::default();
     for node in nodes.iter_mut() {
-        let mut lanes: Vec<(usize, usize)> = Vec::with_capacity(24);
-        let mut leaf_slots = Vec::with_capacity(8);
+        let mut lanes: ArrayVec<(usize, usize), 32> = ArrayVec::new();
+        let mut leaf_slots: ArrayVec<usize, 8> = ArrayVec::new();
         for slot in 0..8 {
             let meta = node.meta[slot];
             let used = node.bounds[0][slot] <= node.bounds[1][slot];
@@ -98,8 +100,8 @@ pub(crate) fn group(nodes: &mut [WideNode], tris: &[[Vec3; 3]], ids: &[u32]) -> 
         }
         let first_block = out.blocks.len();
         let count = lanes.len().div_ceil(8);
-        // CWBVH leaves hold at most three triangles: at most 24 lanes, three blocks, which the
-        // two count bits of the meta encode.
+        // Leaves hold at most four triangles (three from obvhs, four from the binned builder):
+        // at most 32 lanes, four blocks, which the two count bits of the meta encode.
         assert!((1..=4).contains(&count) && first_block + count <= MAX_PRIMS);
         for chunk in lanes.chunks(8) {
             let mut block = TriBlock {

@@ -48,12 +48,15 @@ use obvhs::bvh2::reinsertion::ReinsertionOptimizer;
 use obvhs::cwbvh::bvh2_to_cwbvh::bvh2_to_cwbvh;
 use obvhs::ploc::PlocBuilder;
 
+mod binned;
 mod packet;
+pub(crate) use binned::build as build_binned;
 pub(crate) use packet::{Frustum, PACKET, PacketLeaf, all_rays, traverse_packet};
 
 /// Marks a leaf child in [`WideNode::meta`]; the other bits of a leaf are `(count − 1) << 29 |
-/// first`, where `first` indexes the primitive order and `count` is 1..=3 (CWBVH leaves hold at
-/// most three primitives). An internal child's meta is its node index.
+/// first`, where `first` indexes the primitive order and `count` is 1..=4 (CWBVH leaves hold at
+/// most three primitives, the binned builder's four). An internal child's meta is its node
+/// index.
 pub(crate) const LEAF_BIT: u32 = 1 << 31;
 pub(crate) const FIRST_MASK: u32 = (1 << 29) - 1;
 /// Largest number of primitive references a tree can hold with this encoding.
@@ -101,19 +104,25 @@ pub(crate) struct WideBvh {
     pub bounds: (Vec3, Vec3),
 }
 
-/// Builds over `boxes`, which must be finite with min ≤ max (the callers filter).
-pub(crate) fn build(boxes: &[OAabb], params: &BvhBuildParams) -> WideBvh {
-    let empty = (Vec3::INFINITY, Vec3::NEG_INFINITY);
-    if boxes.is_empty() {
-        return WideBvh {
-            bounds: empty,
-            ..Default::default()
-        };
-    }
+/// What both builders do first: the tree of no boxes when there are none (returned), and a
+/// panic past [`MAX_PRIMS`].
+fn empty_tree_of(boxes: &[OAabb]) -> Option<WideBvh> {
     assert!(
         boxes.len() <= MAX_PRIMS,
         "a BVH holds at most {MAX_PRIMS} primitive references"
     );
+    boxes.is_empty().then(|| WideBvh {
+        bounds: (Vec3::INFINITY, Vec3::NEG_INFINITY),
+        ..Default::default()
+    })
+}
+
+/// Builds over `boxes`, which must be finite with min ≤ max (the callers filter).
+pub(crate) fn build(boxes: &[OAabb], params: &BvhBuildParams) -> WideBvh {
+    if let Some(empty) = empty_tree_of(boxes) {
+        return empty;
+    }
+    let empty = (Vec3::INFINITY, Vec3::NEG_INFINITY);
     // As in obvhs::cwbvh::builder::build_cwbvh (obvhs 0.4), without the debug validation, and
     // with exact duplicates spread apart for the builder only (see `spread_duplicates`).
     let spread = spread_duplicates(boxes);
