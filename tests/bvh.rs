@@ -569,6 +569,59 @@ fn bumpy_sphere(rings: usize, segments: usize) -> (Vec<Vec3>, Vec<[u32; 3]>) {
     (pos, tris)
 }
 
+/// A tree of one instance is walked without its instance tree (the mesh's root test culls
+/// as the instance's box would): the answers of brute force in object space, bit for bit,
+/// for a transformed instance and an untransformed one, closest and any hit.
+#[test]
+fn one_instance_gives_the_brute_force_answers() {
+    let (pos, tris) = bumpy_sphere(16, 24);
+    let meshes = vec![MeshBvh::build(&pos, &tris, BuildQuality::Medium)];
+    for transform in [
+        Affine3A::IDENTITY,
+        Affine3A::from_scale_rotation_translation(
+            Vec3::new(1.0, 2.5, 0.6),
+            Quat::from_axis_angle(Vec3::new(1.0, 2.0, 0.5).normalize(), 0.7),
+            Vec3::new(-0.8, 0.2, 0.1),
+        ),
+    ] {
+        let tlas = InstanceBvh::build(
+            &meshes,
+            &[Instance { mesh: 0, transform }],
+            BuildQuality::Medium,
+        );
+        let inv = transform.inverse();
+        let mut rng = Rng::new(7);
+        let mut hits = 0;
+        for i in 0..4000 {
+            let o = if i % 2 == 0 {
+                rng.direction() * 6.0
+            } else {
+                rng.vec3_in(-1.0, 1.0)
+            };
+            let r = Ray::new(o, (rng.vec3_in(-1.5, 1.5) - o).normalize());
+            let tmax = if i % 3 == 0 { 5.0 } else { f32::INFINITY };
+            let (oo, od) = (
+                inv.transform_point3(r.origin),
+                inv.transform_vector3(r.direction),
+            );
+            let brute = brute_closest(&pos, &tris, oo, od, 0.0, tmax);
+            let got = tlas.closest_hit(&meshes, &r, 0.0, tmax);
+            assert_eq!(
+                got.map(|h| (h.t.to_bits(), h.instance, h.triangle)),
+                brute.map(|h| (h.t.to_bits(), 0, h.triangle)),
+                "ray {i}"
+            );
+            assert_eq!(
+                tlas.any_hit(&meshes, &r, 0.0, tmax),
+                brute.is_some(),
+                "ray {i}"
+            );
+            hits += usize::from(brute.is_some());
+        }
+        assert!(hits > 1000, "the rays must hit: {hits}");
+    }
+}
+
 #[test]
 fn instances_match_flattened_geometry() {
     let (pos, tris) = bumpy_sphere(24, 40);

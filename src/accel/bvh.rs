@@ -861,7 +861,7 @@ impl InstanceBvh {
         // The world ray's shear, computed the first time a leaf of an untransformed instance
         // needs it, and then shared by all of them.
         let mut world = Shear::new(ray.origin, ray.direction);
-        let visit = |first: u32, count: u32, tmax: &mut f32| {
+        let mut visit = |first: u32, count: u32, tmax: &mut f32| {
             for p in &self.placed[first as usize..(first + count) as usize] {
                 let Some(mesh) = meshes.get(p.mesh as usize) else {
                     continue;
@@ -880,6 +880,13 @@ impl InstanceBvh {
             }
             ControlFlow::Continue(())
         };
+        if self.placed.len() == 1 {
+            // One instance (a model of one mesh): its tree's own root test culls what the
+            // instance tree's would (and turns away NaN or empty intervals as it would), and a
+            // walk of a one-node tree per ray is saved.
+            let _ = visit(0, 1, &mut tmax);
+            return;
+        }
         match (margin > 0.0, ORDERED) {
             (true, true) => {
                 wide::traverse::<true>(&self.nodes, &nr, tmin, &mut tmax, margin, visit)

@@ -286,6 +286,30 @@ enum Built {
     Node(Vec<(Bounds, Built)>),
 }
 
+/// Splits `refs` (at `offset` in the node's run) in two, and each part again, `rounds` deep
+/// or down to [`MAX_LEAF`], the two halves of each split on the rayon pool; appends the parts
+/// in order as (offset, len, run).
+fn halve(
+    refs: &mut [PrimRef],
+    offset: usize,
+    run: Run,
+    rounds: u32,
+    out: &mut Vec<(usize, usize, Run)>,
+) {
+    if rounds == 0 || refs.len() <= MAX_LEAF {
+        out.push((offset, refs.len(), run));
+        return;
+    }
+    let (mid, left, right) = split(refs, &run);
+    let (a, b) = refs.split_at_mut(mid);
+    let mut right_parts = Vec::new();
+    rayon::join(
+        || halve(a, offset, left, rounds - 1, out),
+        || halve(b, offset + mid, right, rounds - 1, &mut right_parts),
+    );
+    out.append(&mut right_parts);
+}
+
 /// Builds the subtree over `refs`, which start at `first` in the whole array.
 fn build_subtree(refs: &mut [PrimRef], first: usize, run: Run) -> Built {
     if refs.len() <= MAX_LEAF {
@@ -294,9 +318,19 @@ fn build_subtree(refs: &mut [PrimRef], first: usize, run: Run) -> Built {
             count: refs.len() as u32,
         };
     }
-    // Children as (offset within refs, len, run); split the largest-surface splittable one
-    // until there are eight or none is left to split.
-    let mut children: Vec<(usize, usize, Run)> = vec![(0, refs.len(), run)];
+    let parallel = refs.len() > PARALLEL_MIN;
+    // Children as (offset within refs, len, run).
+    let mut children: Vec<(usize, usize, Run)> = Vec::with_capacity(8);
+    if parallel {
+        // A large run: three rounds of halving, each round's splits in parallel (split one
+        // after the other, the largest first, the top of the tree was a third of the build
+        // on one thread while the other waited).
+        halve(refs, 0, run, 3, &mut children);
+    } else {
+        children.push((0, refs.len(), run));
+    }
+    // Split the largest-surface splittable child until there are eight or none is left to
+    // split.
     while children.len() < 8 {
         let Some(i) = children
             .iter()
@@ -318,7 +352,6 @@ fn build_subtree(refs: &mut [PrimRef], first: usize, run: Run) -> Built {
         children.push((offset + mid, len - mid, right));
     }
     // Hand each child its own part of `refs` (the parts are disjoint and cover it).
-    let parallel = refs.len() > PARALLEL_MIN;
     children.sort_by_key(|c| c.0);
     let mut parts: Vec<(&mut [PrimRef], usize, Run)> = Vec::with_capacity(children.len());
     let mut rest = refs;
