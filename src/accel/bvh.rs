@@ -1572,8 +1572,8 @@ impl AabbBvh {
         Self::build_with_quality(boxes, BuildQuality::Medium)
     }
 
-    /// Builds with the given quality ([`BuildQuality::High`]'s pre-splits only apply to
-    /// triangles; boxes are never split).
+    /// Builds with the given quality, by obvhs at every quality (the spatial pre-splits of
+    /// [`BuildQuality::pre_split`] only apply to triangles; boxes are never split).
     pub fn build_with_quality(boxes: &[Aabb], quality: BuildQuality) -> Self {
         let start = Instant::now();
         let mut stats = BuildStats {
