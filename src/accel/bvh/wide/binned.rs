@@ -200,7 +200,7 @@ fn split_binned(refs: &mut [PrimRef], run: &Run) -> (usize, Run, Run) {
     // written again by a later primitive; at the end the cursors meet).
     let (o, sc) = (origin[axis], scale[axis]);
     let n = refs.len();
-    let mid = SCRATCH.with_borrow_mut(|scratch| {
+    let mut partition = |scratch: &mut Vec<PrimRef>| {
         scratch.clear();
         scratch.resize(n, refs[0]);
         let (mut l, mut r) = (0, n);
@@ -215,7 +215,14 @@ fn split_binned(refs: &mut [PrimRef], run: &Run) -> (usize, Run, Run) {
         debug_assert_eq!(l, r);
         refs.copy_from_slice(scratch);
         l
-    });
+    };
+    // Large runs (near the top of a large mesh, a few per build) get an array of their own,
+    // freed at once, so that no thread keeps one as large as the largest mesh it has built.
+    let mid = if n > SCRATCH_KEPT {
+        partition(&mut Vec::with_capacity(n))
+    } else {
+        SCRATCH.with_borrow_mut(partition)
+    };
     // The partition classifies as the binning did (the same operations on the same values),
     // so both sides hold what the sweep counted; should they not, a cut in the middle keeps
     // the build finite.
@@ -228,8 +235,11 @@ fn split_binned(refs: &mut [PrimRef], run: &Run) -> (usize, Run, Run) {
     (mid, Run::of(a), Run::of(b))
 }
 
+/// Largest run the kept scratch array serves (1.8 MB of references).
+const SCRATCH_KEPT: usize = 1 << 16;
+
 thread_local! {
-    /// The partition's scratch array, one per thread of the pool (kept between builds).
+    /// The partition's scratch array, one per thread of the pool, kept between builds.
     static SCRATCH: std::cell::RefCell<Vec<PrimRef>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
@@ -524,7 +534,8 @@ mod tests {
     /// node for node and in the same primitive order.
     #[test]
     fn the_tree_does_not_depend_on_the_thread_count() {
-        let boxes = random_boxes(50_000, 11);
+        // More than `SCRATCH_KEPT`, so that both partition arrays serve.
+        let boxes = random_boxes(100_000, 11);
         let on = |threads: usize| {
             rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
