@@ -270,11 +270,11 @@ fn compare(scene: &Scene, candidate: &dyn RayQuery, referee: &EmbreeScene, seed:
     for ray in &rays(scene, seed) {
         let a = candidate.closest_hit(ray, 0.0, tmax);
         let b = referee.closest_hit(ray, 0.0, tmax);
-        if let Some(x) = &a {
-            if outside_mesh(referee, x.object, ray.at(x.t)) {
-                r.outside_mesh += 1;
-                continue;
-            }
+        if let Some(x) = &a
+            && outside_mesh(referee, x.object, ray.at(x.t))
+        {
+            r.outside_mesh += 1;
+            continue;
         }
         r.rays += 1;
         let debug = std::env::var_os("EMBREE_REF_DEBUG").is_some();
@@ -712,7 +712,7 @@ impl RayQuery for Broken<'_> {
         }
         let n = self.calls.get() + 1;
         self.calls.set(n);
-        (n % 50 != 0).then_some(h)
+        (!n.is_multiple_of(50)).then_some(h)
     }
     fn occluded(&self, ray: &Ray, tmin: f32, tmax: f32) -> bool {
         RayQuery::occluded(&self.tracer, ray, tmin, tmax)

@@ -82,7 +82,7 @@ fn sample_framebuffer() -> Framebuffer {
             fb.albedo[i] = Vec3::new(
                 k / 40.0,
                 0.5 + k / 100.0,
-                if i % 4 == 0 { 0.0 } else { 0.9 },
+                if i.is_multiple_of(4) { 0.0 } else { 0.9 },
             );
             fb.steps[i] = 1.0 + k * 2.5;
             fb.gradient[i] = 1.0;

@@ -100,10 +100,10 @@ fn collect(dir: &Path, out: &mut Vec<PathBuf>) {
     for p in items {
         if p.is_dir() {
             collect(&p, out);
-        } else if let Some(ext) = p.extension().and_then(|e| e.to_str()) {
-            if ["gltf", "glb", "obj", "ply"].contains(&ext.to_ascii_lowercase().as_str()) {
-                out.push(p);
-            }
+        } else if let Some(ext) = p.extension().and_then(|e| e.to_str())
+            && ["gltf", "glb", "obj", "ply"].contains(&ext.to_ascii_lowercase().as_str())
+        {
+            out.push(p);
         }
     }
 }

@@ -380,10 +380,10 @@ impl RayQuery for Broken<'_> {
             }
             Breakage::DropEdgeHits => {
                 let hit = self.tracer.closest_hit(ray, tmin, tmax)?;
-                if let Surface::Mesh { u, v, .. } = hit.surface {
-                    if u.min(v).min(1.0 - u - v) < 0.02 {
-                        return None;
-                    }
+                if let Surface::Mesh { u, v, .. } = hit.surface
+                    && u.min(v).min(1.0 - u - v) < 0.02
+                {
+                    return None;
                 }
                 RayQuery::closest_hit(&self.tracer, ray, tmin, tmax)
             }

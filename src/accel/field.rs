@@ -1332,13 +1332,13 @@ impl<'f, 'r> FieldCursor<'f, 'r> {
     /// unrelated code elsewhere, and a frame of the 400 spheres with it by 5 %.
     #[inline(always)]
     pub fn region_cached(&mut self, p: Vec3, cell: &mut Option<Cell<'f>>) -> Region<'f> {
-        if let Some(c) = *cell {
-            if c.owns(p) {
-                return Region {
-                    tape: c.tape,
-                    cell: Some(c),
-                };
-            }
+        if let Some(c) = *cell
+            && c.owns(p)
+        {
+            return Region {
+                tape: c.tape,
+                cell: Some(c),
+            };
         }
         self.locate_region(p, cell)
     }

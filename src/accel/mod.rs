@@ -66,10 +66,10 @@ impl SdfAccel {
             SdfAccel::Linear(bounds) => {
                 for (i, b) in bounds.iter().enumerate() {
                     let b = if margin > 0.0 { b.expand(margin) } else { *b };
-                    if let Some((t0, t1)) = b.ray_interval(ray, tmin, *tmax) {
-                        if visit(i, t0, t1, tmax).is_break() {
-                            return;
-                        }
+                    if let Some((t0, t1)) = b.ray_interval(ray, tmin, *tmax)
+                        && visit(i, t0, t1, tmax).is_break()
+                    {
+                        return;
                     }
                 }
             }

@@ -102,12 +102,12 @@ fn primary_hit(
         intervals: 0,
     };
     let meshes = tracer.mesh_accel();
-    if !meshes.is_empty() {
-        if let Some(h) = meshes.tlas.closest_hit(&meshes.blas, &ray.ray, 0.0, limit) {
-            limit = h.t;
-            found.t = h.t;
-            found.id = -2;
-        }
+    if !meshes.is_empty()
+        && let Some(h) = meshes.tlas.closest_hit(&meshes.blas, &ray.ray, 0.0, limit)
+    {
+        limit = h.t;
+        found.t = h.t;
+        found.id = -2;
     }
     tracer
         .sdf_accel()

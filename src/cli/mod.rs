@@ -51,14 +51,14 @@ pub fn check_output(flag: &str, path: &Path, ext: &str) -> Result<()> {
     if actual.as_deref() != Some(ext) {
         bail!("{flag} {}: expected a .{ext} file name", path.display());
     }
-    if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        if !dir.is_dir() {
-            bail!(
-                "{flag} {}: cannot write there: {} is not a directory",
-                path.display(),
-                dir.display()
-            );
-        }
+    if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty())
+        && !dir.is_dir()
+    {
+        bail!(
+            "{flag} {}: cannot write there: {} is not a directory",
+            path.display(),
+            dir.display()
+        );
     }
     Ok(())
 }

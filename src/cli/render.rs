@@ -85,23 +85,23 @@ impl ImageArgs {
                 bail!("--width and --height must be in 1..={MAX_IMAGE_SIDE} (got {side})");
             }
         }
-        if let (Some(w), Some(h)) = (self.width, self.height) {
-            if w as u64 * h as u64 > MAX_PIXELS {
-                bail!("image size {w}×{h} is too large (at most {MAX_PIXELS} pixels)");
-            }
+        if let (Some(w), Some(h)) = (self.width, self.height)
+            && w as u64 * h as u64 > MAX_PIXELS
+        {
+            bail!("image size {w}×{h} is too large (at most {MAX_PIXELS} pixels)");
         }
-        if let Some(s) = self.spp {
-            if s == 0 || s > MAX_SAMPLES {
-                bail!("--spp {s} is out of range 1..={MAX_SAMPLES}");
-            }
+        if let Some(s) = self.spp
+            && (s == 0 || s > MAX_SAMPLES)
+        {
+            bail!("--spp {s} is out of range 1..={MAX_SAMPLES}");
         }
         if self.threads == Some(0) {
             bail!("--threads must be at least 1");
         }
-        if let Some(e) = self.exposure {
-            if !e.is_finite() || e.abs() > 64.0 {
-                bail!("--exposure {e} is out of range -64..=64 stops");
-            }
+        if let Some(e) = self.exposure
+            && (!e.is_finite() || e.abs() > 64.0)
+        {
+            bail!("--exposure {e} is out of range -64..=64 stops");
         }
         Ok(())
     }
@@ -250,14 +250,14 @@ pub fn run(args: RenderArgs) -> Result<()> {
     };
     // Fail before a long render rather than after it.
     let parent = args.output.parent().filter(|p| !p.as_os_str().is_empty());
-    if let Some(dir) = parent {
-        if !dir.is_dir() {
-            bail!(
-                "{}: cannot write there: {} is not a directory",
-                args.output.display(),
-                dir.display()
-            );
-        }
+    if let Some(dir) = parent
+        && !dir.is_dir()
+    {
+        bail!(
+            "{}: cannot write there: {} is not a directory",
+            args.output.display(),
+            dir.display()
+        );
     }
     if !args.image.aov.is_empty() && !exr {
         bail!("--aov needs an .exr output (PNG holds only the picture; see --view)");

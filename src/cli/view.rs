@@ -68,14 +68,14 @@ pub fn run(args: ViewArgs) -> Result<()> {
         if !matches!(ext.as_deref(), Some("png" | "exr")) {
             bail!("--screenshot {}: use a .png or .exr file name", p.display());
         }
-        if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
-            if !dir.is_dir() {
-                bail!(
-                    "--screenshot {}: {} is not a directory",
-                    p.display(),
-                    dir.display()
-                );
-            }
+        if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty())
+            && !dir.is_dir()
+        {
+            bail!(
+                "--screenshot {}: {} is not a directory",
+                p.display(),
+                dir.display()
+            );
         }
     }
     run_viewer(args)

@@ -167,10 +167,10 @@ pub fn first_crossing(
             continue;
         }
         let m = 0.5 * (a + b);
-        if let Some(reach) = search.reach(d, a, b) {
-            if signed(at(arena.get(k), o, d, m, regs)).lo > reach {
-                continue;
-            }
+        if let Some(reach) = search.reach(d, a, b)
+            && signed(at(arena.get(k), o, d, m, regs)).lo > reach
+        {
+            continue;
         }
         if b - a <= search.delta || m <= a || m >= b {
             let [x, y, z] = sweep(o, d, b, b);
@@ -230,10 +230,10 @@ pub fn stays_above(
         if at_m.hi < level {
             return Some(false);
         }
-        if let Some(reach) = search.reach(d, a, b) {
-            if at_m.lo - reach >= level {
-                continue;
-            }
+        if let Some(reach) = search.reach(d, a, b)
+            && at_m.lo - reach >= level
+        {
+            continue;
         }
         if b - a <= search.delta || m <= a || m >= b {
             // A stretch this narrow whose enclosure still reaches below the level: where a

@@ -375,7 +375,7 @@ mod tests {
             let h = hash3(pixel, s, k);
             (h % 20000) as f32 / 997.0 - 10.0
         };
-        let miss = hash3(pixel, s, 99) % 4 == 0;
+        let miss = hash3(pixel, s, 99).is_multiple_of(4);
         CameraSample {
             radiance: Vec3::new(f(0) * 1e3, f(1), f(2) * 1e-4),
             depth: if miss { f32::INFINITY } else { f(3).abs() },

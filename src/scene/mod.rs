@@ -500,16 +500,16 @@ impl Scene {
                 ),
             ));
         }
-        if let Some(ao) = &sh.ambient_occlusion {
-            if ao.steps == 0 || ao.steps > 64 {
-                return Err(at(
-                    top(&["shading", "ambient_occlusion", "steps"]),
-                    format!(
-                        "ambient_occlusion.steps = {} is out of range 1..=64",
-                        ao.steps
-                    ),
-                ));
-            }
+        if let Some(ao) = &sh.ambient_occlusion
+            && (ao.steps == 0 || ao.steps > 64)
+        {
+            return Err(at(
+                top(&["shading", "ambient_occlusion", "steps"]),
+                format!(
+                    "ambient_occlusion.steps = {} is out of range 1..=64",
+                    ao.steps
+                ),
+            ));
         }
         let shading = ShadingSettings {
             ambient_occlusion: sh.ambient_occlusion.map(|a| AmbientOcclusion {

@@ -536,15 +536,15 @@ pub fn trace_camera_ray_from<T: ShadingTracer + ?Sized>(
             );
         }
         let transmit_weight = coverage * m.transparency * (1.0 - f_t);
-        if transmit_weight > 0.0 {
-            if let Some(t) = refract(d, n, 1.0 / m.ior) {
-                spawn(
-                    &mut stack,
-                    Ray::new(p - n * offset, t),
-                    item.weight * transmit_weight * m.color,
-                    Some((hit.surface, m.ior)),
-                );
-            }
+        if transmit_weight > 0.0
+            && let Some(t) = refract(d, n, 1.0 / m.ior)
+        {
+            spawn(
+                &mut stack,
+                Ray::new(p - n * offset, t),
+                item.weight * transmit_weight * m.color,
+                Some((hit.surface, m.ior)),
+            );
         }
     }
     *slot = sample;

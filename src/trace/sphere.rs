@@ -354,10 +354,10 @@ impl<'f, 's> Along<'f, 's> {
     /// The leaf at t (t never decreasing between calls), or `None` outside the tree.
     #[inline]
     fn at(&mut self, t: f32) -> Option<Crossed<'f>> {
-        if let Some(c) = self.current {
-            if t <= c.exit {
-                return (t >= c.enter).then_some(c);
-            }
+        if let Some(c) = self.current
+            && t <= c.exit
+        {
+            return (t >= c.enter).then_some(c);
         }
         let walk = self.walk.as_mut()?;
         walk.skip_to(t);

@@ -790,7 +790,7 @@ impl Cx<'_> {
                     }
                 }
                 _ => {
-                    if indices.len() % 3 != 0 {
+                    if !indices.len().is_multiple_of(3) {
                         self.warn(format!(
                             "{place}: {} indices is not a multiple of 3; the last {} ignored",
                             indices.len(),
