@@ -374,21 +374,33 @@ impl MeshBvh {
     ) {
         let tmin = wide::query_tmin(tmin);
         let shears = &mut *w.shears;
-        wide::traverse_packet::<false, ORDERED, true>(
-            &self.nodes,
-            w.rays,
-            w.active,
-            w.frustum,
-            tmin,
-            tmax,
-            0.0,
-            |what, tmax| {
-                if let PacketLeaf::Ray { ray, meta, slots } = what {
-                    leaf(shears.get(ray), ray, meta, slots, tmin, &mut tmax[ray]);
-                }
-                ControlFlow::Continue(())
-            },
-        );
+        let visit = |what, tmax: &mut [f32]| {
+            if let PacketLeaf::Ray { ray, meta, slots } = what {
+                leaf(shears.get(ray), ray, meta, slots, tmin, &mut tmax[ray]);
+            }
+            ControlFlow::Continue(())
+        };
+        match w.frustum {
+            Some(frustum) => wide::traverse_packet::<false, ORDERED, true>(
+                &self.nodes,
+                w.rays,
+                w.active,
+                frustum,
+                tmin,
+                tmax,
+                0.0,
+                visit,
+            ),
+            None => wide::traverse_lanes::<false, ORDERED, true>(
+                &self.nodes,
+                w.rays,
+                w.active,
+                tmin,
+                tmax,
+                0.0,
+                visit,
+            ),
+        }
     }
 
     /// The any-hit leaf test: whether one ray hits a triangle of the leaf slots `slots` of a
@@ -636,12 +648,13 @@ fn beats(best: &Option<InstanceHit>, t: f32, instance: u32, triangle: u32) -> bo
 }
 
 /// The rays of a packet as a mesh walk takes them: node rays, the mask of those to trace, their
-/// bounds, and their lazily computed shears.
+/// bounds (a frustum walk) or none (a lane walk, `wide::traverse_lanes`: the rays then pass
+/// `wide::lanes_take`), and their lazily computed shears.
 struct PacketWalk<'s, 'r> {
     shears: &'s mut PacketShears<'r>,
     rays: &'s [NodeRay],
     active: u32,
-    frustum: &'s Frustum,
+    frustum: Option<&'s Frustum>,
 }
 
 /// A query that [`InstanceBvh::packet`] traces: what one mesh walk answers per ray.
@@ -738,6 +751,11 @@ impl PacketQuery for Any {
         )
     }
 }
+
+/// The largest spread of a lane walk's ray origins, as a fraction of the scene's extent (see
+/// [`InstanceBvh::near_origins`]). Measured on the bench's AO rays, a tenth and a quarter
+/// gave the same speed; incoherent rays (origins across the whole scene) are far above both.
+const LANE_REACH: f32 = 0.25;
 
 /// A top-level BVH over instances of [`MeshBvh`]es (a two-level BVH: instances of one mesh
 /// share its tree).
@@ -927,17 +945,17 @@ impl InstanceBvh {
         self.walk::<true>(meshes, ray, tmin, tmax, |p, mesh, shear, nr, tmax| {
             let test = |t: u32, u: f32, v: f32| filter.accept(p.index, t, u, v);
             let accept: Accept<'_> = filter.tests(p.index).then_some(&test);
-            if let Some(h) = mesh.closest_in(shear, nr, tmin, *tmax, accept) {
-                if beats(&best, h.t, p.index, h.triangle) {
-                    best = Some(InstanceHit {
-                        t: h.t,
-                        instance: p.index,
-                        triangle: h.triangle,
-                        u: h.u,
-                        v: h.v,
-                    });
-                    *tmax = h.t;
-                }
+            if let Some(h) = mesh.closest_in(shear, nr, tmin, *tmax, accept)
+                && beats(&best, h.t, p.index, h.triangle)
+            {
+                best = Some(InstanceHit {
+                    t: h.t,
+                    instance: p.index,
+                    triangle: h.triangle,
+                    u: h.u,
+                    v: h.v,
+                });
+                *tmax = h.t;
             }
             ControlFlow::Continue(())
         });
@@ -947,7 +965,9 @@ impl InstanceBvh {
     /// [`Self::closest_hit`] of every ray `rays[i]` over `[tmin, tmax[i]]`, into `out[i]`: the
     /// same answers, bit for bit. Consecutive rays are traced together, [`PACKET`] at a time,
     /// when they are coherent (same octant, none parallel to an axis: neighbouring primary rays
-    /// of a camera, shadow rays towards one light); the rest one by one.
+    /// of a camera, shadow rays towards one light); otherwise, on CPUs with AVX-512, sixteen at
+    /// a time in lane walks when they start close together (AO and diffuse rays of
+    /// neighbouring pixels, see `wide::lanes`); the rest one by one.
     ///
     /// # Panics
     /// When the three slices differ in length.
@@ -982,8 +1002,8 @@ impl InstanceBvh {
             .zip(out.chunks_mut(PACKET))
         {
             out.fill(None);
-            let traced =
-                self.packet::<Closest>(meshes, rays, tmin, tmax, filter, |p, i, h, tmax| {
+            let mut alone =
+                self.chunk::<Closest>(meshes, rays, tmin, tmax, filter, |p, i, h, tmax| {
                     let Some(h) = h else { return };
                     if beats(&out[i], h.t, p.index, h.triangle) {
                         out[i] = Some(InstanceHit {
@@ -996,10 +1016,10 @@ impl InstanceBvh {
                         *tmax = h.t;
                     }
                 });
-            if !traced {
-                for ((r, &tmax), out) in rays.iter().zip(tmax).zip(out.iter_mut()) {
-                    *out = self.closest_hit_filtered(meshes, r, tmin, tmax, filter);
-                }
+            while alone != 0 {
+                let i = alone.trailing_zeros() as usize;
+                alone &= alone - 1;
+                out[i] = self.closest_hit_filtered(meshes, &rays[i], tmin, tmax[i], filter);
             }
         }
     }
@@ -1040,25 +1060,82 @@ impl InstanceBvh {
             .zip(out.chunks_mut(PACKET))
         {
             out.fill(false);
-            let traced = self.packet::<Any>(meshes, rays, tmin, tmax, filter, |_, i, hit, tmax| {
-                if hit {
-                    out[i] = true;
-                    // Retired: the walk drops the ray.
-                    *tmax = f32::NEG_INFINITY;
-                }
-            });
-            if !traced {
-                for ((r, &tmax), out) in rays.iter().zip(tmax).zip(out.iter_mut()) {
-                    *out = self.any_hit_filtered(meshes, r, tmin, tmax, filter);
-                }
+            let mut alone =
+                self.chunk::<Any>(meshes, rays, tmin, tmax, filter, |_, i, hit, tmax| {
+                    if hit {
+                        out[i] = true;
+                        // Retired: the walk drops the ray.
+                        *tmax = f32::NEG_INFINITY;
+                    }
+                });
+            while alone != 0 {
+                let i = alone.trailing_zeros() as usize;
+                alone &= alone - 1;
+                out[i] = self.any_hit_filtered(meshes, &rays[i], tmin, tmax[i], filter);
             }
         }
     }
 
+    /// Whether `rays` start close enough together for a lane walk to pay: within a box at most
+    /// [`LANE_REACH`] of the scene's extent on its longest axis. Rays from nearby origins (AO
+    /// and diffuse rays of neighbouring pixels) share the upper levels of the tree whatever
+    /// their directions; rays from anywhere (measured: origins uniform in the scene's box)
+    /// share only the root, and a lane walk's one order of children then serves each ray worse
+    /// than its own nearest-first walk (20–25 % slower than single rays on the bench models).
+    fn near_origins(&self, rays: &[Ray]) -> bool {
+        let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+        for r in rays {
+            lo = lo.min(r.origin);
+            hi = hi.max(r.origin);
+        }
+        let scene = (self.bounds.max - self.bounds.min).max_element();
+        (hi - lo).max_element() <= LANE_REACH * scene
+    }
+
+    /// Traces a chunk of at most [`PACKET`] rays with query `Q` (answers to `keep` as in
+    /// [`Self::packet`]): as one frustum walk when they are coherent, otherwise in lane walks
+    /// of [`wide::LANES`] neighbours. Returns the mask of the rays neither could take (on CPUs
+    /// without AVX-512, all of an incoherent chunk), which the caller traces one by one.
+    fn chunk<Q: PacketQuery>(
+        &self,
+        meshes: &[MeshBvh],
+        rays: &[Ray],
+        tmin: f32,
+        tmax: &[f32],
+        filter: &impl HitFilter,
+        mut keep: impl FnMut(&PlacedInstance, usize, Q::Answer, &mut f32),
+    ) -> u32 {
+        if self.packet::<Q, false>(meshes, rays, tmin, tmax, filter, &mut keep) {
+            return 0;
+        }
+        let mut alone = 0;
+        for start in (0..rays.len()).step_by(wide::LANES) {
+            let end = (start + wide::LANES).min(rays.len());
+            if !self.near_origins(&rays[start..end]) {
+                alone |= wide::all_rays(end - start) << start;
+                continue;
+            }
+            let lanes = self.packet::<Q, true>(
+                meshes,
+                &rays[start..end],
+                tmin,
+                &tmax[start..end],
+                filter,
+                |p, i, answer, tmax| keep(p, start + i, answer, tmax),
+            );
+            if !lanes {
+                alone |= wide::all_rays(end - start) << start;
+            }
+        }
+        alone
+    }
+
     /// Traces at most [`PACKET`] rays as one packet with query `Q`, handing each mesh walk's
-    /// answer for ray i to `keep(instance, i, answer, &mut tmax[i])`. Returns false, having done
-    /// nothing, when the rays are not coherent enough to share a walk ([`Frustum::new`]).
-    fn packet<Q: PacketQuery>(
+    /// answer for ray i to `keep(instance, i, answer, &mut tmax[i])`. `LANES` chooses the walk:
+    /// without it a frustum walk of coherent rays ([`Frustum::new`]), with it a lane walk of at
+    /// most [`wide::LANES`] rays of any directions ([`wide::lanes_take`]). Returns false,
+    /// having done nothing, when the rays cannot share the chosen walk.
+    fn packet<Q: PacketQuery, const LANES: bool>(
         &self,
         meshes: &[MeshBvh],
         rays: &[Ray],
@@ -1067,9 +1144,19 @@ impl InstanceBvh {
         filter: &impl HitFilter,
         mut keep: impl FnMut(&PlacedInstance, usize, Q::Answer, &mut f32),
     ) -> bool {
-        let Some((frustum, world)) = Frustum::new(rays.iter().map(|r| (r.origin, r.direction)))
-        else {
-            return false;
+        let mut world: ArrayVec<NodeRay, PACKET> = ArrayVec::new();
+        let frustum = if LANES {
+            world.extend(rays.iter().map(|r| NodeRay::new(r.origin, r.direction)));
+            if !wide::lanes_take(&world) {
+                return false;
+            }
+            None
+        } else {
+            let Some(f) = Frustum::new(rays.iter().map(|r| (r.origin, r.direction)), &mut world)
+            else {
+                return false;
+            };
+            Some(f)
         };
         let qtmin = wide::query_tmin(tmin);
         // Rays with nothing to find (NaN or empty interval) are retired from the start.
@@ -1087,8 +1174,9 @@ impl InstanceBvh {
             0.0
         };
         let n = rays.len();
+        let all = wide::all_rays(n);
         let mut answers = [Q::NONE; PACKET];
-        let visit = |what: PacketLeaf, tmax: &mut [f32]| {
+        let mut visit = |what: PacketLeaf, tmax: &mut [f32]| {
             let PacketLeaf::Packet { meta, rays: active } = what else {
                 return ControlFlow::Continue(());
             };
@@ -1101,14 +1189,16 @@ impl InstanceBvh {
                 let accept: Accept<'_> = filter.tests(p.index).then_some(&test);
                 let answers = &mut answers[..n];
                 if p.identity {
-                    // The world rays themselves, bounded afresh when only some of them
-                    // may meet this instance.
+                    // The world rays themselves, bounded afresh (in a frustum walk) when only
+                    // some of them may meet this instance.
                     let sub;
-                    let f = if active == wide::all_rays(n) {
-                        &frustum
-                    } else {
-                        sub = Frustum::of(&world, active);
-                        &sub
+                    let f = match &frustum {
+                        Some(f) if active == all => Some(f),
+                        Some(_) => {
+                            sub = Frustum::of(&world, active);
+                            Some(&sub)
+                        }
+                        None => None,
                     };
                     answers.fill(Q::NONE);
                     let mut w = PacketWalk {
@@ -1138,13 +1228,21 @@ impl InstanceBvh {
                     let k = object.len();
                     let packed = &mut answers[..k];
                     packed.fill(Q::NONE);
-                    match Frustum::new(object.iter().map(|r| (r.origin, r.direction))) {
-                        Some((f, nodes)) => {
+                    let mut nodes: ArrayVec<NodeRay, PACKET> = ArrayVec::new();
+                    let shared = if LANES {
+                        nodes.extend(object.iter().map(|r| NodeRay::new(r.origin, r.direction)));
+                        wide::lanes_take(&nodes).then_some(None)
+                    } else {
+                        Frustum::new(object.iter().map(|r| (r.origin, r.direction)), &mut nodes)
+                            .map(Some)
+                    };
+                    match shared {
+                        Some(f) => {
                             let mut w = PacketWalk {
                                 shears: &mut PacketShears::new(&object),
                                 rays: &nodes,
                                 active: wide::all_rays(k),
-                                frustum: &f,
+                                frustum: f.as_ref(),
                             };
                             Q::walk(mesh, &mut w, tmin, &mut sub_tmax, packed, accept);
                         }
@@ -1170,47 +1268,43 @@ impl InstanceBvh {
             }
             ControlFlow::Continue(())
         };
-        let all = wide::all_rays(n);
-        match (margin > 0.0, Q::ORDERED) {
-            (true, true) => wide::traverse_packet::<true, true, false>(
-                &self.nodes,
-                &world,
-                all,
-                &frustum,
-                tmin,
+        if self.placed.len() == 1 {
+            // One instance: its tree's root test culls what the instance tree's would (as in
+            // `walk`).
+            let _ = visit(
+                PacketLeaf::Packet {
+                    meta: wide::LEAF_BIT,
+                    rays: all,
+                },
                 &mut tmax,
-                margin,
-                visit,
+            );
+            return true;
+        }
+        let nodes = &self.nodes;
+        match (&frustum, margin > 0.0, Q::ORDERED) {
+            (Some(f), true, true) => wide::traverse_packet::<true, true, false>(
+                nodes, &world, all, f, tmin, &mut tmax, margin, visit,
             ),
-            (false, true) => wide::traverse_packet::<false, true, false>(
-                &self.nodes,
-                &world,
-                all,
-                &frustum,
-                tmin,
-                &mut tmax,
-                0.0,
-                visit,
+            (Some(f), false, true) => wide::traverse_packet::<false, true, false>(
+                nodes, &world, all, f, tmin, &mut tmax, 0.0, visit,
             ),
-            (true, false) => wide::traverse_packet::<true, false, false>(
-                &self.nodes,
-                &world,
-                all,
-                &frustum,
-                tmin,
-                &mut tmax,
-                margin,
-                visit,
+            (Some(f), true, false) => wide::traverse_packet::<true, false, false>(
+                nodes, &world, all, f, tmin, &mut tmax, margin, visit,
             ),
-            (false, false) => wide::traverse_packet::<false, false, false>(
-                &self.nodes,
-                &world,
-                all,
-                &frustum,
-                tmin,
-                &mut tmax,
-                0.0,
-                visit,
+            (Some(f), false, false) => wide::traverse_packet::<false, false, false>(
+                nodes, &world, all, f, tmin, &mut tmax, 0.0, visit,
+            ),
+            (None, true, true) => wide::traverse_lanes::<true, true, false>(
+                nodes, &world, all, qtmin, &mut tmax, margin, visit,
+            ),
+            (None, false, true) => wide::traverse_lanes::<false, true, false>(
+                nodes, &world, all, qtmin, &mut tmax, 0.0, visit,
+            ),
+            (None, true, false) => wide::traverse_lanes::<true, false, false>(
+                nodes, &world, all, qtmin, &mut tmax, margin, visit,
+            ),
+            (None, false, false) => wide::traverse_lanes::<false, false, false>(
+                nodes, &world, all, qtmin, &mut tmax, 0.0, visit,
             ),
         }
         true
@@ -1646,10 +1740,10 @@ impl AabbBvh {
             if tmin.is_nan() || tmax.is_nan() || tmin > *tmax {
                 return;
             }
-            if let Some((t0, t1)) = unbounded_interval(b, ray, tmin, *tmax, margin) {
-                if visit(i as usize, t0, t1, tmax).is_break() {
-                    return;
-                }
+            if let Some((t0, t1)) = unbounded_interval(b, ray, tmin, *tmax, margin)
+                && visit(i as usize, t0, t1, tmax).is_break()
+            {
+                return;
             }
         }
         if let Some(few) = &self.few {

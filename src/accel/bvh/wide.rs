@@ -49,8 +49,10 @@ use obvhs::cwbvh::bvh2_to_cwbvh::bvh2_to_cwbvh;
 use obvhs::ploc::PlocBuilder;
 
 mod binned;
+mod lanes;
 mod packet;
 pub(crate) use binned::build as build_binned;
+pub(crate) use lanes::{LANES, lanes_take, traverse_lanes};
 pub(crate) use packet::{Frustum, PACKET, PacketLeaf, all_rays, traverse_packet};
 
 /// Marks a leaf child in [`WideNode::meta`]; the other bits of a leaf are `(count − 1) << 29 |

@@ -1,0 +1,726 @@
+//! Lane walks: up to sixteen rays walk a tree together, one ray per lane of an AVX-512
+//! register, each child box tested for all of them at once — the packet traversal of rays
+//! that start close together but share no frustum (AO and diffuse rays of neighbouring
+//! pixels).
+//!
+//! This is the ray-per-lane packet traversal of Wald, Slusallek, Benthin & Wagner ("Interactive
+//! Rendering with Coherent Ray Tracing", CGF 20(3), 2001), as Embree runs it for its 16-ray
+//! queries on AVX-512 (Wald, Woop, Benthin, Johnson & Ernst, "Embree: A Kernel Framework for
+//! Efficient CPU Ray Tracing", ACM TOG 33(4), 2014, §4.2): a single-ray walk of an 8-wide
+//! tree fills eight lanes with one ray's eight children; this fills sixteen with sixteen rays'
+//! one child. It pays while many rays share a node, near the top of the tree; where fewer
+//! than [`SOLO`] + 1 rays are left in a subtree, each finishes it with its own single-ray walk.
+//! Rays from all over the scene share only the root, and one order of children serves each of
+//! them worse than its own nearest-first walk: the caller keeps those to single-ray walks
+//! (`InstanceBvh::near_origins`).
+//!
+//! **Same answers.** Each lane computes its ray's slab distances with the operations of the
+//! single-ray test ([`super::child_hits_avx2`]) in the same order, on the same `f32` values
+//! (the entry plane's distance is the smaller of the two planes', see [`node_lanes`]; the
+//! margin grows the box as there; the widening is the same). So a lane's mask and entry
+//! distance for a child are bit for bit its ray's own. A ray leaves a child only by its own
+//! test with its own current `tmax`, and leaves are handed over per ray, so each ray's leaf
+//! tests are a superset of what its single-ray walk performs; closest-hit ties are broken by
+//! index (the query contract in `super::super`), so the answers are the single-ray ones
+//! (`lane_walks_give_the_single_ray_answers` in `tests/bvh.rs`).
+//!
+//! Rays parallel to an axis (a containment test there) or with a non-finite origin are left to
+//! the single-ray walk: [`lanes_take`] turns such a set away.
+
+use std::ops::ControlFlow;
+
+use super::{LEAF_BIT, NodeRay, PacketLeaf, Stack, WideNode};
+
+/// Most rays in a lane walk: one per lane of a 512-bit register.
+pub(crate) const LANES: usize = 16;
+
+/// At or below this many rays, a lane walk lets each ray finish the subtree alone: a node's
+/// eight lane tests then cost more than the rays' own 8-wide tests. (Measured on the bench's
+/// AO rays: 2 and 3 within 3 % of each other, 5 and more slower.)
+const SOLO: u32 = 2;
+
+/// Whether lane walks can run on this CPU (AVX-512F, detected at run time; std caches it).
+#[inline(always)]
+pub(crate) fn has_avx512() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx512f")
+            && std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Whether `rays` can share a lane walk here: AVX-512 present, 1..=[`LANES`] rays, none
+/// parallel to an axis, all origins finite.
+#[inline(always)]
+pub(crate) fn lanes_take(rays: &[NodeRay]) -> bool {
+    has_avx512()
+        && (1..=LANES).contains(&rays.len())
+        && rays
+            .iter()
+            .all(|r| r.parallel == 0 && r.o.iter().all(|c| c.is_finite()))
+}
+
+/// A pending child of a lane walk: each lane's entry distance and the lanes that may meet it.
+#[derive(Clone, Copy)]
+#[repr(C, align(64))]
+struct LaneEntry {
+    t: [f32; LANES],
+    meta: u32,
+    rays: u16,
+}
+
+/// Walks the tree once for the rays of `active` (bit i for `rays[i]`), calling `leaf(what,
+/// tmax)` as [`PacketLeaf`] describes, with the contract of [`super::traverse_packet`]: the
+/// callback may shrink entries of `tmax`, set one to −∞ to retire its ray, or break. `rays`
+/// must pass [`lanes_take`] and `tmin` must be a query tmin (`super::query_tmin`).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub(crate) fn traverse_lanes<const MARGIN: bool, const ORDERED: bool, const GROUPED: bool>(
+    nodes: &[WideNode],
+    rays: &[NodeRay],
+    active: u32,
+    tmin: f32,
+    tmax: &mut [f32],
+    margin: f32,
+    leaf: impl FnMut(PacketLeaf, &mut [f32]) -> ControlFlow<()>,
+) {
+    assert!(
+        lanes_take(rays) && tmax.len() == rays.len(),
+        "a lane walk takes what lanes_take accepts"
+    );
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: `lanes_take` checked AVX-512F and AVX2.
+    unsafe {
+        lanes_avx512::<MARGIN, ORDERED, GROUPED>(nodes, rays, active, tmin, tmax, margin, leaf)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (nodes, active, tmin, margin, leaf);
+}
+
+/// The lane walk.
+///
+/// # Safety
+/// The CPU must support AVX-512F and AVX2.
+#[allow(clippy::too_many_arguments)]
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2")]
+unsafe fn lanes_avx512<const MARGIN: bool, const ORDERED: bool, const GROUPED: bool>(
+    nodes: &[WideNode],
+    rays: &[NodeRay],
+    active: u32,
+    tmin: f32,
+    tmax: &mut [f32],
+    margin: f32,
+    mut leaf: impl FnMut(PacketLeaf, &mut [f32]) -> ControlFlow<()>,
+) {
+    use std::arch::x86_64::*;
+    if nodes.is_empty() || tmin.is_nan() {
+        return;
+    }
+    let all = super::all_rays(rays.len()) as u16;
+    // SAFETY (whole body): loads and stores of sixteen f32 from and to arrays of sixteen f32
+    // (the masked load of `tmax` reads only its first `rays.len()`); AVX-512F is enabled here.
+    unsafe {
+        let (o, inv) = PacketLanes::of(rays).group(0);
+        let m = _mm512_set1_ps(margin);
+        let low = _mm512_set1_ps(tmin);
+        let none = _mm512_set1_ps(f32::NEG_INFINITY);
+        let mut stack: Stack<LaneEntry> = Stack::new();
+        let mut next = Some(LaneEntry {
+            t: [tmin; LANES],
+            meta: 0,
+            rays: active as u16 & all,
+        });
+        while let Some(e) = next.take().or_else(|| stack.pop()) {
+            // Each lane's current tmax (a retired or NaN one fails every comparison).
+            let far = _mm512_mask_loadu_ps(none, all, tmax.as_ptr());
+            let entry = _mm512_loadu_ps(e.t.as_ptr());
+            // (entry ≥ tmin, so a ray whose tmax fell below tmin is dropped too)
+            let live = _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(e.rays, entry, far);
+            if live == 0 {
+                continue;
+            }
+            if !GROUPED && e.meta & LEAF_BIT != 0 {
+                let what = PacketLeaf::Packet {
+                    meta: e.meta,
+                    rays: u32::from(live),
+                };
+                if leaf(what, tmax).is_break() {
+                    return;
+                }
+                continue;
+            }
+            if live.count_ones() <= SOLO {
+                // Each remaining ray finishes this subtree alone.
+                if super::packet::finish_alone::<MARGIN, true, ORDERED, GROUPED>(
+                    nodes,
+                    e.meta,
+                    rays,
+                    u32::from(live),
+                    tmin,
+                    tmax,
+                    margin,
+                    &mut leaf,
+                )
+                .is_break()
+                {
+                    return;
+                }
+                continue;
+            }
+            let node = &nodes[e.meta as usize];
+            let (entries, hits, mut slots) =
+                node_lanes::<MARGIN>(node, &o, &inv, low, far, m, live);
+            if GROUPED {
+                let leaves = slots & super::leaf_slots_with::<true>(node);
+                if leaves != 0 {
+                    // Each ray gets its own leaf slots, as its single-ray walk would.
+                    let mut meeting = 0u16;
+                    let mut l = leaves;
+                    while l != 0 {
+                        meeting |= hits[l.trailing_zeros() as usize];
+                        l &= l - 1;
+                    }
+                    let mut left = u32::from(meeting);
+                    while left != 0 {
+                        let ray = left.trailing_zeros() as usize;
+                        left &= left - 1;
+                        let mut its = 0u32;
+                        let mut l = leaves;
+                        while l != 0 {
+                            let slot = l.trailing_zeros() as usize;
+                            l &= l - 1;
+                            its |= u32::from((hits[slot] >> ray) & 1) << slot;
+                        }
+                        let meta = node.meta[its.trailing_zeros() as usize];
+                        let what = PacketLeaf::Ray {
+                            ray,
+                            meta,
+                            slots: its,
+                        };
+                        if leaf(what, tmax).is_break() {
+                            return;
+                        }
+                    }
+                    slots &= !leaves;
+                }
+            }
+            // The inner children (and, in other trees, the leaves), nearest first as far as
+            // one order can serve sixteen rays: by the nearest entry over the rays that meet
+            // each (closest hit; any hit takes them in slot order). The nearest is visited
+            // next, the others wait on the stack.
+            let mut order = [(0.0f32, 0usize); 8];
+            let mut count = 0;
+            while slots != 0 {
+                let child = slots.trailing_zeros() as usize;
+                slots &= slots - 1;
+                let key = if ORDERED {
+                    _mm512_mask_reduce_min_ps(hits[child], entries[child])
+                } else {
+                    0.0
+                };
+                let mut j = count;
+                while ORDERED && j > 0 && order[j - 1].0 > key {
+                    order[j] = order[j - 1];
+                    j -= 1;
+                }
+                order[j] = (key, child);
+                count += 1;
+            }
+            for (j, &(_, child)) in order[..count].iter().enumerate().rev() {
+                let meta = node.meta[child];
+                if meta & LEAF_BIT == 0 {
+                    super::prefetch_node(nodes, meta);
+                }
+                let mut c = LaneEntry {
+                    t: [0.0; LANES],
+                    meta,
+                    rays: hits[child],
+                };
+                _mm512_storeu_ps(c.t.as_mut_ptr(), entries[child]);
+                if j == 0 {
+                    next = Some(c);
+                } else {
+                    stack.push(c);
+                }
+            }
+        }
+    }
+}
+
+/// The rays of a frustum packet (at most [`super::PACKET`]) as lanes, for the packet walk's
+/// per-ray tests where its rays part ways ([`super::traverse_packet`]): sixteen rays' tests of
+/// a child in one register instead of each ray's own eight-child test in turn.
+pub(crate) struct PacketLanes {
+    o: [[f32; super::PACKET]; 3],
+    inv: [[f32; super::PACKET]; 3],
+    n: usize,
+}
+
+impl PacketLanes {
+    /// The lanes of `rays`, when this CPU runs lane walks and the rays pass [`lanes_take`]'s
+    /// checks (a frustum packet's rays do: none parallel, finite origins).
+    #[inline(always)]
+    pub fn new(rays: &[NodeRay]) -> Option<PacketLanes> {
+        let fit = has_avx512()
+            && rays.len() <= super::PACKET
+            && rays
+                .iter()
+                .all(|r| r.parallel == 0 && r.o.iter().all(|c| c.is_finite()));
+        fit.then(|| PacketLanes::of(rays))
+    }
+
+    /// The lanes of at most [`super::PACKET`] rays, unchecked.
+    #[inline(always)]
+    fn of(rays: &[NodeRay]) -> PacketLanes {
+        let mut lanes = PacketLanes {
+            o: [[0.0; super::PACKET]; 3],
+            inv: [[1.0; super::PACKET]; 3],
+            n: rays.len(),
+        };
+        for (k, r) in rays.iter().enumerate() {
+            for axis in 0..3 {
+                lanes.o[axis][k] = r.o[axis];
+                lanes.inv[axis][k] = r.inv[axis];
+            }
+        }
+        lanes
+    }
+
+    /// The origins and 1/d of the sixteen rays from `first` on (a multiple of [`LANES`]; lanes
+    /// past the rays hold the origin 0 and 1/d = 1).
+    ///
+    /// # Safety
+    /// The CPU must support AVX-512F.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    #[inline]
+    unsafe fn group(
+        &self,
+        first: usize,
+    ) -> (
+        [std::arch::x86_64::__m512; 3],
+        [std::arch::x86_64::__m512; 3],
+    ) {
+        use std::arch::x86_64::_mm512_loadu_ps;
+        let load = |a: &[f32; super::PACKET]| {
+            let lanes: &[f32; LANES] = a[first..first + LANES].try_into().expect("sixteen");
+            // SAFETY: an unaligned load of sixteen f32 from an array of sixteen.
+            unsafe { _mm512_loadu_ps(lanes.as_ptr()) }
+        };
+        (self.o.each_ref().map(load), self.inv.each_ref().map(load))
+    }
+
+    /// Per child of `node`, the mask of the rays of `alive` whose own test (the single-ray
+    /// walk's, with their `tmax`) meets it: bit for bit [`super::child_hits`]'s verdicts.
+    #[inline(always)]
+    pub fn node_hits<const MARGIN: bool>(
+        &self,
+        node: &WideNode,
+        tmin: f32,
+        tmax: &[f32],
+        alive: u32,
+        margin: f32,
+    ) -> [u32; 8] {
+        debug_assert_eq!(tmax.len(), self.n);
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: a `PacketLanes` exists only where `has_avx512` holds.
+        unsafe {
+            self.node_hits_avx512::<MARGIN>(node, tmin, tmax, alive, margin)
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        unreachable!("lanes exist only on x86_64: {node:?} {tmin} {tmax:?} {alive} {margin}")
+    }
+
+    /// # Safety
+    /// The CPU must support AVX-512F.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn node_hits_avx512<const MARGIN: bool>(
+        &self,
+        node: &WideNode,
+        tmin: f32,
+        tmax: &[f32],
+        alive: u32,
+        margin: f32,
+    ) -> [u32; 8] {
+        use std::arch::x86_64::*;
+        let mut by_child = [0u32; 8];
+        for group in (0..self.n).step_by(LANES) {
+            let live = (alive >> group) as u16;
+            if live == 0 {
+                continue;
+            }
+            let count = (self.n - group).min(LANES);
+            // SAFETY: the masked load of `tmax` reads only its `count` entries from `group`
+            // on; AVX-512F is enabled here.
+            let (hits, _) = unsafe {
+                let (o, inv) = self.group(group);
+                let far = _mm512_mask_loadu_ps(
+                    _mm512_set1_ps(f32::NEG_INFINITY),
+                    super::all_rays(count) as u16,
+                    tmax[group..].as_ptr(),
+                );
+                let (_, hits, slots) = node_lanes::<MARGIN>(
+                    node,
+                    &o,
+                    &inv,
+                    _mm512_set1_ps(tmin),
+                    far,
+                    _mm512_set1_ps(margin),
+                    live,
+                );
+                (hits, slots)
+            };
+            for child in 0..8 {
+                by_child[child] |= u32::from(hits[child]) << group;
+            }
+        }
+        by_child
+    }
+}
+
+/// Every filled child of `node` against the rays of `live` (`o` and `inv` per axis, one ray per
+/// lane, `low` = tmin and `far` = each ray's tmax): per child the lanes' entry distances and
+/// hit mask, and the mask of the children some ray meets. Lane by lane the operations of the
+/// single-ray test ([`super::child_hits_avx2`]) on the same values.
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+unsafe fn node_lanes<const MARGIN: bool>(
+    node: &WideNode,
+    o: &[std::arch::x86_64::__m512; 3],
+    inv: &[std::arch::x86_64::__m512; 3],
+    low: std::arch::x86_64::__m512,
+    far: std::arch::x86_64::__m512,
+    margin: std::arch::x86_64::__m512,
+    live: u16,
+) -> ([std::arch::x86_64::__m512; 8], [u16; 8], u32) {
+    use std::arch::x86_64::*;
+    let shrink = _mm512_set1_ps(1.0 - super::WIDEN);
+    let grow = _mm512_set1_ps(1.0 + super::WIDEN);
+    let mut entries = [_mm512_setzero_ps(); 8];
+    let mut hits = [0u16; 8];
+    let mut slots = 0u32;
+    for child in 0..8 {
+        if node.bounds[0][child] > node.bounds[1][child] {
+            // An empty slot (the inverted box): no ray enters it.
+            continue;
+        }
+        let mut tn = low;
+        let mut tf = far;
+        for axis in 0..3 {
+            let mut lo = _mm512_set1_ps(node.bounds[2 * axis][child]);
+            let mut hi = _mm512_set1_ps(node.bounds[2 * axis + 1][child]);
+            if MARGIN {
+                lo = _mm512_sub_ps(lo, margin);
+                hi = _mm512_add_ps(hi, margin);
+            }
+            // Both planes' distances; the smaller is the entry plane's. For a filled slot
+            // lo ≤ hi, and rounding is monotonic, so the smaller is exactly the value the
+            // single-ray test computes from the entry plane its ray chose by the sign of 1/d
+            // (for an empty slot, skipped above, it would not be).
+            let t_lo = _mm512_mul_ps(_mm512_sub_ps(lo, o[axis]), inv[axis]);
+            let t_hi = _mm512_mul_ps(_mm512_sub_ps(hi, o[axis]), inv[axis]);
+            tn = _mm512_max_ps(tn, _mm512_min_ps(t_lo, t_hi));
+            tf = _mm512_min_ps(tf, _mm512_max_ps(t_lo, t_hi));
+        }
+        let tn = _mm512_mul_ps(tn, shrink);
+        let tf = _mm512_mul_ps(tf, grow);
+        let hit = _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(live, tn, tf);
+        entries[child] = tn;
+        hits[child] = hit;
+        slots |= u32::from(hit != 0) << child;
+    }
+    (entries, hits, slots)
+}
+
+#[cfg(all(test, target_arch = "x86_64"))]
+mod tests {
+    use std::arch::x86_64::*;
+
+    use glam::Vec3;
+
+    use super::super::packet::tests::record_leaf;
+    use super::super::tests::grid;
+    use super::super::{all_rays, child_hits, traverse};
+    use super::*;
+    use crate::rng::Rng;
+
+    /// Whether this CPU runs lane walks (the walks are only used where it does).
+    fn lanes_here() -> bool {
+        let here = has_avx512();
+        if !here {
+            eprintln!("no AVX-512 on this CPU: lane walks are never taken here");
+        }
+        here
+    }
+
+    /// The rays' origins and 1/d as lane vectors.
+    ///
+    /// # Safety
+    /// The CPU must support AVX-512F.
+    unsafe fn soa(rays: &[NodeRay]) -> ([__m512; 3], [__m512; 3]) {
+        // SAFETY: AVX-512F per the contract.
+        unsafe { PacketLanes::of(rays).group(0) }
+    }
+
+    /// Lane by lane, the node test gives each ray's own entry distances and hit mask (the
+    /// single-ray test's), bit for bit: random boxes (some flat, some slots empty), rays in
+    /// every octant, per-ray tmax, margins.
+    #[test]
+    fn the_lane_node_test_is_each_rays_own() {
+        if !lanes_here() {
+            return;
+        }
+        let mut rng = Rng::new(41);
+        let mut hits = 0;
+        for case in 0..4000 {
+            let mut node = WideNode::EMPTY;
+            for slot in 0..1 + case % 8 {
+                let lo = rng.vec3_in(-2.0, 2.0);
+                let mut hi = lo + rng.vec3_in(0.0, 1.0);
+                if slot % 3 == 1 {
+                    hi.y = lo.y;
+                }
+                for axis in 0..3 {
+                    node.bounds[2 * axis][slot] = lo[axis];
+                    node.bounds[2 * axis + 1][slot] = hi[axis];
+                }
+            }
+            let centre = rng.vec3_in(-4.0, 4.0);
+            let rays: Vec<NodeRay> = (0..LANES)
+                .map(|_| {
+                    let o = centre + rng.vec3_in(-0.5, 0.5);
+                    NodeRay::new(o, rng.vec3_in(-2.0, 3.0) - o)
+                })
+                .collect();
+            assert!(lanes_take(&rays));
+            let tmin = if case % 2 == 0 {
+                0.0
+            } else {
+                rng.range_f32(0.0, 1.0)
+            };
+            let tmax: Vec<f32> = (0..LANES)
+                .map(|k| match k % 4 {
+                    0 => f32::INFINITY,
+                    1 => rng.range_f32(0.0, 3.0),
+                    _ => rng.range_f32(0.0, 20.0),
+                })
+                .collect();
+            let margin = if case % 3 == 0 {
+                rng.range_f32(0.0, 0.5)
+            } else {
+                0.0
+            };
+            // SAFETY: AVX-512F was detected above.
+            let (entries, lane_hits, slots) = unsafe {
+                let (o, inv) = soa(&rays);
+                let (low, far) = (_mm512_set1_ps(tmin), _mm512_loadu_ps(tmax.as_ptr()));
+                let m = _mm512_set1_ps(margin);
+                if margin > 0.0 {
+                    node_lanes::<true>(&node, &o, &inv, low, far, m, u16::MAX)
+                } else {
+                    node_lanes::<false>(&node, &o, &inv, low, far, m, u16::MAX)
+                }
+            };
+            let mut any = 0;
+            for (k, r) in rays.iter().enumerate() {
+                let (t, mask) = if margin > 0.0 {
+                    child_hits::<true>(&node, r, tmin, tmax[k], margin)
+                } else {
+                    child_hits::<false>(&node, r, tmin, tmax[k], margin)
+                };
+                any |= mask;
+                for child in 0..8 {
+                    let lane = u32::from((lane_hits[child] >> k) & 1);
+                    assert_eq!(
+                        lane,
+                        (mask >> child) & 1,
+                        "case {case}, ray {k}, child {child}"
+                    );
+                    if lane != 0 {
+                        let mut e = [0.0f32; LANES];
+                        // SAFETY: a store of sixteen f32 into an array of sixteen.
+                        unsafe { _mm512_storeu_ps(e.as_mut_ptr(), entries[child]) };
+                        assert_eq!(e[k].to_bits(), t[child].to_bits(), "case {case}");
+                        hits += 1;
+                    }
+                }
+            }
+            assert_eq!(slots, any, "case {case}");
+        }
+        assert!(hits > 5_000, "the cases must hit boxes: {hits}");
+    }
+
+    /// Leaves each ray of a lane walk is handed, per ray, sorted.
+    fn lane_leaves(
+        nodes: &[WideNode],
+        rays: &[NodeRay],
+        tmax: &mut [f32],
+        margin: f32,
+        ordered: bool,
+    ) -> Vec<Vec<u32>> {
+        let mut seen = vec![Vec::new(); rays.len()];
+        let visit = |what, _: &mut [f32]| {
+            record_leaf(&mut seen, what);
+            ControlFlow::Continue(())
+        };
+        let all = all_rays(rays.len());
+        match (margin > 0.0, ordered) {
+            (false, true) => {
+                traverse_lanes::<false, true, false>(nodes, rays, all, 0.0, tmax, 0.0, visit)
+            }
+            (false, false) => {
+                traverse_lanes::<false, false, false>(nodes, rays, all, 0.0, tmax, 0.0, visit)
+            }
+            (true, true) => {
+                traverse_lanes::<true, true, false>(nodes, rays, all, 0.0, tmax, margin, visit)
+            }
+            (true, false) => {
+                traverse_lanes::<true, false, false>(nodes, rays, all, 0.0, tmax, margin, visit)
+            }
+        }
+        for s in &mut seen {
+            s.sort_unstable();
+            s.dedup();
+        }
+        seen
+    }
+
+    /// A lane walk hands each ray every leaf its own walk reaches, and nothing to a retired
+    /// ray: rays from nearby origins in all directions, 1 to 16 of them, with and without a
+    /// margin, in both orders.
+    #[test]
+    fn a_lane_walk_reaches_every_leaf_its_rays_reach() {
+        if !lanes_here() {
+            return;
+        }
+        let (_, bvh) = grid();
+        let mut rng = Rng::new(77);
+        let mut reached = 0;
+        for case in 0..600 {
+            let centre = rng.vec3_in(-1.0, 10.0);
+            let rays: Vec<NodeRay> = (0..1 + case % LANES)
+                .map(|_| NodeRay::new(centre + rng.vec3_in(-0.3, 0.3), rng.direction()))
+                .collect();
+            let limit = if case % 2 == 0 { f32::INFINITY } else { 4.0 };
+            let mut tmax = vec![limit; rays.len()];
+            // One ray retired from the start.
+            let retired = (case % 5 == 0).then_some(case % rays.len());
+            if let Some(k) = retired {
+                tmax[k] = f32::NEG_INFINITY;
+            }
+            let margin = if case % 3 == 0 { 0.01 } else { 0.0 };
+            let got = lane_leaves(&bvh.nodes, &rays, &mut tmax, margin, case % 4 != 0);
+            for (k, (r, got)) in rays.iter().zip(got).enumerate() {
+                if retired == Some(k) {
+                    assert!(
+                        got.is_empty(),
+                        "case {case}: a retired ray was handed leaves"
+                    );
+                    continue;
+                }
+                let mut t = limit;
+                let mut own = Vec::new();
+                if margin > 0.0 {
+                    traverse::<true>(&bvh.nodes, r, 0.0, &mut t, margin, |f, c, _| {
+                        own.extend(f..f + c);
+                        ControlFlow::Continue(())
+                    });
+                } else {
+                    traverse::<false>(&bvh.nodes, r, 0.0, &mut t, 0.0, |f, c, _| {
+                        own.extend(f..f + c);
+                        ControlFlow::Continue(())
+                    });
+                }
+                for p in &own {
+                    assert!(
+                        got.binary_search(p).is_ok(),
+                        "case {case}: ray {k} missed leaf {p}"
+                    );
+                }
+                reached += own.len();
+            }
+        }
+        assert!(reached > 1_500, "the rays must reach leaves: {reached}");
+    }
+
+    /// A frustum packet's per-ray tests in lanes give each ray's own verdicts, for packets of
+    /// 1 to 32 rays (one or two registers) and any subset of live rays.
+    #[test]
+    fn packet_lanes_give_each_rays_own_verdicts() {
+        if !lanes_here() {
+            return;
+        }
+        let (_, bvh) = grid();
+        let mut rng = Rng::new(5);
+        let mut met = 0;
+        for case in 0..3000 {
+            let n = 1 + case % super::super::PACKET;
+            let node = &bvh.nodes[rng.below(bvh.nodes.len() as u64) as usize];
+            // Aimed near the node's first child, from around one point.
+            let b = &node.bounds;
+            let aim = Vec3::new(b[0][0] + b[1][0], b[2][0] + b[3][0], b[4][0] + b[5][0]) * 0.5;
+            let o = rng.vec3_in(-2.0, 12.0);
+            let rays: Vec<NodeRay> = (0..n)
+                .map(|_| {
+                    let o = o + rng.vec3_in(-0.2, 0.2);
+                    NodeRay::new(o, aim + rng.vec3_in(-1.0, 1.0) - o)
+                })
+                .collect();
+            let tmax: Vec<f32> = (0..n)
+                .map(|k| if k % 3 == 0 { 6.0 } else { f32::INFINITY })
+                .collect();
+            let alive = (rng.next_u64() as u32) & all_rays(n);
+            let margin = if case % 2 == 0 { 0.0 } else { 0.05 };
+            let lanes = PacketLanes::new(&rays).expect("AVX-512 and plain rays");
+            let got = if margin > 0.0 {
+                lanes.node_hits::<true>(node, 0.0, &tmax, alive, margin)
+            } else {
+                lanes.node_hits::<false>(node, 0.0, &tmax, alive, margin)
+            };
+            let mut want = [0u32; 8];
+            for (k, r) in rays.iter().enumerate() {
+                if alive & (1 << k) == 0 {
+                    continue;
+                }
+                let (_, mask) = if margin > 0.0 {
+                    child_hits::<true>(node, r, 0.0, tmax[k], margin)
+                } else {
+                    child_hits::<false>(node, r, 0.0, tmax[k], margin)
+                };
+                for (child, w) in want.iter_mut().enumerate() {
+                    *w |= ((mask >> child) & 1) << k;
+                }
+            }
+            assert_eq!(got, want, "case {case}");
+            met += want.iter().map(|w| w.count_ones()).sum::<u32>();
+        }
+        assert!(met > 10_000, "the rays must meet children: {met}");
+    }
+
+    #[test]
+    fn rays_parallel_to_an_axis_or_from_nowhere_are_left_to_single_walks() {
+        if !lanes_here() {
+            return;
+        }
+        let ok = NodeRay::new(Vec3::ZERO, Vec3::new(1.0, 2.0, 3.0));
+        assert!(lanes_take(&[ok; LANES]));
+        assert!(!lanes_take(&[ok; LANES + 1]));
+        assert!(!lanes_take(&[]));
+        let parallel = NodeRay::new(Vec3::ZERO, Vec3::new(1.0, 0.0, 3.0));
+        assert!(!lanes_take(&[ok, parallel]));
+        let nowhere = NodeRay::new(Vec3::new(f32::NAN, 0.0, 0.0), Vec3::ONE);
+        assert!(!lanes_take(&[ok, nowhere]));
+        let far = NodeRay::new(Vec3::new(f32::INFINITY, 0.0, 0.0), Vec3::ONE);
+        assert!(!lanes_take(&[far, ok]));
+    }
+}
