@@ -414,9 +414,11 @@ fn has_avx2() -> bool {
     }
 }
 
-/// The child-box test in use.
+/// The child-box tests in use.
 pub(crate) fn node_test_name() -> &'static str {
-    if has_avx2() {
+    if lanes::has_avx512() {
+        "8-wide AVX2; 16-ray lane walks in AVX-512 (runtime-detected)"
+    } else if has_avx2() {
         "8-wide AVX2 (runtime-detected)"
     } else {
         "2×4-wide SSE (glam Vec4, AVX2 not available)"
