@@ -75,6 +75,19 @@ impl Leaves {
     }
 }
 
+/// Asks for the cache line of `value` ahead of its use (a hint; nothing is read).
+#[inline(always)]
+pub(crate) fn prefetch<T>(value: &T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: a prefetch is only a hint, of an address inside `value`.
+    unsafe {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        _mm_prefetch::<_MM_HINT_T0>(value as *const T as *const i8)
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = value;
+}
+
 /// Moves the triangles of every node's leaf children into blocks and rewrites each leaf
 /// child's meta to `LEAF_BIT | (block count − 1) << 29 | first block` (the same for all leaf
 /// children of a node; see [`super::wide::leaf_first`] and [`super::wide::leaf_count`]).
