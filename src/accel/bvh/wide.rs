@@ -53,7 +53,7 @@ mod lanes;
 mod packet;
 pub(crate) use binned::build as build_binned;
 pub(crate) use lanes::{LANES, lanes_take, traverse_lanes};
-pub(crate) use packet::{Frustum, PACKET, PacketLeaf, all_rays, traverse_packet};
+pub(crate) use packet::{Frustum, traverse_packet};
 
 /// Marks a leaf child in [`WideNode::meta`]; the other bits of a leaf are `(count − 1) << 29 |
 /// first`, where `first` indexes the primitive order and `count` is 1..=4 (CWBVH leaves hold at
@@ -286,6 +286,88 @@ impl Hasher for PassThrough {
     fn finish(&self) -> u64 {
         self.0
     }
+}
+
+/// Most rays in a packet. 32 is one row of a 32×32 render tile; with the bench's and the
+/// renderer's tile order, 32 consecutive primary rays span 32 neighbouring pixels.
+pub(crate) const PACKET: usize = 32;
+
+/// The mask of the first `n` rays of a packet.
+#[inline(always)]
+pub(crate) fn all_rays(n: usize) -> u32 {
+    if n == 0 {
+        0
+    } else {
+        u32::MAX >> (32 - n.min(32))
+    }
+}
+
+/// What a packet walk hands to its caller.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum PacketLeaf {
+    /// Grouped trees: ray `ray` meets the leaf children `slots` of a node (`meta` is the first
+    /// one's [`WideNode::meta`]); its `tmax` is `tmax[ray]`.
+    Ray { ray: usize, meta: u32, slots: u32 },
+    /// Other trees: the rays of the mask `rays` (bit i for ray i) may meet the leaf child
+    /// `meta`.
+    Packet { meta: u32, rays: u32 },
+}
+
+/// The rays of `alive` finish the subtree under `root` one by one, each in its own single-ray
+/// walk, their leaves handed to `leaf` as a packet walk hands them (a lane walk's and a
+/// packet walk's way out where too few rays are left to share the node tests). Breaks when
+/// `leaf` does.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub(crate) fn finish_alone<
+    const MARGIN: bool,
+    const AVX2: bool,
+    const ORDERED: bool,
+    const GROUPED: bool,
+>(
+    nodes: &[WideNode],
+    root: u32,
+    rays: &[NodeRay],
+    alive: u32,
+    tmin: f32,
+    tmax: &mut [f32],
+    margin: f32,
+    leaf: &mut impl FnMut(PacketLeaf, &mut [f32]) -> ControlFlow<()>,
+) -> ControlFlow<()> {
+    let mut m = alive;
+    while m != 0 {
+        let ray = m.trailing_zeros() as usize;
+        m &= m - 1;
+        let mut t = tmax[ray];
+        let mut broke = false;
+        traverse_impl::<MARGIN, AVX2, ORDERED, GROUPED>(
+            nodes,
+            root,
+            &rays[ray],
+            tmin,
+            &mut t,
+            margin,
+            |meta, slots, t| {
+                tmax[ray] = *t;
+                let what = if GROUPED {
+                    PacketLeaf::Ray { ray, meta, slots }
+                } else {
+                    PacketLeaf::Packet {
+                        meta,
+                        rays: 1 << ray,
+                    }
+                };
+                let flow = leaf(what, tmax);
+                *t = tmax[ray];
+                broke |= flow.is_break();
+                flow
+            },
+        );
+        if broke {
+            return ControlFlow::Break(());
+        }
+    }
+    ControlFlow::Continue(())
 }
 
 /// Per-ray constants of the node test.
@@ -845,6 +927,18 @@ mod tests {
         );
         out.sort_unstable();
         out
+    }
+
+    /// Adds the primitives of a [`PacketLeaf::Packet`] to the list of each of its rays.
+    pub(super) fn record_leaf(seen: &mut [Vec<u32>], what: PacketLeaf) {
+        if let PacketLeaf::Packet { meta, rays } = what {
+            let (first, count) = (leaf_first(meta), leaf_count(meta));
+            for (i, s) in seen.iter_mut().enumerate() {
+                if rays & (1 << i) != 0 {
+                    s.extend(first..first + count);
+                }
+            }
+        }
     }
 
     pub(super) fn grid() -> (Vec<OAabb>, WideBvh) {

@@ -156,7 +156,7 @@ unsafe fn lanes_avx512<const MARGIN: bool, const ORDERED: bool, const GROUPED: b
             }
             if live.count_ones() <= SOLO {
                 // Each remaining ray finishes this subtree alone.
-                if super::packet::finish_alone::<MARGIN, true, ORDERED, GROUPED>(
+                if super::finish_alone::<MARGIN, true, ORDERED, GROUPED>(
                     nodes,
                     e.meta,
                     rays,
@@ -448,8 +448,7 @@ mod tests {
 
     use glam::Vec3;
 
-    use super::super::packet::tests::record_leaf;
-    use super::super::tests::grid;
+    use super::super::tests::{grid, record_leaf};
     use super::super::{all_rays, child_hits, traverse};
     use super::*;
     use crate::rng::Rng;

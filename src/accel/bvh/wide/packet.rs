@@ -33,23 +33,9 @@ use glam::{BVec4A, Vec3, Vec3A, Vec4};
 
 use super::lanes::PacketLanes;
 use super::{
-    Entry, LEAF_BIT, NodeRay, Stack, WIDEN, WideNode, child_hits, has_avx2, lanes, leaf_slots_with,
-    prefetch_node, query_tmin,
+    Entry, LEAF_BIT, NodeRay, PACKET, PacketLeaf, Stack, WIDEN, WideNode, child_hits, finish_alone,
+    has_avx2, lanes, leaf_slots_with, prefetch_node, query_tmin,
 };
-
-/// Most rays in a packet. 32 is one row of a 32×32 render tile; with the bench's and the
-/// renderer's tile order, 32 consecutive primary rays span 32 neighbouring pixels.
-pub(crate) const PACKET: usize = 32;
-
-/// The mask of the first `n` rays of a packet.
-#[inline(always)]
-pub(crate) fn all_rays(n: usize) -> u32 {
-    if n == 0 {
-        0
-    } else {
-        u32::MAX >> (32 - n.min(32))
-    }
-}
 
 /// Interval bounds of a packet's rays, per axis, for [`frustum_hits`].
 #[derive(Clone, Copy, Debug)]
@@ -294,17 +280,6 @@ fn ray_hits<const MARGIN: bool, const AVX2: bool>(
     child_hits::<MARGIN>(node, r, tmin, tmax, margin).1
 }
 
-/// What a packet walk hands to its caller.
-#[derive(Clone, Copy, Debug)]
-pub(crate) enum PacketLeaf {
-    /// Grouped trees: ray `ray` meets the leaf children `slots` of a node (`meta` is the first
-    /// one's [`WideNode::meta`]); its `tmax` is `tmax[ray]`.
-    Ray { ray: usize, meta: u32, slots: u32 },
-    /// Other trees: the rays of the mask `rays` (bit i for ray i) may meet the leaf child
-    /// `meta`.
-    Packet { meta: u32, rays: u32 },
-}
-
 /// Below this many rays a packet walk lets each ray finish the subtree on its own (the
 /// single-ray walk), since the shared node test no longer pays for itself.
 const SOLO: u32 = 2;
@@ -446,63 +421,6 @@ unsafe fn live_avx2(tmin: f32, tmax: &[f32], mask: u32) -> (u32, f32) {
         far = rest_far;
     }
     (alive, far)
-}
-
-/// The rays of `alive` finish the subtree under `root` one by one, each in its own single-ray
-/// walk, their leaves handed to `leaf` as a packet walk hands them (a lane walk's and a
-/// packet walk's way out where too few rays are left to share the node tests). Breaks when
-/// `leaf` does.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-pub(super) fn finish_alone<
-    const MARGIN: bool,
-    const AVX2: bool,
-    const ORDERED: bool,
-    const GROUPED: bool,
->(
-    nodes: &[WideNode],
-    root: u32,
-    rays: &[NodeRay],
-    alive: u32,
-    tmin: f32,
-    tmax: &mut [f32],
-    margin: f32,
-    leaf: &mut impl FnMut(PacketLeaf, &mut [f32]) -> ControlFlow<()>,
-) -> ControlFlow<()> {
-    let mut m = alive;
-    while m != 0 {
-        let ray = m.trailing_zeros() as usize;
-        m &= m - 1;
-        let mut t = tmax[ray];
-        let mut broke = false;
-        super::traverse_impl::<MARGIN, AVX2, ORDERED, GROUPED>(
-            nodes,
-            root,
-            &rays[ray],
-            tmin,
-            &mut t,
-            margin,
-            |meta, slots, t| {
-                tmax[ray] = *t;
-                let what = if GROUPED {
-                    PacketLeaf::Ray { ray, meta, slots }
-                } else {
-                    PacketLeaf::Packet {
-                        meta,
-                        rays: 1 << ray,
-                    }
-                };
-                let flow = leaf(what, tmax);
-                *t = tmax[ray];
-                broke |= flow.is_break();
-                flow
-            },
-        );
-        if broke {
-            return ControlFlow::Break(());
-        }
-    }
-    ControlFlow::Continue(())
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -683,9 +601,9 @@ fn packet_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, const 
 }
 
 #[cfg(test)]
-pub(super) mod tests {
-    use super::super::tests::grid;
-    use super::super::{leaf_count, leaf_first, traverse};
+mod tests {
+    use super::super::tests::{grid, record_leaf};
+    use super::super::{all_rays, traverse};
     use super::*;
     use crate::rng::Rng;
     use glam::Vec3;
@@ -719,18 +637,6 @@ pub(super) mod tests {
             let (alive8, far8) = unsafe { live_avx2(tmin, &tmax, mask) };
             assert_eq!(alive8, alive, "case {case}: {tmax:?}, mask {mask:b}");
             assert!(far8 == far, "case {case}: {far8} against {far}");
-        }
-    }
-
-    /// Adds the primitives of a [`PacketLeaf::Packet`] to the list of each of its rays.
-    pub(in super::super) fn record_leaf(seen: &mut [Vec<u32>], what: PacketLeaf) {
-        if let PacketLeaf::Packet { meta, rays } = what {
-            let (first, count) = (leaf_first(meta), leaf_count(meta));
-            for (i, s) in seen.iter_mut().enumerate() {
-                if rays & (1 << i) != 0 {
-                    s.extend(first..first + count);
-                }
-            }
         }
     }
 
