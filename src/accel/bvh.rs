@@ -1111,6 +1111,11 @@ impl InstanceBvh {
         if self.packet::<Q, false>(meshes, rays, tmin, tmax, filter, &mut keep) {
             return 0;
         }
+        if !wide::has_avx512() {
+            // No lane walks here: the rays go one by one at once (asking each group would
+            // compute every ray's node ray twice).
+            return wide::all_rays(rays.len());
+        }
         let mut alone = 0;
         for start in (0..rays.len()).step_by(wide::LANES) {
             let end = (start + wide::LANES).min(rays.len());

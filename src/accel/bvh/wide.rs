@@ -52,7 +52,7 @@ mod binned;
 mod lanes;
 mod packet;
 pub(crate) use binned::build as build_binned;
-pub(crate) use lanes::{LANES, lanes_take, traverse_lanes};
+pub(crate) use lanes::{LANES, has_avx512, lanes_take, traverse_lanes};
 pub(crate) use packet::{Frustum, traverse_packet};
 
 /// Marks a leaf child in [`WideNode::meta`]; the other bits of a leaf are `(count − 1) << 29 |

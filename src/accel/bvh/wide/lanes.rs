@@ -53,15 +53,51 @@ pub(crate) fn has_avx512() -> bool {
     }
 }
 
-/// Whether `rays` can share a lane walk here: AVX-512 present, 1..=[`LANES`] rays, none
-/// parallel to an axis, all origins finite.
+/// Whether `rays` can share a lane walk here: AVX-512 present, 1..=[`LANES`] rays, all
+/// [`plain`].
 #[inline(always)]
 pub(crate) fn lanes_take(rays: &[NodeRay]) -> bool {
-    has_avx512()
-        && (1..=LANES).contains(&rays.len())
-        && rays
-            .iter()
-            .all(|r| r.parallel == 0 && r.o.iter().all(|c| c.is_finite()))
+    has_avx512() && (1..=LANES).contains(&rays.len()) && rays.iter().all(plain)
+}
+
+/// A ray the lane test takes as the single-ray test does: none of its axes parallel (there the
+/// single-ray test is a containment test) and a finite origin.
+#[inline(always)]
+fn plain(r: &NodeRay) -> bool {
+    r.parallel == 0 && r.o.iter().all(|c| c.is_finite())
+}
+
+/// Hands each ray its own leaf slots of `node`, as its single-ray walk would: `by_child[i]`
+/// holds the rays whose own test meets child i, `leaves` the node's leaf slots among them.
+/// Breaks when `leaf` does.
+#[inline(always)]
+pub(super) fn hand_leaves(
+    node: &WideNode,
+    by_child: &[u32; 8],
+    leaves: u32,
+    tmax: &mut [f32],
+    leaf: &mut impl FnMut(PacketLeaf, &mut [f32]) -> ControlFlow<()>,
+) -> ControlFlow<()> {
+    let mut meeting = 0u32;
+    let mut l = leaves;
+    while l != 0 {
+        meeting |= by_child[l.trailing_zeros() as usize];
+        l &= l - 1;
+    }
+    while meeting != 0 {
+        let ray = meeting.trailing_zeros() as usize;
+        meeting &= meeting - 1;
+        let mut slots = 0u32;
+        let mut l = leaves;
+        while l != 0 {
+            let slot = l.trailing_zeros() as usize;
+            l &= l - 1;
+            slots |= ((by_child[slot] >> ray) & 1) << slot;
+        }
+        let meta = node.meta[slots.trailing_zeros() as usize];
+        leaf(PacketLeaf::Ray { ray, meta, slots }, tmax)?;
+    }
+    ControlFlow::Continue(())
 }
 
 /// A pending child of a lane walk: each lane's entry distance and the lanes that may meet it.
@@ -178,33 +214,9 @@ unsafe fn lanes_avx512<const MARGIN: bool, const ORDERED: bool, const GROUPED: b
             if GROUPED {
                 let leaves = slots & super::leaf_slots_with::<true>(node);
                 if leaves != 0 {
-                    // Each ray gets its own leaf slots, as its single-ray walk would.
-                    let mut meeting = 0u16;
-                    let mut l = leaves;
-                    while l != 0 {
-                        meeting |= hits[l.trailing_zeros() as usize];
-                        l &= l - 1;
-                    }
-                    let mut left = u32::from(meeting);
-                    while left != 0 {
-                        let ray = left.trailing_zeros() as usize;
-                        left &= left - 1;
-                        let mut its = 0u32;
-                        let mut l = leaves;
-                        while l != 0 {
-                            let slot = l.trailing_zeros() as usize;
-                            l &= l - 1;
-                            its |= u32::from((hits[slot] >> ray) & 1) << slot;
-                        }
-                        let meta = node.meta[its.trailing_zeros() as usize];
-                        let what = PacketLeaf::Ray {
-                            ray,
-                            meta,
-                            slots: its,
-                        };
-                        if leaf(what, tmax).is_break() {
-                            return;
-                        }
+                    let by_child = hits.map(u32::from);
+                    if hand_leaves(node, &by_child, leaves, tmax, &mut leaf).is_break() {
+                        return;
                     }
                     slots &= !leaves;
                 }
@@ -262,15 +274,11 @@ pub(crate) struct PacketLanes {
 }
 
 impl PacketLanes {
-    /// The lanes of `rays`, when this CPU runs lane walks and the rays pass [`lanes_take`]'s
-    /// checks (a frustum packet's rays do: none parallel, finite origins).
+    /// The lanes of `rays`, when this CPU runs lane walks and the rays are all [`plain`] (a
+    /// frustum packet's rays are).
     #[inline(always)]
     pub fn new(rays: &[NodeRay]) -> Option<PacketLanes> {
-        let fit = has_avx512()
-            && rays.len() <= super::PACKET
-            && rays
-                .iter()
-                .all(|r| r.parallel == 0 && r.o.iter().all(|c| c.is_finite()));
+        let fit = has_avx512() && rays.len() <= super::PACKET && rays.iter().all(plain);
         fit.then(|| PacketLanes::of(rays))
     }
 

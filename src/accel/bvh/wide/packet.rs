@@ -31,7 +31,7 @@ use std::ops::ControlFlow;
 use arrayvec::ArrayVec;
 use glam::{BVec4A, Vec3, Vec3A, Vec4};
 
-use super::lanes::PacketLanes;
+use super::lanes::{PacketLanes, hand_leaves};
 use super::{
     Entry, LEAF_BIT, NodeRay, PACKET, PacketLeaf, Stack, WIDEN, WideNode, child_hits, finish_alone,
     has_avx2, lanes, leaf_slots_with, prefetch_node, query_tmin,
@@ -504,7 +504,7 @@ fn packet_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, const 
         let mut child_rays = [alive; 8];
         if leaves != 0 || inner & inner.wrapping_sub(1) != 0 {
             child_rays = [0; 8];
-            if AVX2 && lanes.is_none() && !lanes_tried {
+            if AVX2 && !lanes_tried {
                 lanes = PacketLanes::new(rays);
                 lanes_tried = true;
             }
@@ -514,26 +514,8 @@ fn packet_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, const 
                 // come after all of its rays' node tests here, but a leaf test of one ray
                 // changes no other ray's `tmax`.)
                 let by_child = lanes.node_hits::<MARGIN>(node, tmin, tmax, alive, margin);
-                let mut meeting = 0u32;
-                let mut l = leaves;
-                while l != 0 {
-                    meeting |= by_child[l.trailing_zeros() as usize];
-                    l &= l - 1;
-                }
-                while meeting != 0 {
-                    let ray = meeting.trailing_zeros() as usize;
-                    meeting &= meeting - 1;
-                    let mut slots = 0u32;
-                    let mut l = leaves;
-                    while l != 0 {
-                        let slot = l.trailing_zeros() as usize;
-                        l &= l - 1;
-                        slots |= ((by_child[slot] >> ray) & 1) << slot;
-                    }
-                    let meta = node.meta[slots.trailing_zeros() as usize];
-                    if leaf(PacketLeaf::Ray { ray, meta, slots }, tmax).is_break() {
-                        return;
-                    }
+                if hand_leaves(node, &by_child, leaves, tmax, &mut leaf).is_break() {
+                    return;
                 }
                 let mut c = inner;
                 while c != 0 {
