@@ -43,7 +43,7 @@ use obvhs::aabb::Aabb as OAabb;
 use super::triangle::{self, WatertightRay};
 use crate::geom::{Aabb, Ray};
 use arrayvec::ArrayVec;
-use wide::{Frustum, NodeRay, PACKET, PacketLeaf};
+use wide::{Frustum, NodeRay, NodeRays, PACKET, PacketLeaf};
 
 // The trees' own layout, for the GPU's walker (`crate::gpu::scene` uploads these very nodes
 // and leaf blocks, so both backends traverse one structure).
@@ -393,7 +393,7 @@ impl MeshBvh {
             ),
             None => wide::traverse_lanes::<false, ORDERED, true>(
                 &self.nodes,
-                w.rays,
+                w.rays.get(),
                 w.active,
                 tmin,
                 tmax,
@@ -650,12 +650,13 @@ fn beats(best: &Option<InstanceHit>, t: f32, instance: u32, triangle: u32) -> bo
     }
 }
 
-/// The rays of a packet as a mesh walk takes them: node rays, the mask of those to trace, their
+/// The rays of a packet as a mesh walk takes them: node rays (made when the walk first needs
+/// them), the mask of those to trace, their
 /// bounds (a frustum walk) or none (a lane walk, `wide::traverse_lanes`: the rays then pass
 /// `wide::lanes_take`), and their lazily computed shears.
 struct PacketWalk<'s, 'r> {
     shears: &'s mut PacketShears<'r>,
-    rays: &'s [NodeRay],
+    rays: &'s NodeRays<'r>,
     active: u32,
     frustum: Option<&'s Frustum>,
 }
@@ -1152,16 +1153,14 @@ impl InstanceBvh {
         filter: &impl HitFilter,
         mut keep: impl FnMut(&PlacedInstance, usize, Q::Answer, &mut f32),
     ) -> bool {
-        let mut world: ArrayVec<NodeRay, PACKET> = ArrayVec::new();
+        let world = NodeRays::new(rays);
         let frustum = if LANES {
-            world.extend(rays.iter().map(|r| NodeRay::new(r.origin, r.direction)));
-            if !wide::lanes_take(&world) {
+            if !wide::lanes_take(world.get()) {
                 return false;
             }
             None
         } else {
-            let Some(f) = Frustum::new(rays.iter().map(|r| (r.origin, r.direction)), &mut world)
-            else {
+            let Some(f) = Frustum::new(rays.iter().map(|r| (r.origin, r.direction))) else {
                 return false;
             };
             Some(f)
@@ -1203,7 +1202,13 @@ impl InstanceBvh {
                     let f = match &frustum {
                         Some(f) if active == all => Some(f),
                         Some(_) => {
-                            sub = Frustum::of(&world, active);
+                            let mut m = active;
+                            sub = Frustum::new((0..active.count_ones()).map(|_| {
+                                let r = &rays[m.trailing_zeros() as usize];
+                                m &= m - 1;
+                                (r.origin, r.direction)
+                            }))
+                            .expect("rays of a frustum bound one together");
                             Some(&sub)
                         }
                         None => None,
@@ -1236,13 +1241,11 @@ impl InstanceBvh {
                     let k = object.len();
                     let packed = &mut answers[..k];
                     packed.fill(Q::NONE);
-                    let mut nodes: ArrayVec<NodeRay, PACKET> = ArrayVec::new();
+                    let nodes = NodeRays::new(&object);
                     let shared = if LANES {
-                        nodes.extend(object.iter().map(|r| NodeRay::new(r.origin, r.direction)));
-                        wide::lanes_take(&nodes).then_some(None)
+                        wide::lanes_take(nodes.get()).then_some(None)
                     } else {
-                        Frustum::new(object.iter().map(|r| (r.origin, r.direction)), &mut nodes)
-                            .map(Some)
+                        Frustum::new(object.iter().map(|r| (r.origin, r.direction))).map(Some)
                     };
                     match shared {
                         Some(f) => {
@@ -1303,16 +1306,40 @@ impl InstanceBvh {
                 nodes, &world, all, f, tmin, &mut tmax, 0.0, visit,
             ),
             (None, true, true) => wide::traverse_lanes::<true, true, false>(
-                nodes, &world, all, qtmin, &mut tmax, margin, visit,
+                nodes,
+                world.get(),
+                all,
+                qtmin,
+                &mut tmax,
+                margin,
+                visit,
             ),
             (None, false, true) => wide::traverse_lanes::<false, true, false>(
-                nodes, &world, all, qtmin, &mut tmax, 0.0, visit,
+                nodes,
+                world.get(),
+                all,
+                qtmin,
+                &mut tmax,
+                0.0,
+                visit,
             ),
             (None, true, false) => wide::traverse_lanes::<true, false, false>(
-                nodes, &world, all, qtmin, &mut tmax, margin, visit,
+                nodes,
+                world.get(),
+                all,
+                qtmin,
+                &mut tmax,
+                margin,
+                visit,
             ),
             (None, false, false) => wide::traverse_lanes::<false, false, false>(
-                nodes, &world, all, qtmin, &mut tmax, 0.0, visit,
+                nodes,
+                world.get(),
+                all,
+                qtmin,
+                &mut tmax,
+                0.0,
+                visit,
             ),
         }
         true

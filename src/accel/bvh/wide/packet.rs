@@ -28,13 +28,12 @@
 
 use std::ops::ControlFlow;
 
-use arrayvec::ArrayVec;
 use glam::{BVec4A, Vec3, Vec3A, Vec4};
 
 use super::lanes::{PacketLanes, hand_leaves};
 use super::{
-    Entry, LEAF_BIT, NodeRay, PACKET, PacketLeaf, Stack, WIDEN, WideNode, child_hits, finish_alone,
-    has_avx2, lanes, leaf_slots_with, prefetch_node, query_tmin,
+    Entry, LEAF_BIT, NodeRay, NodeRays, PACKET, PacketLeaf, Stack, WIDEN, WideNode, child_hits,
+    finish_alone, has_avx2, lanes, leaf_slots_with, prefetch_node, query_tmin,
 };
 
 /// Interval bounds of a packet's rays, per axis, for [`frustum_hits`].
@@ -52,96 +51,55 @@ pub(crate) struct Frustum {
 }
 
 impl Frustum {
-    /// The bounds of `rays` (each `(origin, direction)`), their node rays written to `out`
-    /// (emptied first), or `None` when they cannot share one walk: no rays, a ray parallel to
-    /// an axis, rays in different octants (the slab planes they enter first differ), or a
-    /// non-finite origin. The caller's array is filled in place: returned by value, the 1.5 kB
-    /// of node rays were copied on every instance a packet visits (5 % of a shadow packet's
-    /// time on 2CylinderEngine).
+    /// The bounds of `rays` (each `(origin, direction)`), or `None` when they cannot share one
+    /// walk: no rays, a ray parallel to an axis (1/d not finite, see [`NodeRay`]), rays in
+    /// different octants (the slab planes they enter first differ), or a non-finite origin.
+    ///
+    /// No ray's 1/d is computed: on each axis the directions share one sign, on which 1/d is
+    /// decreasing, and a correctly rounded quotient is monotonic, so the smallest and largest
+    /// of the rays' `fl(1/d)` are `fl(1/d_max)` and `fl(1/d_min)` — the very bounds that the
+    /// rays' node rays give (`frusta_from_directions_are_those_of_the_node_rays`). The node
+    /// rays themselves are made only where a walk needs them ([`super::NodeRays`]).
     #[inline(always)]
-    pub fn new(
-        rays: impl ExactSizeIterator<Item = (Vec3, Vec3)>,
-        out: &mut ArrayVec<NodeRay, PACKET>,
-    ) -> Option<Frustum> {
+    pub fn new(rays: impl ExactSizeIterator<Item = (Vec3, Vec3)>) -> Option<Frustum> {
         assert!(rays.len() <= PACKET, "a packet holds at most {PACKET} rays");
-        out.clear();
-        let mut bounds = Bounds::new();
-        let (mut parallel, mut finite) = (0u32, true);
+        let (mut o_lo, mut o_hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
+        let (mut d_lo, mut d_hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
+        let mut finite = true;
         let mut first_signs = None;
         for (o, d) in rays {
-            // Rays in another octant than the first end it here, before any division: AO and
-            // incoherent rays almost never make a packet, and should pay as little as possible
-            // for finding out. Equal signs of d give equal entry planes (`NodeRay::near`)
-            // except on axes where 1/d is not finite, which `parallel` catches.
+            // Rays in another octant than the first end it here: AO and incoherent rays almost
+            // never make a packet, and should pay as little as possible for finding out.
             let signs = d.is_negative_bitmask();
             if *first_signs.get_or_insert(signs) != signs {
                 return None;
             }
-            let r = NodeRay::new(o, d);
-            parallel |= r.parallel;
-            finite &= o.is_finite();
-            bounds.add(&r);
-            out.push(r);
+            finite &= o.is_finite() & d.is_finite();
+            let (o, d) = (Vec3A::from(o), Vec3A::from(d));
+            o_lo = o_lo.min(o);
+            o_hi = o_hi.max(o);
+            d_lo = d_lo.min(d);
+            d_hi = d_hi.max(d);
         }
-        let first = out.first()?;
-        if parallel != 0 || !finite {
+        let signs = first_signs?;
+        // 1/d falls as d rises, on either side of 0.
+        let (inv_lo, inv_hi) = (Vec3A::ONE / d_hi, Vec3A::ONE / d_lo);
+        // A ray parallel to an axis (|d| below 2^-128, or 0) has the smallest |d| of its axis:
+        // its 1/d is one of these two, and not finite.
+        if !finite || !inv_lo.is_finite() || !inv_hi.is_finite() {
             return None;
         }
-        Some(bounds.frustum(first.near))
-    }
-
-    /// The bounds of the rays of `mask` (bit i for `rays[i]`, not empty), which share one
-    /// octant and have finite origins and inverse directions (as [`Frustum::new`] checks).
-    #[inline(always)]
-    pub fn of(rays: &[NodeRay], mask: u32) -> Frustum {
-        let mut bounds = Bounds::new();
-        let mut m = mask;
-        while m != 0 {
-            bounds.add(&rays[m.trailing_zeros() as usize]);
-            m &= m - 1;
-        }
-        bounds.frustum(rays[mask.trailing_zeros() as usize].near)
-    }
-}
-
-/// The running bounds of origins and inverse directions that make a [`Frustum`].
-struct Bounds {
-    o_lo: Vec3A,
-    o_hi: Vec3A,
-    inv_lo: Vec3A,
-    inv_hi: Vec3A,
-}
-
-impl Bounds {
-    #[inline(always)]
-    fn new() -> Self {
-        Bounds {
-            o_lo: Vec3A::INFINITY,
-            o_hi: Vec3A::NEG_INFINITY,
-            inv_lo: Vec3A::INFINITY,
-            inv_hi: Vec3A::NEG_INFINITY,
-        }
-    }
-
-    #[inline(always)]
-    fn add(&mut self, r: &NodeRay) {
-        let (o, inv) = (Vec3A::from_slice(&r.o[..3]), Vec3A::from_slice(&r.inv[..3]));
-        self.o_lo = self.o_lo.min(o);
-        self.o_hi = self.o_hi.max(o);
-        self.inv_lo = self.inv_lo.min(inv);
-        self.inv_hi = self.inv_hi.max(inv);
-    }
-
-    #[inline(always)]
-    fn frustum(&self, near: [usize; 3]) -> Frustum {
-        Frustum {
-            o_lo: self.o_lo.to_array(),
-            o_hi: self.o_hi.to_array(),
-            inv_lo: self.inv_lo.to_array(),
-            inv_hi: self.inv_hi.to_array(),
+        // The entry plane per axis, as `NodeRay::new` finds it (the sign of a finite, non-zero
+        // 1/d is the sign of d).
+        let near = std::array::from_fn(|axis| 2 * axis + ((signs >> axis) & 1) as usize);
+        Some(Frustum {
+            o_lo: o_lo.to_array(),
+            o_hi: o_hi.to_array(),
+            inv_lo: inv_lo.to_array(),
+            inv_hi: inv_hi.to_array(),
             near,
-            one_origin: self.o_lo == self.o_hi,
-        }
+            one_origin: o_lo == o_hi,
+        })
     }
 }
 
@@ -305,7 +263,7 @@ type PacketEntry = Entry<u32>;
 #[inline(always)]
 pub(crate) fn traverse_packet<const MARGIN: bool, const ORDERED: bool, const GROUPED: bool>(
     nodes: &[WideNode],
-    rays: &[NodeRay],
+    rays: &NodeRays<'_>,
     active: u32,
     frustum: &Frustum,
     tmin: f32,
@@ -339,7 +297,7 @@ pub(crate) fn traverse_packet<const MARGIN: bool, const ORDERED: bool, const GRO
 #[target_feature(enable = "avx2")]
 unsafe fn packet_avx2<const MARGIN: bool, const ORDERED: bool, const GROUPED: bool>(
     nodes: &[WideNode],
-    rays: &[NodeRay],
+    rays: &NodeRays<'_>,
     active: u32,
     frustum: &Frustum,
     tmin: f32,
@@ -427,7 +385,7 @@ unsafe fn live_avx2(tmin: f32, tmax: &[f32], mask: u32) -> (u32, f32) {
 #[inline(always)]
 fn packet_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, const GROUPED: bool>(
     nodes: &[WideNode],
-    rays: &[NodeRay],
+    rays: &NodeRays<'_>,
     active: u32,
     frustum: &Frustum,
     tmin: f32,
@@ -473,7 +431,14 @@ fn packet_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, const 
         }
         if alive.count_ones() <= SOLO {
             if finish_alone::<MARGIN, AVX2, ORDERED, GROUPED>(
-                nodes, e.meta, rays, alive, tmin, tmax, margin, &mut leaf,
+                nodes,
+                e.meta,
+                rays.get(),
+                alive,
+                tmin,
+                tmax,
+                margin,
+                &mut leaf,
             )
             .is_break()
             {
@@ -504,6 +469,7 @@ fn packet_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, const 
         let mut child_rays = [alive; 8];
         if leaves != 0 || inner & inner.wrapping_sub(1) != 0 {
             child_rays = [0; 8];
+            let rays = rays.get();
             if AVX2 && !lanes_tried {
                 lanes = PacketLanes::new(rays);
                 lanes_tried = true;
@@ -587,6 +553,7 @@ mod tests {
     use super::super::tests::{grid, record_leaf};
     use super::super::{all_rays, traverse};
     use super::*;
+    use crate::geom::Ray;
     use crate::rng::Rng;
     use glam::Vec3;
 
@@ -624,15 +591,17 @@ mod tests {
 
     /// Leaves each ray of a packet is handed, per ray, sorted.
     fn packet_leaves(nodes: &[WideNode], rays: &[(Vec3, Vec3)], tmax: f32) -> Vec<Vec<u32>> {
-        let f = Frustum::new(rays.iter().map(|r| (r.0, r.1)), &mut ArrayVec::new())
-            .expect("coherent packet");
-        let rays: Vec<NodeRay> = rays.iter().map(|r| NodeRay::new(r.0, r.1)).collect();
-        let rays = &rays[..];
+        let f = Frustum::new(rays.iter().copied()).expect("coherent packet");
+        let rays: Vec<Ray> = rays
+            .iter()
+            .map(|&(origin, direction)| Ray { origin, direction })
+            .collect();
+        let node_rays = NodeRays::new(&rays);
         let mut seen = vec![Vec::new(); rays.len()];
         let mut tmaxs = vec![tmax; rays.len()];
         traverse_packet::<false, true, false>(
             nodes,
-            rays,
+            &node_rays,
             all_rays(rays.len()),
             &f,
             0.0,
@@ -666,7 +635,7 @@ mod tests {
                     (o, target + rng.direction() * 0.3 - o)
                 })
                 .collect();
-            if Frustum::new(rays.iter().copied(), &mut ArrayVec::new()).is_none() {
+            if Frustum::new(rays.iter().copied()).is_none() {
                 continue;
             }
             let got = packet_leaves(&bvh.nodes, &rays, f32::INFINITY);
@@ -698,7 +667,7 @@ mod tests {
             let rays: Vec<(Vec3, Vec3)> = (0..4)
                 .map(|_| (o + rng.direction() * 0.1, d + rng.direction() * 0.05))
                 .collect();
-            let Some(f) = Frustum::new(rays.into_iter(), &mut ArrayVec::new()) else {
+            let Some(f) = Frustum::new(rays.clone().into_iter()) else {
                 continue;
             };
             let node = &bvh.nodes[(rng.next_f32() * bvh.nodes.len() as f32) as usize];
@@ -720,16 +689,79 @@ mod tests {
         }
     }
 
+    /// A frustum made from the rays' directions bounds their node rays exactly as the node
+    /// rays' own smallest and largest 1/d and origin do, bit for bit, on packets of every
+    /// size with directions of both signs, tiny and huge components, one origin or many.
+    #[test]
+    fn frusta_from_directions_are_those_of_the_node_rays() {
+        let mut rng = Rng::new(5);
+        let mut made = 0;
+        for case in 0..3000 {
+            let signs = Vec3::new(
+                if case & 1 == 0 { 1.0 } else { -1.0 },
+                if case & 2 == 0 { 1.0 } else { -1.0 },
+                if case & 4 == 0 { 1.0 } else { -1.0 },
+            );
+            let scale = [1.0, 1e-30, 1e30, 1e-38][case / 8 % 4];
+            let o0 = rng.vec3_in(-5.0, 5.0);
+            let rays: Vec<(Vec3, Vec3)> = (0..1 + case % PACKET)
+                .map(|k| {
+                    let d = (rng.vec3_in(0.01, 1.0) * signs) * Vec3::new(scale, 1.0, 1.0);
+                    let o = if case % 3 == 0 {
+                        o0
+                    } else {
+                        o0 + rng.vec3_in(-1.0, 1.0) * k as f32
+                    };
+                    (o, d)
+                })
+                .collect();
+            let node: Vec<NodeRay> = rays.iter().map(|r| NodeRay::new(r.0, r.1)).collect();
+            let parallel = node.iter().any(|r| r.parallel != 0);
+            let Some(f) = Frustum::new(rays.iter().copied()) else {
+                assert!(parallel, "case {case}: a frustum of coherent rays");
+                continue;
+            };
+            assert!(
+                !parallel,
+                "case {case}: a ray parallel to an axis made a frustum"
+            );
+            made += 1;
+            for axis in 0..3 {
+                let lo =
+                    |v: &mut dyn Iterator<Item = f32>| v.reduce(|a, b| if b < a { b } else { a });
+                let hi =
+                    |v: &mut dyn Iterator<Item = f32>| v.reduce(|a, b| if b > a { b } else { a });
+                let inv = || node.iter().map(|r| r.inv[axis]);
+                let o = || node.iter().map(|r| r.o[axis]);
+                let bits = |x: Option<f32>| x.unwrap().to_bits();
+                assert_eq!(
+                    f.inv_lo[axis].to_bits(),
+                    bits(lo(&mut inv())),
+                    "case {case}"
+                );
+                assert_eq!(
+                    f.inv_hi[axis].to_bits(),
+                    bits(hi(&mut inv())),
+                    "case {case}"
+                );
+                assert_eq!(f.o_lo[axis].to_bits(), bits(lo(&mut o())), "case {case}");
+                assert_eq!(f.o_hi[axis].to_bits(), bits(hi(&mut o())), "case {case}");
+                assert_eq!(f.near[axis], node[0].near[axis], "case {case}");
+            }
+        }
+        assert!(made > 1000, "{made} frusta");
+    }
+
     #[test]
     fn incoherent_rays_make_no_packet() {
         let a = (Vec3::ZERO, Vec3::new(1.0, 1.0, 1.0));
         let b = (Vec3::ZERO, Vec3::new(-1.0, 1.0, 1.0));
         let c = (Vec3::ZERO, Vec3::new(0.0, 1.0, 1.0));
         let nan = (Vec3::new(f32::NAN, 0.0, 0.0), Vec3::new(1.0, 1.0, 1.0));
-        assert!(Frustum::new([a, a].into_iter(), &mut ArrayVec::new()).is_some());
-        assert!(Frustum::new([a, b].into_iter(), &mut ArrayVec::new()).is_none());
-        assert!(Frustum::new([a, c].into_iter(), &mut ArrayVec::new()).is_none());
-        assert!(Frustum::new([a, nan].into_iter(), &mut ArrayVec::new()).is_none());
-        assert!(Frustum::new([].into_iter(), &mut ArrayVec::new()).is_none());
+        assert!(Frustum::new([a, a].into_iter()).is_some());
+        assert!(Frustum::new([a, b].into_iter()).is_none());
+        assert!(Frustum::new([a, c].into_iter()).is_none());
+        assert!(Frustum::new([a, nan].into_iter()).is_none());
+        assert!(Frustum::new([].into_iter()).is_none());
     }
 }
