@@ -847,7 +847,8 @@ impl InstanceBvh {
         } else {
             64.0 * f32::EPSILON * max_cond
         };
-        let tree = wide::build(&boxes, &quality.params());
+        let mut tree = wide::build(&boxes, &quality.params());
+        wide::one_primitive_per_leaf(&mut tree, &boxes);
         let placed: Vec<PlacedInstance> = tree.order.iter().map(|&k| placed[k as usize]).collect();
         stats.kept = placed.len();
         stats.references = placed.len();
