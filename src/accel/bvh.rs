@@ -651,9 +651,9 @@ fn beats(best: &Option<InstanceHit>, t: f32, instance: u32, triangle: u32) -> bo
 }
 
 /// The rays of a packet as a mesh walk takes them: node rays (made when the walk first needs
-/// them), the mask of those to trace, their
-/// bounds (a frustum walk) or none (a lane walk, `wide::traverse_lanes`: the rays then pass
-/// `wide::lanes_take`), and their lazily computed shears.
+/// them), the mask of those to trace, their bounds (a frustum walk) or none (a lane walk,
+/// `wide::traverse_lanes`: the rays then pass `wide::lanes_take`), and their lazily computed
+/// shears.
 struct PacketWalk<'s, 'r> {
     shears: &'s mut PacketShears<'r>,
     rays: &'s NodeRays<'r>,
@@ -1202,15 +1202,16 @@ impl InstanceBvh {
                     let sub;
                     let f = match &frustum {
                         Some(f) if active == all => Some(f),
-                        Some(_) => {
+                        Some(whole) => {
+                            // (any of a frustum's rays make one; were it not so, the whole
+                            // packet's frustum bounds them too)
                             let mut m = active;
                             sub = Frustum::new((0..active.count_ones()).map(|_| {
                                 let r = &rays[m.trailing_zeros() as usize];
                                 m &= m - 1;
                                 (r.origin, r.direction)
-                            }))
-                            .expect("rays of a frustum bound one together");
-                            Some(&sub)
+                            }));
+                            Some(sub.as_ref().unwrap_or(whole))
                         }
                         None => None,
                     };
