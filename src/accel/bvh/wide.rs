@@ -503,10 +503,18 @@ impl NodeRay {
         NodeRay {
             o: Vec4::from((origin, 0.0)).to_array(),
             inv: inv.extend(0.0).to_array(),
-            near: std::array::from_fn(|axis| 2 * axis + ((negative >> axis) & 1) as usize),
+            near: entry_planes(negative),
             parallel: !finite.bitmask() & 0b111,
         }
     }
+}
+
+/// Index into [`WideNode::bounds`] of the plane a ray enters first on each axis, from the
+/// signs of its 1/d (bit `axis` of `negative` set where 1/d < 0): the max plane there, the min
+/// plane elsewhere. One rule for node rays and frusta.
+#[inline(always)]
+pub(crate) fn entry_planes(negative: u32) -> [usize; 3] {
+    std::array::from_fn(|axis| 2 * axis + ((negative >> axis) & 1) as usize)
 }
 
 #[inline(always)]

@@ -33,7 +33,7 @@ use glam::{BVec4A, Vec3, Vec3A, Vec4};
 use super::lanes::{PacketLanes, hand_leaves};
 use super::{
     Entry, LEAF_BIT, NodeRay, NodeRays, PACKET, PacketLeaf, Stack, WIDEN, WideNode, child_hits,
-    finish_alone, has_avx2, lanes, leaf_slots_with, prefetch_node, query_tmin,
+    entry_planes, finish_alone, has_avx2, lanes, leaf_slots_with, prefetch_node, query_tmin,
 };
 
 /// Interval bounds of a packet's rays, per axis, for [`frustum_hits`].
@@ -91,7 +91,7 @@ impl Frustum {
         }
         // The entry plane per axis, as `NodeRay::new` finds it (the sign of a finite, non-zero
         // 1/d is the sign of d).
-        let near = std::array::from_fn(|axis| 2 * axis + ((signs >> axis) & 1) as usize);
+        let near = entry_planes(signs);
         Some(Frustum {
             o_lo: o_lo.to_array(),
             o_hi: o_hi.to_array(),
