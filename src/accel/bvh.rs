@@ -1168,16 +1168,25 @@ impl InstanceBvh {
         };
         let qtmin = wide::query_tmin(tmin);
         // Rays with nothing to find (NaN or empty interval) are retired from the start.
-        let mut tmax: ArrayVec<f32, PACKET> = tmax_in
-            .iter()
-            .map(|&t| if t >= qtmin { t } else { f32::NEG_INFINITY })
-            .collect();
+        // (written in place: collected into an ArrayVec, the array was then copied by memcpy)
+        let mut tmax_buf = [f32::NEG_INFINITY; PACKET];
+        for (t, &t_in) in tmax_buf.iter_mut().zip(tmax_in) {
+            *t = if t_in >= qtmin {
+                t_in
+            } else {
+                f32::NEG_INFINITY
+            };
+        }
+        let tmax = &mut tmax_buf[..rays.len()];
         let mut world_shears = PacketShears::new(rays);
         let margin = if self.origin_margin > 0.0 {
+            // The largest |origin component|, three components at a time (exact: every origin
+            // is finite once a walk has taken the rays).
             self.origin_margin
                 * rays
                     .iter()
-                    .fold(0.0f32, |m, r| m.max(r.origin.abs().max_element()))
+                    .fold(Vec3A::ZERO, |m, r| m.max(Vec3A::from(r.origin).abs()))
+                    .max_element()
         } else {
             0.0
         };
@@ -1289,30 +1298,30 @@ impl InstanceBvh {
                     meta: wide::LEAF_BIT,
                     rays: all,
                 },
-                &mut tmax,
+                tmax,
             );
             return true;
         }
         let nodes = &self.nodes;
         match (&frustum, margin > 0.0, Q::ORDERED) {
             (Some(f), true, true) => wide::traverse_packet::<true, true, false>(
-                nodes, &world, all, f, tmin, &mut tmax, margin, visit,
+                nodes, &world, all, f, tmin, tmax, margin, visit,
             ),
             (Some(f), false, true) => wide::traverse_packet::<false, true, false>(
-                nodes, &world, all, f, tmin, &mut tmax, 0.0, visit,
+                nodes, &world, all, f, tmin, tmax, 0.0, visit,
             ),
             (Some(f), true, false) => wide::traverse_packet::<true, false, false>(
-                nodes, &world, all, f, tmin, &mut tmax, margin, visit,
+                nodes, &world, all, f, tmin, tmax, margin, visit,
             ),
             (Some(f), false, false) => wide::traverse_packet::<false, false, false>(
-                nodes, &world, all, f, tmin, &mut tmax, 0.0, visit,
+                nodes, &world, all, f, tmin, tmax, 0.0, visit,
             ),
             (None, true, true) => wide::traverse_lanes::<true, true, false>(
                 nodes,
                 world.get(),
                 all,
                 qtmin,
-                &mut tmax,
+                tmax,
                 margin,
                 visit,
             ),
@@ -1321,7 +1330,7 @@ impl InstanceBvh {
                 world.get(),
                 all,
                 qtmin,
-                &mut tmax,
+                tmax,
                 0.0,
                 visit,
             ),
@@ -1330,7 +1339,7 @@ impl InstanceBvh {
                 world.get(),
                 all,
                 qtmin,
-                &mut tmax,
+                tmax,
                 margin,
                 visit,
             ),
@@ -1339,7 +1348,7 @@ impl InstanceBvh {
                 world.get(),
                 all,
                 qtmin,
-                &mut tmax,
+                tmax,
                 0.0,
                 visit,
             ),

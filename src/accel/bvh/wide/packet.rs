@@ -28,7 +28,7 @@
 
 use std::ops::ControlFlow;
 
-use glam::{BVec4A, Vec3, Vec3A, Vec4};
+use glam::{BVec3A, BVec4A, Vec3, Vec3A, Vec4};
 
 use super::lanes::{PacketLanes, hand_leaves};
 use super::{
@@ -65,17 +65,19 @@ impl Frustum {
         assert!(rays.len() <= PACKET, "a packet holds at most {PACKET} rays");
         let (mut o_lo, mut o_hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
         let (mut d_lo, mut d_hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
-        let mut finite = true;
+        // Signs and finiteness by lane masks, three components at once: component by component
+        // (`Vec3::is_finite`) they were the largest share of an instance visit's own time.
+        let mut finite = BVec3A::TRUE;
         let mut first_signs = None;
         for (o, d) in rays {
+            let (o, d) = (Vec3A::from(o), Vec3A::from(d));
             // Rays in another octant than the first end it here: AO and incoherent rays almost
             // never make a packet, and should pay as little as possible for finding out.
             let signs = d.is_negative_bitmask();
             if *first_signs.get_or_insert(signs) != signs {
                 return None;
             }
-            finite &= o.is_finite() & d.is_finite();
-            let (o, d) = (Vec3A::from(o), Vec3A::from(d));
+            finite &= o.is_finite_mask() & d.is_finite_mask();
             o_lo = o_lo.min(o);
             o_hi = o_hi.max(o);
             d_lo = d_lo.min(d);
@@ -86,7 +88,7 @@ impl Frustum {
         let (inv_lo, inv_hi) = (Vec3A::ONE / d_hi, Vec3A::ONE / d_lo);
         // A ray parallel to an axis (|d| below 2^-128, or 0) has the smallest |d| of its axis:
         // its 1/d is one of these two, and not finite.
-        if !finite || !inv_lo.is_finite() || !inv_hi.is_finite() {
+        if !finite.all() || !inv_lo.is_finite() || !inv_hi.is_finite() {
             return None;
         }
         // The entry plane per axis, as `NodeRay::new` finds it (the sign of a finite, non-zero
