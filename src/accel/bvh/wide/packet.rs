@@ -26,6 +26,7 @@
 //! (`packets_give_the_single_ray_answers` and
 //! `packets_give_the_single_ray_answers_on_the_bench_models` in `tests/bvh.rs`).
 
+use std::mem::MaybeUninit;
 use std::ops::ControlFlow;
 
 use glam::{BVec3A, BVec4A, Vec3, Vec3A, Vec4};
@@ -405,7 +406,8 @@ fn packet_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, const 
         rays: active,
     });
     // The rays as lanes, made where they first part ways (many walks never do).
-    let (mut lanes, mut lanes_tried) = (None, false);
+    let mut lanes_slot = MaybeUninit::uninit();
+    let (mut lanes_made, mut lanes_tried) = (false, false);
     while let Some(e) = next.take().or_else(|| stack.pop()) {
         let (alive, far) = if AVX2 {
             // SAFETY: `AVX2` is only set on the path behind `has_avx2` (`packet_avx2`).
@@ -473,10 +475,12 @@ fn packet_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, const 
             child_rays = [0; 8];
             let rays = rays.get();
             if AVX2 && !lanes_tried {
-                lanes = PacketLanes::new(rays);
+                lanes_made = PacketLanes::make_in(&mut lanes_slot, rays).is_some();
                 lanes_tried = true;
             }
-            if let Some(lanes) = &lanes {
+            // SAFETY: `make_in` wrote the slot when it made the lanes.
+            let lanes = lanes_made.then(|| unsafe { lanes_slot.assume_init_ref() });
+            if let Some(lanes) = lanes {
                 // Each ray's own test, sixteen rays to a register: the same verdicts as the
                 // loop below, which runs where there is no AVX-512. (This node's leaf tests
                 // come after all of its rays' node tests here, but a leaf test of one ray
