@@ -273,7 +273,7 @@ unsafe fn lanes_avx512<const MARGIN: bool, const ORDERED: bool, const GROUPED: b
             }
             let node = &nodes[e.meta as usize];
             let (entries, hits, mut slots) =
-                node_lanes::<MARGIN>(node, &o, &inv, low, far, m, live);
+                node_lanes::<MARGIN>(node, &o, &inv, low, far, m, live, 0xff);
             if GROUPED {
                 let leaves = slots & super::leaf_slots_with::<true>(node);
                 if leaves != 0 {
@@ -406,8 +406,11 @@ impl PacketLanes {
         (self.o.each_ref().map(load), self.inv.each_ref().map(load))
     }
 
-    /// Per child of `node`, the mask of the rays of `alive` whose own test (the single-ray
-    /// walk's, with their `tmax`) meets it: bit for bit [`super::child_hits`]'s verdicts.
+    /// Per child of `node` among `children` (bit i for child i), the mask of the rays of
+    /// `alive` whose own test (the single-ray walk's, with their `tmax`) meets it: bit for bit
+    /// [`super::child_hits`]'s verdicts. The other children's masks are 0: a packet walk asks
+    /// only for the children its frustum meets (no ray meets another), which spares the tests
+    /// of the rest — at the nodes where the rays part ways, often most of the eight.
     #[inline(always)]
     pub fn node_hits<const MARGIN: bool>(
         &self,
@@ -415,16 +418,19 @@ impl PacketLanes {
         tmin: f32,
         tmax: &[f32],
         alive: u32,
+        children: u32,
         margin: f32,
     ) -> [u32; 8] {
         debug_assert_eq!(tmax.len(), self.n);
         #[cfg(target_arch = "x86_64")]
         // SAFETY: a `PacketLanes` exists only where `has_avx512` holds.
         unsafe {
-            self.node_hits_avx512::<MARGIN>(node, tmin, tmax, alive, margin)
+            self.node_hits_avx512::<MARGIN>(node, tmin, tmax, alive, children, margin)
         }
         #[cfg(not(target_arch = "x86_64"))]
-        unreachable!("lanes exist only on x86_64: {node:?} {tmin} {tmax:?} {alive} {margin}")
+        unreachable!(
+            "lanes exist only on x86_64: {node:?} {tmin} {tmax:?} {alive} {children} {margin}"
+        )
     }
 
     /// # Safety
@@ -437,6 +443,7 @@ impl PacketLanes {
         tmin: f32,
         tmax: &[f32],
         alive: u32,
+        children: u32,
         margin: f32,
     ) -> [u32; 8] {
         use std::arch::x86_64::*;
@@ -464,6 +471,7 @@ impl PacketLanes {
                     far,
                     _mm512_set1_ps(margin),
                     live,
+                    children,
                 );
                 (hits, slots)
             };
@@ -475,13 +483,15 @@ impl PacketLanes {
     }
 }
 
-/// Every filled child of `node` against the rays of `live` (`o` and `inv` per axis, one ray per
-/// lane, `low` = tmin and `far` = each ray's tmax): per child the lanes' entry distances and
-/// hit mask, and the mask of the children some ray meets. Lane by lane the operations of the
+/// Every filled child of `node` among `children` (bit i for child i) against the rays of `live`
+/// (`o` and `inv` per axis, one ray per lane, `low` = tmin and `far` = each ray's tmax): per
+/// child the lanes' entry distances and hit mask (none for the children not asked about), and
+/// the mask of the children some ray meets. Lane by lane the operations of the
 /// single-ray test ([`super::child_hits_avx2`]) on the same values.
 ///
 /// # Safety
 /// The CPU must support AVX-512F.
+#[allow(clippy::too_many_arguments)]
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 #[inline]
@@ -493,6 +503,7 @@ unsafe fn node_lanes<const MARGIN: bool>(
     far: std::arch::x86_64::__m512,
     margin: std::arch::x86_64::__m512,
     live: u16,
+    children: u32,
 ) -> ([std::arch::x86_64::__m512; 8], [u16; 8], u32) {
     use std::arch::x86_64::*;
     let shrink = _mm512_set1_ps(1.0 - super::WIDEN);
@@ -500,7 +511,10 @@ unsafe fn node_lanes<const MARGIN: bool>(
     let mut entries = [_mm512_setzero_ps(); 8];
     let mut hits = [0u16; 8];
     let mut slots = 0u32;
-    for child in 0..8 {
+    let mut wanted = children & 0xff;
+    while wanted != 0 {
+        let child = wanted.trailing_zeros() as usize;
+        wanted &= wanted - 1;
         if node.bounds[0][child] > node.bounds[1][child] {
             // An empty slot (the inverted box): no ray enters it.
             continue;
@@ -645,9 +659,9 @@ mod tests {
                 let (low, far) = (_mm512_set1_ps(tmin), _mm512_loadu_ps(tmax.as_ptr()));
                 let m = _mm512_set1_ps(margin);
                 if margin > 0.0 {
-                    node_lanes::<true>(&node, &o, &inv, low, far, m, u16::MAX)
+                    node_lanes::<true>(&node, &o, &inv, low, far, m, u16::MAX, 0xff)
                 } else {
-                    node_lanes::<false>(&node, &o, &inv, low, far, m, u16::MAX)
+                    node_lanes::<false>(&node, &o, &inv, low, far, m, u16::MAX, 0xff)
                 }
             };
             let mut any = 0;
@@ -773,7 +787,7 @@ mod tests {
     }
 
     /// A frustum packet's per-ray tests in lanes give each ray's own verdicts, for packets of
-    /// 1 to 32 rays (one or two registers) and any subset of live rays.
+    /// 1 to 32 rays (one or two registers), any subset of live rays and of children asked about.
     #[test]
     fn packet_lanes_give_each_rays_own_verdicts() {
         if !lanes_here() {
@@ -802,10 +816,16 @@ mod tests {
             let margin = if case % 2 == 0 { 0.0 } else { 0.05 };
             let mut slot = MaybeUninit::uninit();
             let lanes = PacketLanes::make_in(&mut slot, &rays).expect("AVX-512 and plain rays");
-            let got = if margin > 0.0 {
-                lanes.node_hits::<true>(node, 0.0, &tmax, alive, margin)
+            // all children, or some (a frustum's): the others' masks are then empty
+            let children = if case % 3 == 0 {
+                0xff
             } else {
-                lanes.node_hits::<false>(node, 0.0, &tmax, alive, margin)
+                rng.next_u64() as u32 & 0xff
+            };
+            let got = if margin > 0.0 {
+                lanes.node_hits::<true>(node, 0.0, &tmax, alive, children, margin)
+            } else {
+                lanes.node_hits::<false>(node, 0.0, &tmax, alive, children, margin)
             };
             let mut want = [0u32; 8];
             for (k, r) in rays.iter().enumerate() {
@@ -818,13 +838,13 @@ mod tests {
                     child_hits::<false>(node, r, 0.0, tmax[k], margin)
                 };
                 for (child, w) in want.iter_mut().enumerate() {
-                    *w |= ((mask >> child) & 1) << k;
+                    *w |= ((mask & children) >> child & 1) << k;
                 }
             }
             assert_eq!(got, want, "case {case}");
             met += want.iter().map(|w| w.count_ones()).sum::<u32>();
         }
-        assert!(met > 10_000, "the rays must meet children: {met}");
+        assert!(met > 5_000, "the rays must meet children: {met}");
     }
 
     #[test]

@@ -485,7 +485,7 @@ fn packet_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, const 
                 // loop below, which runs where there is no AVX-512. (This node's leaf tests
                 // come after all of its rays' node tests here, but a leaf test of one ray
                 // changes no other ray's `tmax`.)
-                let by_child = lanes.node_hits::<MARGIN>(node, tmin, tmax, alive, margin);
+                let by_child = lanes.node_hits::<MARGIN>(node, tmin, tmax, alive, mask, margin);
                 if hand_leaves(node, &by_child, leaves, tmax, &mut leaf).is_break() {
                     return;
                 }
