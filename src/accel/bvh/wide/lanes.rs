@@ -87,6 +87,8 @@ pub(super) fn hand_leaves(
         meeting |= by_child[l.trailing_zeros() as usize];
         l &= l - 1;
     }
+    // The loop written twice: one loop choosing per ray between the two reads measured 2–3 %
+    // slower on the engine's primary rays.
     #[cfg(target_arch = "x86_64")]
     if has_avx512() {
         // SAFETY: `has_avx512` includes AVX2.
