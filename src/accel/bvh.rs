@@ -40,7 +40,7 @@ use glam::{Affine3A, Vec3, Vec3A};
 use obvhs::BvhBuildParams;
 use obvhs::aabb::Aabb as OAabb;
 
-use super::triangle::{self, WatertightRay};
+use super::triangle::{self, TriHit, WatertightRay};
 use crate::geom::{Aabb, Ray};
 use arrayvec::ArrayVec;
 use wide::{Frustum, NodeRay, NodeRays, PACKET, PacketLeaf};
@@ -338,8 +338,19 @@ impl MeshBvh {
         best: &mut [Option<MeshHit>],
         accept: Accept<'_>,
     ) {
-        self.walk_packet::<true>(w, tmin, tmax, |wr, ray, meta, slots, tmin, tmax| {
-            self.closest_in_leaves(wr, meta, slots, tmin, tmax, &mut best[ray], accept);
+        self.walk_packet::<true>(w, tmin, tmax, |shears, what, tmin, tmax| match what {
+            PacketLeaf::Ray { ray, meta, slots } => {
+                let (wr, tmax) = (shears.get(ray), &mut tmax[ray]);
+                self.closest_in_leaves(wr, meta, slots, tmin, tmax, &mut best[ray], accept);
+            }
+            PacketLeaf::Rays {
+                rays,
+                meta,
+                by_slot,
+            } => shears.together(rays, meta, &by_slot, |rays| {
+                self.closest_together(&rays, tmin, tmax, best, accept);
+            }),
+            PacketLeaf::Packet { .. } => {}
         });
     }
 
@@ -353,31 +364,39 @@ impl MeshBvh {
         found: &mut [bool],
         accept: Accept<'_>,
     ) {
-        self.walk_packet::<false>(w, tmin, tmax, |wr, ray, meta, slots, tmin, tmax| {
-            if self.any_in_leaves(wr, meta, slots, tmin, *tmax, accept) {
-                found[ray] = true;
-                *tmax = f32::NEG_INFINITY;
+        self.walk_packet::<false>(w, tmin, tmax, |shears, what, tmin, tmax| match what {
+            PacketLeaf::Ray { ray, meta, slots } => {
+                if self.any_in_leaves(shears.get(ray), meta, slots, tmin, tmax[ray], accept) {
+                    found[ray] = true;
+                    tmax[ray] = f32::NEG_INFINITY;
+                }
             }
+            PacketLeaf::Rays {
+                rays,
+                meta,
+                by_slot,
+            } => shears.together(rays, meta, &by_slot, |rays| {
+                self.any_together(&rays, tmin, tmax, found, accept);
+            }),
+            PacketLeaf::Packet { .. } => {}
         });
     }
 
-    /// The packet walk of this mesh's tree, nearest first when `ORDERED`: `leaf(shear, ray,
-    /// meta, slots, tmin, tmax)` for each ray and node whose leaf slots `slots` the ray meets,
-    /// with the ray's shear and its `tmax[ray]`.
+    /// The packet walk of this mesh's tree, nearest first when `ORDERED`: `leaf(shears, what,
+    /// tmin, tmax)` for each [`PacketLeaf::Ray`] and [`PacketLeaf::Rays`] the walk hands over,
+    /// with the rays' shears and their `tmax`.
     #[inline(always)]
     fn walk_packet<const ORDERED: bool>(
         &self,
         w: &mut PacketWalk<'_, '_>,
         tmin: f32,
         tmax: &mut [f32],
-        mut leaf: impl FnMut(&WatertightRay, usize, u32, u32, f32, &mut f32),
+        mut leaf: impl FnMut(&mut PacketShears<'_>, PacketLeaf, f32, &mut [f32]),
     ) {
         let tmin = wide::query_tmin(tmin);
         let shears = &mut *w.shears;
         let visit = |what, tmax: &mut [f32]| {
-            if let PacketLeaf::Ray { ray, meta, slots } = what {
-                leaf(shears.get(ray), ray, meta, slots, tmin, &mut tmax[ray]);
-            }
+            leaf(shears, what, tmin, tmax);
             ControlFlow::Continue(())
         };
         match w.frustum {
@@ -415,10 +434,15 @@ impl MeshBvh {
         tmax: f32,
         accept: Accept<'_>,
     ) -> bool {
-        self.leaves.blocks_for(meta, slots).any(|k| {
+        // A loop, not `Iterator::any`: called from two places, `any`'s fold was no longer
+        // inlined (6 % of the bunny's shadow rays).
+        for k in self.leaves.blocks_for(meta, slots) {
             let hits = leaf::block_hits(&self.leaves.blocks[k], wr, slots, tmin, tmax);
             let Some(accept) = accept else {
-                return hits.mask != 0;
+                if hits.mask != 0 {
+                    return true;
+                }
+                continue;
             };
             let mut mask = hits.mask;
             while mask != 0 {
@@ -429,8 +453,8 @@ impl MeshBvh {
                     return true;
                 }
             }
-            false
-        })
+        }
+        false
     }
 
     /// The closest-hit leaf test: the triangles of the leaf slots `slots` of a node (`meta` as
@@ -456,23 +480,159 @@ impl MeshBvh {
             while mask != 0 {
                 let lane = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
-                let h = hits.hit(lane);
-                let id = self.leaves.ids[k][lane];
-                // h.t <= *tmax = best.t: ties go to the smaller triangle index, which makes
-                // the answer independent of the traversal order.
-                let better = match best {
-                    None => true,
-                    Some(b) => h.t < b.t || (h.t == b.t && id < b.triangle),
-                } && accept.is_none_or(|accept| accept(id, h.u, h.v));
-                if better {
-                    *best = Some(MeshHit {
-                        t: h.t,
-                        triangle: id,
-                        u: h.u,
-                        v: h.v,
-                    });
-                    *tmax = h.t;
+                keep_nearest(best, tmax, hits.hit(lane), self.leaves.ids[k][lane], accept);
+            }
+        }
+    }
+
+    /// [`Self::closest_in_leaves`] for rays handed over together ([`Self::leaves_together`]):
+    /// `best[i]` and `tmax[i]` are updated for each ray i as `closest_in_leaves` would.
+    #[inline(always)]
+    fn closest_together(
+        &self,
+        g: &Together<'_, '_>,
+        tmin: f32,
+        tmax: &mut [f32],
+        best: &mut [Option<MeshHit>],
+        accept: Accept<'_>,
+    ) {
+        self.leaves_together(g, tmin, tmax, |ray, hit, id, tmax| {
+            keep_nearest(&mut best[ray], &mut tmax[ray], hit, id, accept);
+        });
+    }
+
+    /// [`Self::any_in_leaves`] for rays handed over together ([`Self::leaves_together`]):
+    /// `found[i]` is set for each ray i that hits something, and the ray is retired
+    /// (`tmax[i]` = −∞).
+    #[inline(always)]
+    fn any_together(
+        &self,
+        g: &Together<'_, '_>,
+        tmin: f32,
+        tmax: &mut [f32],
+        found: &mut [bool],
+        accept: Accept<'_>,
+    ) {
+        self.leaves_together(g, tmin, tmax, |ray, hit, id, tmax| {
+            if accept.is_none_or(|accept| accept(id, hit.u, hit.v)) {
+                found[ray] = true;
+                tmax[ray] = f32::NEG_INFINITY;
+            }
+        });
+    }
+
+    /// The leaf tests of rays handed over together: the blocks of their leaf slots in order,
+    /// each block tested by each ray whose own leaf slots it holds — eight triangles against
+    /// one ray at a time ([`leaf::block_hits`]), or, where at least [`wide::RAYS_TOGETHER`] rays
+    /// that share shear axes meet the block, each triangle against sixteen rays at once
+    /// ([`leaf::block_together`]). Either way each ray meets the triangles its own walk hands
+    /// it, in the same order, so its answer is its own, bit for bit. `hit(ray, hit, id,
+    /// tmax)` for each hit of a ray, which may lower `tmax[ray]`; a ray whose `tmax` falls to
+    /// −∞ is tested no further.
+    #[inline(always)]
+    fn leaves_together(
+        &self,
+        g: &Together<'_, '_>,
+        tmin: f32,
+        tmax: &mut [f32],
+        mut hit: impl FnMut(usize, TriHit, u32, &mut [f32]),
+    ) {
+        let mut slots = 0;
+        for (slot, &rays) in g.by_slot.iter().enumerate() {
+            slots |= u32::from(rays & g.rays != 0) << slot;
+        }
+        // Sixteen rays to a register: the first sixteen, then the rest (at most sixteen more).
+        let mut low = g.rays;
+        for _ in 16..low.count_ones() {
+            low &= !(1 << (31 - low.leading_zeros()));
+        }
+        let chunks = [low, g.rays & !low];
+        // Each chunk's lanes, gathered where a block is first tested together.
+        let mut gathered = [const { std::mem::MaybeUninit::<leaf::RayLanes>::uninit() }; 2];
+        let mut made = [false; 2];
+        let mut left = g.rays;
+        for k in self.leaves.blocks_for(g.meta, slots) {
+            let block_slots = u32::from(self.leaves.slots[k]) & slots;
+            let mut meeting = 0;
+            let mut bs = block_slots;
+            while bs != 0 {
+                meeting |= g.by_slot[bs.trailing_zeros() as usize];
+                bs &= bs - 1;
+            }
+            meeting &= left;
+            if meeting == 0 {
+                continue;
+            }
+            // The ids are read only for a hit, after the test: asked for now, they arrive
+            // while the block is tested.
+            leaf::prefetch(&self.leaves.ids[k]);
+            let block = &self.leaves.blocks[k];
+            let ids = &self.leaves.ids[k];
+            for (c, &chunk) in chunks.iter().enumerate() {
+                let here = meeting & chunk;
+                if here == 0 {
+                    continue;
                 }
+                if let Some(axes) = g.axes
+                    && here.count_ones() >= wide::RAYS_TOGETHER
+                {
+                    let lanes = if made[c] {
+                        // SAFETY: written when `made[c]` was set.
+                        unsafe { gathered[c].assume_init_mut() }
+                    } else {
+                        made[c] = true;
+                        let lanes = gathered[c].write(leaf::RayLanes::EMPTY);
+                        lanes.gather(g.shears.lanes(), tmax, chunk, g.by_slot)
+                    };
+                    let made = |ray| g.shears.made(ray);
+                    let live = leaf::block_together(
+                        block,
+                        block_slots,
+                        here,
+                        axes,
+                        lanes,
+                        tmin,
+                        made,
+                        |ray, lane, h| {
+                            hit(ray, h, ids[lane], tmax);
+                            tmax[ray]
+                        },
+                    );
+                    left &= !here | live;
+                    continue;
+                }
+                let mut m = here;
+                while m != 0 {
+                    let ray = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    let mut ray_slots = 0;
+                    let mut bs = block_slots;
+                    while bs != 0 {
+                        let slot = bs.trailing_zeros() as usize;
+                        bs &= bs - 1;
+                        ray_slots |= ((g.by_slot[slot] >> ray) & 1) << slot;
+                    }
+                    let wr = g.shears.made(ray);
+                    let hits = leaf::block_hits(block, wr, ray_slots, tmin, tmax[ray]);
+                    let mut lanes_hit = hits.mask;
+                    while lanes_hit != 0 && tmax[ray] != f32::NEG_INFINITY {
+                        let lane = lanes_hit.trailing_zeros() as usize;
+                        lanes_hit &= lanes_hit - 1;
+                        hit(ray, hits.hit(lane), self.leaves.ids[k][lane], tmax);
+                    }
+                    if tmax[ray] == f32::NEG_INFINITY {
+                        left &= !(1 << ray);
+                    }
+                    if made[c] {
+                        // The ray's lane keeps its `tmax` for the blocks tested together.
+                        // SAFETY: written when `made[c]` was set.
+                        let lanes = unsafe { gathered[c].assume_init_mut() };
+                        lanes.set_far(lanes.lane_of(ray), tmax[ray]);
+                    }
+                }
+            }
+            if left == 0 {
+                return;
             }
         }
     }
@@ -604,12 +764,25 @@ impl Shear {
 }
 
 /// The watertight shears of a packet's rays, each computed when a leaf first needs it (as
-/// [`Shear`] does for one ray).
+/// [`Shear`] does for one ray), and as lanes once rays are handed over together.
 struct PacketShears<'a> {
     rays: &'a [Ray],
     shears: [std::mem::MaybeUninit<WatertightRay>; PACKET],
     /// Bit i set when `shears[i]` has been computed.
     ready: u32,
+    /// The ready rays by their shear axes: bit i of `by_axes[key]` for ray i of key
+    /// [`axes_key`].
+    by_axes: [u32; 6],
+    /// The ready shears as lanes, written when `lanes_made` (the first time rays are handed
+    /// over together; many walks never are).
+    lanes: std::mem::MaybeUninit<leaf::ShearLanes>,
+    lanes_made: bool,
+}
+
+/// Which of the six frames a shear uses: `2·kz`, plus 1 where `kx` and `ky` are swapped.
+#[inline(always)]
+fn axes_key(wr: &WatertightRay) -> usize {
+    2 * wr.kz + usize::from(wr.kx != (wr.kz + 1) % 3)
 }
 
 impl<'a> PacketShears<'a> {
@@ -619,22 +792,141 @@ impl<'a> PacketShears<'a> {
             rays,
             shears: [const { std::mem::MaybeUninit::uninit() }; PACKET],
             ready: 0,
+            by_axes: [0; 6],
+            lanes: std::mem::MaybeUninit::uninit(),
+            lanes_made: false,
         }
     }
 
     #[inline(always)]
     fn get(&mut self, i: usize) -> &WatertightRay {
         if self.ready & (1 << i) == 0 {
-            let r = &self.rays[i];
-            self.shears[i].write(WatertightRay::new(r.origin, r.direction));
-            self.ready |= 1 << i;
+            self.make(i);
         }
+        // SAFETY: bit i of `ready` is set only once `shears[i]` has been written.
+        unsafe { self.shears[i].assume_init_ref() }
+    }
+
+    /// Computes ray i's shear (not ready yet).
+    #[inline(always)]
+    fn make(&mut self, i: usize) {
+        let r = &self.rays[i];
+        let wr = self.shears[i].write(WatertightRay::new(r.origin, r.direction));
+        self.ready |= 1 << i;
+        self.by_axes[axes_key(wr)] |= 1 << i;
+        if self.lanes_made {
+            // SAFETY: written when `lanes_made` was set.
+            unsafe { self.lanes.assume_init_mut() }.set(i, wr);
+        }
+    }
+
+    /// Makes the shears of the rays of `rays`, and the lanes of all shears made.
+    #[inline(always)]
+    fn lanes_of(&mut self, rays: u32) {
+        if !self.lanes_made {
+            let lanes = self.lanes.write(leaf::ShearLanes::EMPTY);
+            let mut m = self.ready;
+            while m != 0 {
+                let i = m.trailing_zeros() as usize;
+                m &= m - 1;
+                // SAFETY: bit i of `ready` is set only once `shears[i]` has been written.
+                lanes.set(i, unsafe { self.shears[i].assume_init_ref() });
+            }
+            self.lanes_made = true;
+        }
+        let mut m = rays & !self.ready;
+        while m != 0 {
+            let i = m.trailing_zeros() as usize;
+            m &= m - 1;
+            self.make(i);
+        }
+    }
+
+    /// Hands the rays of a [`PacketLeaf::Rays`] to `f` in groups that share shear axes (the
+    /// leaf test of one triangle against sixteen rays takes the triangle's coordinates along
+    /// one frame), their shears made; a group of fewer than [`wide::RAYS_TOGETHER`] rays goes
+    /// without `axes`, to be tested ray by ray.
+    #[inline(always)]
+    fn together<'s>(
+        &'s mut self,
+        rays: u32,
+        meta: u32,
+        by_slot: &'s [u32; 8],
+        mut f: impl FnMut(Together<'s, 'a>),
+    ) {
+        self.lanes_of(rays);
+        let shears = &*self;
+        let mut left = rays;
+        while left != 0 {
+            let wr = shears.made(left.trailing_zeros() as usize);
+            let group = left & shears.by_axes[axes_key(wr)];
+            left &= !group;
+            let many = group.count_ones() >= wide::RAYS_TOGETHER && leaf::together_runs();
+            let axes = many.then_some([wr.kx, wr.ky, wr.kz]);
+            f(Together {
+                shears,
+                rays: group,
+                axes,
+                meta,
+                by_slot,
+            });
+        }
+    }
+
+    /// The lanes of the shears made (after [`Self::lanes_of`]).
+    #[inline(always)]
+    fn lanes(&self) -> &leaf::ShearLanes {
+        assert!(self.lanes_made, "the shears' lanes are not made");
+        // SAFETY: written when `lanes_made` was set.
+        unsafe { self.lanes.assume_init_ref() }
+    }
+
+    /// Ray i's shear, made before.
+    #[inline(always)]
+    fn made(&self, i: usize) -> &WatertightRay {
+        assert!(self.ready & (1 << i) != 0, "ray {i}'s shear is not made");
         // SAFETY: bit i of `ready` is set only once `shears[i]` has been written.
         unsafe { self.shears[i].assume_init_ref() }
     }
 }
 
+/// Rays of a [`PacketLeaf::Rays`] that share shear axes, with their shears made.
+struct Together<'s, 'a> {
+    shears: &'s PacketShears<'a>,
+    rays: u32,
+    /// `[kx, ky, kz]` of the rays, or `None` for too few rays to test together.
+    axes: Option<[usize; 3]>,
+    meta: u32,
+    by_slot: &'s [u32; 8],
+}
+
 const _: () = assert!(PACKET <= 32, "PacketShears::ready is a u32");
+
+/// Keeps the hit `h` of triangle `id` in `best` (and its distance in `tmax`) if it is nearer,
+/// or as near with a smaller triangle index (which makes the answer independent of the
+/// traversal order), and `accept` takes it.
+#[inline(always)]
+fn keep_nearest(
+    best: &mut Option<MeshHit>,
+    tmax: &mut f32,
+    h: TriHit,
+    id: u32,
+    accept: Accept<'_>,
+) {
+    let better = match best {
+        None => true,
+        Some(b) => h.t < b.t || (h.t == b.t && id < b.triangle),
+    } && accept.is_none_or(|accept| accept(id, h.u, h.v));
+    if better {
+        *best = Some(MeshHit {
+            t: h.t,
+            triangle: id,
+            u: h.u,
+            v: h.v,
+        });
+        *tmax = h.t;
+    }
+}
 
 /// Whether a hit `(t, instance, triangle)` beats `best`: nearer, or as near with a smaller
 /// instance and then triangle index (the order-independent tie rule of the module contract).

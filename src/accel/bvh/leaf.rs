@@ -20,7 +20,7 @@
 use arrayvec::ArrayVec;
 use glam::Vec3;
 
-use super::wide::{LEAF_BIT, MAX_PRIMS, WideNode};
+use super::wide::{LEAF_BIT, MAX_PRIMS, PACKET, WideNode};
 use crate::accel::triangle::{TriHit, WatertightRay};
 
 /// Eight triangles, structure of arrays: `v[3·k + axis][lane]` is coordinate `axis` of vertex k
@@ -47,6 +47,355 @@ impl LaneHits {
     /// The hit of lane `i` (meaningful when bit i of `mask` is set).
     #[inline(always)]
     pub fn hit(&self, i: usize) -> TriHit {
+        TriHit {
+            t: self.t[i],
+            u: self.u[i],
+            v: self.v[i],
+        }
+    }
+}
+
+/// The watertight shears of a packet's rays as lanes (structure of arrays), for the test of
+/// one triangle against sixteen rays at once ([`block_together`]). Lanes of rays not yet set
+/// hold zeros; the test never reports them.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
+pub(crate) struct ShearLanes {
+    /// `o[j][i]`: ray i's origin along its own axis `[kx, ky, kz][j]`.
+    pub o: [[f32; PACKET]; 3],
+    /// `s[j][i]`: ray i's `[sx, sy, sz][j]`.
+    pub s: [[f32; PACKET]; 3],
+}
+
+impl ShearLanes {
+    /// No ray set.
+    pub const EMPTY: ShearLanes = ShearLanes {
+        o: [[0.0; PACKET]; 3],
+        s: [[0.0; PACKET]; 3],
+    };
+
+    /// Lane `ray` takes the shear `wr`.
+    #[inline(always)]
+    pub fn set(&mut self, ray: usize, wr: &WatertightRay) {
+        let o = wr.origin.to_array();
+        for (j, axis) in [wr.kx, wr.ky, wr.kz].into_iter().enumerate() {
+            self.o[j][ray] = o[axis];
+        }
+        self.s[0][ray] = wr.sx;
+        self.s[1][ray] = wr.sy;
+        self.s[2][ray] = wr.sz;
+    }
+}
+
+/// Up to sixteen rays of a packet that share shear axes, gathered into the lanes of one
+/// register each (for [`block_together`]), with the `tmax` of each as the caller keeps it.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
+pub(crate) struct RayLanes {
+    o: [[f32; 16]; 3],
+    s: [[f32; 16]; 3],
+    /// Each lane's `tmax`.
+    far: [f32; 16],
+    /// The packet's ray in each lane.
+    ray: [u32; 16],
+    /// Per leaf slot, the lanes whose rays meet it.
+    by_slot: [u16; 8],
+    /// The packet's rays in the lanes (bit j for ray j).
+    rays: u32,
+}
+
+impl RayLanes {
+    /// Lanes of no ray, to be gathered.
+    pub const EMPTY: RayLanes = RayLanes {
+        o: [[0.0; 16]; 3],
+        s: [[0.0; 16]; 3],
+        far: [0.0; 16],
+        ray: [0; 16],
+        by_slot: [0; 8],
+        rays: 0,
+    };
+
+    /// Gathers the rays of `rays` (at most sixteen, each set in `shears` and below
+    /// `tmax.len()`) in ray order, with their `tmax`; `by_slot[i]` holds the packet's rays
+    /// that meet leaf slot i. Only on CPUs where [`together_runs`].
+    #[inline(always)]
+    pub fn gather(
+        &mut self,
+        shears: &ShearLanes,
+        tmax: &[f32],
+        rays: u32,
+        by_slot: &[u32; 8],
+    ) -> &mut RayLanes {
+        assert!(rays.count_ones() <= 16 && u64::from(rays) < 1u64 << tmax.len());
+        assert!(
+            together_runs(),
+            "rays are tested together only on CPUs with AVX-512F"
+        );
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the CPU runs AVX-512F and BMI2 code (just checked); the rays are below
+        // `tmax.len()` (asserted).
+        unsafe {
+            self.gather_avx512(shears, tmax, rays, by_slot)
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = (shears, by_slot);
+        self
+    }
+
+    /// # Safety
+    /// The CPU must support AVX-512F and BMI2; at most sixteen rays, all below `tmax.len()`.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,bmi2")]
+    #[inline]
+    unsafe fn gather_avx512(
+        &mut self,
+        shears: &ShearLanes,
+        tmax: &[f32],
+        rays: u32,
+        by_slot: &[u32; 8],
+    ) {
+        use std::arch::x86_64::*;
+        let mut m = rays;
+        let mut lane = 0;
+        while m != 0 {
+            self.ray[lane] = m.trailing_zeros();
+            m &= m - 1;
+            lane += 1;
+        }
+        self.rays = rays;
+        self.by_slot = by_slot.map(|slot_rays| _pext_u32(slot_rays, rays) as u16);
+        // SAFETY (whole body): loads of sixteen f32 within arrays of `PACKET` (32, two
+        // registers), masked loads of `tmax` that read only entries below its length, stores
+        // into arrays of sixteen; AVX-512F is enabled.
+        unsafe {
+            let idx = _mm512_loadu_si512(self.ray.as_ptr() as *const __m512i);
+            // Lane j takes entry ray[j] of the 32 in two registers.
+            let pick = |row: &[f32; PACKET]| {
+                let (lo, hi) = (row.as_ptr(), row.as_ptr().add(16));
+                _mm512_permutex2var_ps(_mm512_loadu_ps(lo), idx, _mm512_loadu_ps(hi))
+            };
+            for j in 0..3 {
+                _mm512_storeu_ps(self.o[j].as_mut_ptr(), pick(&shears.o[j]));
+                _mm512_storeu_ps(self.s[j].as_mut_ptr(), pick(&shears.s[j]));
+            }
+            let n = tmax.len();
+            let below = |count: usize| ((1u32 << count.min(16)) - 1) as u16;
+            let lo = _mm512_maskz_loadu_ps(below(n), tmax.as_ptr());
+            let hi = _mm512_maskz_loadu_ps(below(n.saturating_sub(16)), tmax.as_ptr().add(16));
+            _mm512_storeu_ps(self.far.as_mut_ptr(), _mm512_permutex2var_ps(lo, idx, hi));
+        }
+    }
+
+    /// The lane of the packet's ray `ray` (one of the gathered rays).
+    #[inline(always)]
+    pub fn lane_of(&self, ray: usize) -> usize {
+        (self.rays & ((1 << ray) - 1)).count_ones() as usize
+    }
+
+    /// Lane `lane`'s ray now has `tmax` = `t`.
+    #[inline(always)]
+    pub fn set_far(&mut self, lane: usize, t: f32) {
+        self.far[lane] = t;
+    }
+}
+
+/// Whether this CPU tests one triangle against sixteen rays at once (AVX-512F and BMI2,
+/// detected at run time; std caches it).
+#[inline(always)]
+pub(crate) fn together_runs() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        super::wide::has_avx512() && std::arch::is_x86_feature_detected!("bmi2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// The triangles of `block` in the leaf slots `slots`, in lane order, each tested against the
+/// gathered rays of `here` (packet ray mask) whose leaf slots hold it, sixteen rays at once,
+/// all sharing the shear axes `axes` (`[kx, ky, kz]`), for hits with `tmin <= t <=` each
+/// ray's `tmax`. `hit(ray, lane, hit)` is called for each hit of a ray (`lane` the block's
+/// lane) and returns the ray's `tmax` after it; a ray whose `tmax` falls to −∞ is tested no
+/// further. `made(ray)` is the ray's shear, for the scalar test of edge functions of exactly
+/// 0. Returns the rays of `here` still live.
+///
+/// Each lane performs the operations of [`block_hits`]'s lanes in the same order, so it is
+/// bit for bit its ray's own test of the triangle (`rays_together_match_the_scalar_test`).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn block_together<'w>(
+    block: &TriBlock,
+    slots: u32,
+    here: u32,
+    axes: [usize; 3],
+    lanes: &mut RayLanes,
+    tmin: f32,
+    made: impl Fn(usize) -> &'w WatertightRay,
+    hit: impl FnMut(usize, usize, TriHit) -> f32,
+) -> u32 {
+    assert!(
+        together_runs(),
+        "rays are tested together only on CPUs with AVX-512F"
+    );
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: the CPU runs AVX-512F and BMI2 code (just checked).
+    unsafe {
+        block_together_avx512(block, slots, here, axes, lanes, tmin, made, hit)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = (made, hit);
+        unreachable!("{block:?} {slots} {here} {axes:?} {lanes:?} {tmin}")
+    }
+}
+
+/// [`block_together`] with the sixteen lanes in 512-bit registers. The arithmetic is
+/// [`block_hits_avx2`]'s, written out again at this width rather than shared through a lane
+/// trait: AVX2 compares give vector masks and AVX-512 compares give mask registers, and each
+/// form is held to the scalar test by its own unit test.
+///
+/// # Safety
+/// The CPU must support AVX-512F and BMI2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,bmi2")]
+#[inline]
+#[allow(clippy::too_many_arguments)]
+unsafe fn block_together_avx512<'w>(
+    block: &TriBlock,
+    slots: u32,
+    here: u32,
+    [kx, ky, kz]: [usize; 3],
+    lanes: &mut RayLanes,
+    tmin: f32,
+    made: impl Fn(usize) -> &'w WatertightRay,
+    mut hit: impl FnMut(usize, usize, TriHit) -> f32,
+) -> u32 {
+    use std::arch::x86_64::*;
+    let mut live = _pext_u32(here, lanes.rays) as u16;
+    // SAFETY (whole body): loads of sixteen f32 from arrays of sixteen, stores into arrays of
+    // sixteen; AVX-512F is enabled.
+    unsafe {
+        let load = |row: &[f32; 16]| _mm512_loadu_ps(row.as_ptr());
+        let [ox, oy, oz] = lanes.o.each_ref().map(load);
+        let [sx, sy, sz] = lanes.s.each_ref().map(load);
+        let zero = _mm512_setzero_ps();
+        for lane in 0..8 {
+            let slot = block.slot[lane];
+            if slot & slots == 0 {
+                continue;
+            }
+            let which = lanes.by_slot[slot.trailing_zeros() as usize] & live;
+            if which == 0 {
+                continue;
+            }
+            let at = |k: usize, axis: usize| _mm512_set1_ps(block.v[3 * k + axis][lane]);
+            // As in `block_hits_avx2`: vertices relative to the origin, sheared, edge
+            // functions.
+            let rel = |k: usize| {
+                (
+                    _mm512_sub_ps(at(k, kx), ox),
+                    _mm512_sub_ps(at(k, ky), oy),
+                    _mm512_sub_ps(at(k, kz), oz),
+                )
+            };
+            let shear = |(x, y, z): (__m512, __m512, __m512)| {
+                (
+                    _mm512_sub_ps(x, _mm512_mul_ps(sx, z)),
+                    _mm512_sub_ps(y, _mm512_mul_ps(sy, z)),
+                    z,
+                )
+            };
+            let (ax, ay, arz) = shear(rel(0));
+            let (bx, by, brz) = shear(rel(1));
+            let (cx, cy, crz) = shear(rel(2));
+            let cross = |p: __m512, q: __m512, r: __m512, s: __m512| {
+                _mm512_sub_ps(_mm512_mul_ps(p, q), _mm512_mul_ps(r, s))
+            };
+            let u = cross(cx, by, cy, bx);
+            let v = cross(ax, cy, ay, cx);
+            let w = cross(bx, ay, by, ax);
+            let eq0 = |x: __m512| _mm512_cmp_ps_mask::<_CMP_EQ_OQ>(x, zero);
+            let lt0 = |x: __m512| _mm512_cmp_ps_mask::<_CMP_LT_OQ>(x, zero);
+            let gt0 = |x: __m512| _mm512_cmp_ps_mask::<_CMP_GT_OQ>(x, zero);
+            let exact_zero = which & (eq0(u) | eq0(v) | eq0(w));
+            let neg = lt0(u) | lt0(v) | lt0(w);
+            let pos = gt0(u) | gt0(v) | gt0(w);
+            let mut ok = which & !exact_zero & !(neg & pos);
+            // Most rays miss most triangles: the division only where a ray is inside all
+            // edges (or an edge function is 0).
+            if ok | exact_zero == 0 {
+                continue;
+            }
+            let mut hits = RayHits {
+                mask: 0,
+                t: [0.0; 16],
+                u: [0.0; 16],
+                v: [0.0; 16],
+            };
+            if ok != 0 {
+                let det = _mm512_add_ps(_mm512_add_ps(u, v), w);
+                ok &= _mm512_cmp_ps_mask::<_CMP_NEQ_OQ>(det, zero);
+                let t_scaled = _mm512_add_ps(
+                    _mm512_add_ps(
+                        _mm512_mul_ps(u, _mm512_mul_ps(sz, arz)),
+                        _mm512_mul_ps(v, _mm512_mul_ps(sz, brz)),
+                    ),
+                    _mm512_mul_ps(w, _mm512_mul_ps(sz, crz)),
+                );
+                let rcp = _mm512_div_ps(_mm512_set1_ps(1.0), det);
+                let t = _mm512_mul_ps(t_scaled, rcp);
+                ok &= _mm512_cmp_ps_mask::<_CMP_GE_OQ>(t, _mm512_set1_ps(tmin))
+                    & _mm512_cmp_ps_mask::<_CMP_LE_OQ>(t, load(&lanes.far));
+                hits.mask = u32::from(ok);
+                if ok != 0 {
+                    _mm512_storeu_ps(hits.t.as_mut_ptr(), t);
+                    _mm512_storeu_ps(hits.u.as_mut_ptr(), _mm512_mul_ps(v, rcp));
+                    _mm512_storeu_ps(hits.v.as_mut_ptr(), _mm512_mul_ps(w, rcp));
+                }
+            }
+            // Lanes with an edge function of exactly 0: the scalar test (its f64 fallback).
+            let mut fallback = u32::from(exact_zero);
+            while fallback != 0 {
+                let i = fallback.trailing_zeros() as usize;
+                fallback &= fallback - 1;
+                let [a, b, c] = lane_triangle(block, lane);
+                let wr = made(lanes.ray[i] as usize);
+                if let Some(h) = wr.intersect_nondegenerate(a, b, c, tmin, lanes.far[i]) {
+                    hits.mask |= 1 << i;
+                    (hits.t[i], hits.u[i], hits.v[i]) = (h.t, h.u, h.v);
+                }
+            }
+            let mut m = hits.mask;
+            while m != 0 {
+                let i = m.trailing_zeros() as usize;
+                m &= m - 1;
+                let far = hit(lanes.ray[i] as usize, lane, hits.hit(i));
+                lanes.far[i] = far;
+                if far == f32::NEG_INFINITY {
+                    live &= !(1 << i);
+                }
+            }
+        }
+    }
+    _pdep_u32(u32::from(live), lanes.rays)
+}
+
+/// The hits of one triangle among the lanes of a [`RayLanes`]: lane i hit when bit i of
+/// `mask` is set, with `t[i]`, `u[i]`, `v[i]` what the scalar test returns.
+#[derive(Clone, Copy, Debug)]
+struct RayHits {
+    mask: u32,
+    t: [f32; 16],
+    u: [f32; 16],
+    v: [f32; 16],
+}
+
+impl RayHits {
+    /// The hit of lane `i` (meaningful when bit i of `mask` is set).
+    #[inline(always)]
+    fn hit(&self, i: usize) -> TriHit {
         TriHit {
             t: self.t[i],
             u: self.u[i],
@@ -413,6 +762,134 @@ mod tests {
         assert!(
             compared > 20_000 && hits > 500,
             "{compared} lanes, {hits} hits"
+        );
+    }
+
+    /// Every hit that the test of one triangle against sixteen rays reports is bit for bit
+    /// the scalar test's, and it misses none: on random triangles and rays and on rays through
+    /// shared vertices and edges (exact-zero edge functions, the scalar fallback's case), for
+    /// rays gathered from both halves of a packet, with leaf slots that only some rays meet.
+    /// A ray whose `tmax` falls to −∞ is tested no further.
+    #[test]
+    fn rays_together_match_the_scalar_test() {
+        if !together_runs() {
+            eprintln!("no AVX-512F and BMI2 on this CPU: rays are never tested together here");
+            return;
+        }
+        let mut rng = Rng::new(19);
+        let mut compared = 0;
+        let mut hits = 0;
+        for round in 0..3000 {
+            let grid = round % 2 == 0;
+            let mut pick = |s: f32| {
+                let p = Vec3::new(
+                    rng.next_f32() * 2.0 - 1.0,
+                    rng.next_f32() * 2.0 - 1.0,
+                    rng.next_f32() * 2.0 - 1.0,
+                ) * s;
+                if grid { p.round() } else { p }
+            };
+            let tris: Vec<[Vec3; 3]> = (0..8).map(|_| [pick(3.0), pick(3.0), pick(3.0)]).collect();
+            if tris
+                .iter()
+                .any(|t| crate::accel::triangle::is_degenerate(t[0], t[1], t[2]))
+            {
+                continue;
+            }
+            // Two triangles to a leaf slot: slots 0..4.
+            let mut block = block_of(&tris);
+            for lane in 0..8 {
+                block.slot[lane] = 1 << (lane / 2);
+            }
+            // Rays down −z from above, aimed at vertices on grid rounds: one frame for all.
+            let n = 32;
+            let rays: Vec<WatertightRay> = (0..n)
+                .map(|i| {
+                    let o = pick(1.0) + Vec3::new(0.0, 0.0, 9.0);
+                    let target = if grid { tris[i % 8][i % 3] } else { pick(2.0) };
+                    WatertightRay::new(o, target - o)
+                })
+                .collect();
+            let axes = [rays[0].kx, rays[0].ky, rays[0].kz];
+            assert!(rays.iter().all(|r| [r.kx, r.ky, r.kz] == axes));
+            let mut shears = ShearLanes::EMPTY;
+            for (i, wr) in rays.iter().enumerate() {
+                shears.set(i, wr);
+            }
+            let tmax: Vec<f32> = (0..n)
+                .map(|i| if i % 5 == 0 { 9.5 } else { f32::INFINITY })
+                .collect();
+            // Up to sixteen rays from all 32; each slot met by some of them.
+            let mut chosen = 0u32;
+            while chosen.count_ones() < 16 {
+                chosen |= 1 << (rng.next_u64() % 32);
+                if rng.next_u64().is_multiple_of(9) {
+                    break;
+                }
+            }
+            let by_slot: [u32; 8] = std::array::from_fn(|slot| {
+                if slot < 4 {
+                    chosen & rng.next_u64() as u32
+                } else {
+                    0
+                }
+            });
+            let here = by_slot.iter().fold(0, |m, r| m | r);
+            let retire = round % 7 == 0;
+            let mut lanes = RayLanes::EMPTY;
+            lanes.gather(&shears, &tmax, chosen, &by_slot);
+            let mut got = std::collections::HashMap::new();
+            let live = block_together(
+                &block,
+                0xf,
+                here,
+                axes,
+                &mut lanes,
+                0.0,
+                |ray| &rays[ray],
+                |ray, lane, h| {
+                    assert!(
+                        got.insert((ray, lane), h).is_none(),
+                        "round {round}: ray {ray} lane {lane} reported twice"
+                    );
+                    if retire { f32::NEG_INFINITY } else { tmax[ray] }
+                },
+            );
+            let mut first_hit = std::collections::HashMap::new();
+            for ray in 0..n {
+                for lane in 0..8 {
+                    let met = by_slot[lane / 2] >> ray & 1 == 1 && here >> ray & 1 == 1;
+                    let [a, b, c] = tris[lane];
+                    let scalar = rays[ray].intersect_nondegenerate(a, b, c, 0.0, tmax[ray]);
+                    compared += usize::from(met);
+                    match (met, scalar) {
+                        (true, Some(h)) if !(retire && first_hit.contains_key(&ray)) => {
+                            hits += 1;
+                            first_hit.entry(ray).or_insert(lane);
+                            let g = got.get(&(ray, lane)).unwrap_or_else(|| {
+                                panic!("round {round}: ray {ray} lane {lane} missed")
+                            });
+                            assert_eq!(g.t.to_bits(), h.t.to_bits(), "round {round}");
+                            assert_eq!(g.u.to_bits(), h.u.to_bits(), "round {round}");
+                            assert_eq!(g.v.to_bits(), h.v.to_bits(), "round {round}");
+                        }
+                        _ => assert!(
+                            !got.contains_key(&(ray, lane)),
+                            "round {round}: ray {ray} lane {lane} reported"
+                        ),
+                    }
+                }
+            }
+            let expected_live = if retire {
+                here & !first_hit.keys().fold(0, |m, &r| m | 1 << r)
+            } else {
+                here
+            };
+            assert_eq!(live, expected_live, "round {round}");
+        }
+        assert!(
+            compared > 50_000 && hits > 1_000,
+            "{compared} pairs, {hits} hits"
         );
     }
 

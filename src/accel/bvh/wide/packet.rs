@@ -486,7 +486,7 @@ fn packet_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, const 
                 // come after all of its rays' node tests here, but a leaf test of one ray
                 // changes no other ray's `tmax`.)
                 let by_child = lanes.node_hits::<MARGIN>(node, tmin, tmax, alive, mask, margin);
-                if hand_leaves(node, &by_child, leaves, tmax, &mut leaf).is_break() {
+                if hand_leaves::<true>(node, &by_child, leaves, tmax, &mut leaf).is_break() {
                     return;
                 }
                 let mut c = inner;
