@@ -822,7 +822,7 @@ impl<'a> PacketShears<'a> {
 
     /// Makes the shears of the rays of `rays`, and the lanes of all shears made.
     #[inline(always)]
-    fn lanes_of(&mut self, rays: u32) {
+    fn make_with_lanes(&mut self, rays: u32) {
         if !self.lanes_made {
             let lanes = self.lanes.write(leaf::ShearLanes::EMPTY);
             let mut m = self.ready;
@@ -854,7 +854,7 @@ impl<'a> PacketShears<'a> {
         by_slot: &'s [u32; 8],
         mut f: impl FnMut(Together<'s, 'a>),
     ) {
-        self.lanes_of(rays);
+        self.make_with_lanes(rays);
         let shears = &*self;
         let mut left = rays;
         while left != 0 {
@@ -873,7 +873,7 @@ impl<'a> PacketShears<'a> {
         }
     }
 
-    /// The lanes of the shears made (after [`Self::lanes_of`]).
+    /// The lanes of the shears made (after [`Self::make_with_lanes`]).
     #[inline(always)]
     fn lanes(&self) -> &leaf::ShearLanes {
         assert!(self.lanes_made, "the shears' lanes are not made");

@@ -105,7 +105,7 @@ pub(crate) struct RayLanes {
 }
 
 impl RayLanes {
-    /// Lanes of no ray, to be gathered.
+    /// Lanes of no ray, to be gathered (the gather reads all sixteen of `ray`).
     pub const EMPTY: RayLanes = RayLanes {
         o: [[0.0; 16]; 3],
         s: [[0.0; 16]; 3],
