@@ -605,13 +605,7 @@ impl MeshBvh {
                 while m != 0 {
                     let ray = m.trailing_zeros() as usize;
                     m &= m - 1;
-                    let mut ray_slots = 0;
-                    let mut bs = block_slots;
-                    while bs != 0 {
-                        let slot = bs.trailing_zeros() as usize;
-                        bs &= bs - 1;
-                        ray_slots |= ((g.by_slot[slot] >> ray) & 1) << slot;
-                    }
+                    let ray_slots = wide::slots_of(g.by_slot, ray) & block_slots;
                     let wr = g.shears.made(ray);
                     let hits = leaf::block_hits(block, wr, ray_slots, tmin, tmax[ray]);
                     let mut lanes_hit = hits.mask;
