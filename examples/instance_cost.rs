@@ -15,47 +15,48 @@ use std::io::Write;
 use std::path::Path;
 use std::time::Instant;
 
+use arrayvec::ArrayVec;
 use glam::{Affine3A, Vec3};
 use hytrace::accel::MeshAccel;
 use hytrace::accel::bvh::{BuildQuality, Instance, InstanceBvh, MeshBvh};
 use hytrace::bench::rays::{self, QueryRay};
+use hytrace::bench::{CHUNK, Workers};
 use hytrace::geom::Ray;
 use hytrace::scene::Scene;
 
-/// Best Mrays/s over the timed passes of `set`, and the number of rays that hit (closest hit)
-/// or are blocked (any hit).
-fn trace(accel: &MeshAccel, set: &[QueryRay], closest: bool, seconds: f64) -> (f64, usize) {
-    let rays: Vec<Ray> = set.iter().map(|q| q.ray).collect();
-    let tmax: Vec<f32> = set.iter().map(|q| q.tmax).collect();
-    let mut hits = vec![None; set.len()];
-    let mut blocked = vec![false; set.len()];
-    let (mut best, mut passes) = (f64::INFINITY, 0);
-    let start = Instant::now();
-    while passes < 2 || start.elapsed().as_secs_f64() < seconds {
-        let pass = Instant::now();
-        // In the bench's chunks of 64 rays.
-        for c in (0..set.len()).step_by(64) {
-            let r = c..(c + 64).min(set.len());
-            if closest {
-                let out = &mut hits[r.clone()];
-                accel
-                    .tlas
-                    .closest_hits(&accel.blas, &rays[r.clone()], 0.0, &tmax[r], out);
-            } else {
-                let out = &mut blocked[r.clone()];
-                accel
-                    .tlas
-                    .any_hits(&accel.blas, &rays[r.clone()], 0.0, &tmax[r], out);
+/// Best Mrays/s over the timed passes of `set`, each pass the bench's: the rays in chunks of
+/// [`CHUNK`], each chunk's rays and limits handed to the batch query as two slices. Also the
+/// number of rays that hit (closest hit) or are blocked (any hit).
+fn trace(
+    workers: &Workers,
+    accel: &MeshAccel,
+    set: &[QueryRay],
+    closest: bool,
+    seconds: f64,
+) -> (f64, usize) {
+    let query = |chunk: &[QueryRay], out: &mut [bool]| {
+        let rays: ArrayVec<Ray, CHUNK> = chunk.iter().map(|q| q.ray).collect();
+        let tmax: ArrayVec<f32, CHUNK> = chunk.iter().map(|q| q.tmax).collect();
+        if closest {
+            let mut hits = [None; CHUNK];
+            let hits = &mut hits[..chunk.len()];
+            accel
+                .tlas
+                .closest_hits(&accel.blas, &rays, 0.0, &tmax, hits);
+            for (o, h) in out.iter_mut().zip(hits) {
+                *o = h.is_some();
             }
+        } else {
+            accel.tlas.any_hits(&accel.blas, &rays, 0.0, &tmax, out);
         }
-        best = best.min(pass.elapsed().as_secs_f64());
+    };
+    let mut hit = vec![false; set.len()];
+    let (mut best, mut passes, start) = (f64::INFINITY, 0, Instant::now());
+    while passes < 2 || start.elapsed().as_secs_f64() < seconds {
+        best = best.min(workers.map_chunks(set, &mut hit, query));
         passes += 1;
     }
-    let count = if closest {
-        hits.iter().filter(|h| h.is_some()).count()
-    } else {
-        blocked.iter().filter(|&&b| b).count()
-    };
+    let count = hit.iter().filter(|&&h| h).count();
     (set.len() as f64 / best / 1e6, count)
 }
 
@@ -120,6 +121,7 @@ fn main() -> anyhow::Result<()> {
     let primary = rays::primary_from(&camera, 1920, 1080);
     let (ao, shadow) = rays::secondary(&scene, &instanced, &primary);
     let incoherent = rays::incoherent(&scene, 1 << 20);
+    let workers = Workers::new(1)?;
     println!(
         "{}: {} instances of {} meshes, {} triangles",
         model,
@@ -141,20 +143,21 @@ fn main() -> anyhow::Result<()> {
         ("incoherent", &incoherent, true),
     ];
     for (name, set, closest) in sets {
-        let (mut two, mut one) = ((0.0f64, 0), (0.0f64, 0));
+        // (best Mrays/s, hits) of the two-level tree and of the baked one
+        let (mut two_level, mut baked_best) = ((0.0f64, 0), (0.0f64, 0));
         for _ in 0..3 {
-            let a = trace(&instanced, set, closest, seconds);
-            let b = trace(&baked, set, closest, seconds);
-            two = (two.0.max(a.0), a.1);
-            one = (one.0.max(b.0), b.1);
+            let a = trace(&workers, &instanced, set, closest, seconds);
+            let b = trace(&workers, &baked, set, closest, seconds);
+            two_level = (two_level.0.max(a.0), a.1);
+            baked_best = (baked_best.0.max(b.0), b.1);
         }
         println!(
             "| {name} | {:.2} ({}) | {:.2} ({}) | {:.2} |",
-            two.0,
-            two.1,
-            one.0,
-            one.1,
-            one.0 / two.0
+            two_level.0,
+            two_level.1,
+            baked_best.0,
+            baked_best.1,
+            baked_best.0 / two_level.0
         );
     }
     Ok(())
