@@ -34,6 +34,8 @@ fn trace(
     closest: bool,
     seconds: f64,
 ) -> (f64, usize) {
+    // The bench's own query (`ours_query` in the bench) is private to it and also looks up the
+    // geometric normal of each hit; this is its tracing part only, as the bench hands rays over.
     let query = |chunk: &[QueryRay], out: &mut [bool]| {
         let rays: ArrayVec<Ray, CHUNK> = chunk.iter().map(|q| q.ray).collect();
         let tmax: ArrayVec<f32, CHUNK> = chunk.iter().map(|q| q.tmax).collect();
