@@ -1,7 +1,8 @@
 //! Per-frame CPU render time with the acceleration structures built once, as the viewer
 //! renders: `cargo run --release --example frame_time -- [scene.ron or model] [width] [height] [frames]
-//! [native|interpreted] [pass|image]` (no scene: the built-in showcase; tapes as native code
-//! by default). Prints the build time and the minimum and median of the frames' times, each one
+//! [native|interpreted] [pass|image] [merged|instanced]` (no scene: the built-in showcase; tapes
+//! as native code by default; `instanced`: the meshes placed once each under its own instance
+//! instead of merged into one tree). Prints the build time and the minimum and median of the frames' times, each one
 //! pass of [`cpu::render_pass`] at one sample per pixel into sums made before the clock starts
 //! (`pass`, the default), or a whole one-sample image as `hytrace render` and the bench's steady
 //! frame make it: the sums, the pass and the framebuffer of their means (`image`).
@@ -30,11 +31,17 @@ fn main() -> anyhow::Result<()> {
         Some("interpreted") => false,
         Some(other) => anyhow::bail!("expected native or interpreted, not {other}"),
     };
+    let merge_meshes = match args.get(6).map(String::as_str) {
+        None | Some("merged") => true,
+        Some("instanced") => false,
+        Some(other) => anyhow::bail!("expected merged or instanced, not {other}"),
+    };
     let tracer = SceneTracer::with_options(
         &scene,
         AccelOptions {
             mesh_quality: scene.tracer.bvh,
             native,
+            merge_meshes,
             ..Default::default()
         },
     );

@@ -565,9 +565,18 @@ fn tlas_walk(o: vec3<f32>, d: vec3<f32>, tmin_in: f32, tmax_in: f32, any_hit: bo
                     tested = index;
                 }
                 let h = blas_walk(mesh.root, rows_point(inst.world_to_object, o), rows_vector(inst.world_to_object, d), tmin, tmax, any_hit, tested);
+                // The merged mesh (InstanceBvh::scene_ids): its triangle stands for an
+                // instance's own.
+                var instance = index;
+                var triangle = h.triangle;
+                if index == globals.instance_count {
+                    let k = globals.merged_origin_start + 2u * h.triangle;
+                    instance = refs[k];
+                    triangle = refs[k + 1u];
+                }
                 if h.hit && (!best.hit || h.t < best.t
-                    || (h.t == best.t && (index < best.instance || (index == best.instance && h.triangle < best.triangle)))) {
-                    best = InstanceHit(true, h.t, index, h.triangle, h.u, h.v);
+                    || (h.t == best.t && (instance < best.instance || (instance == best.instance && triangle < best.triangle)))) {
+                    best = InstanceHit(true, h.t, instance, triangle, h.u, h.v);
                     if any_hit {
                         return best;
                     }

@@ -1569,12 +1569,12 @@ fn lane_walks_give_the_single_ray_answers() {
     }
 }
 
-#[test]
-fn packets_give_the_single_ray_answers_on_the_bench_models() {
-    use hytrace::accel::MeshAccel;
-    use hytrace::bench::{mesh::MESH_SCENES, rays};
-    use hytrace::scene::Scene;
+/// The mesh bench's models that are present (a missing one is said loudly, and fails under
+/// `CI=true`).
+fn bench_models() -> Vec<(&'static str, hytrace::scene::Scene)> {
+    use hytrace::bench::mesh::MESH_SCENES;
     let assets = assets_dir().expect("an assets folder");
+    let mut models = Vec::new();
     for (name, rel) in MESH_SCENES {
         let path = assets.join(rel);
         if !path.is_file() {
@@ -1586,7 +1586,17 @@ fn packets_give_the_single_ray_answers_on_the_bench_models() {
             );
             continue;
         }
-        let scene = Scene::from_model(&path, None).expect("bench model loads");
+        let scene = hytrace::scene::Scene::from_model(&path, None).expect("bench model loads");
+        models.push((name, scene));
+    }
+    models
+}
+
+#[test]
+fn packets_give_the_single_ray_answers_on_the_bench_models() {
+    use hytrace::accel::MeshAccel;
+    use hytrace::bench::rays;
+    for (name, scene) in bench_models() {
         let accel = MeshAccel::new(&scene.meshes, BuildQuality::Medium);
         let camera = rays::framing_camera(&scene, 16.0 / 9.0);
         let primary = rays::primary_from(&camera, 384, 216);
@@ -1608,5 +1618,105 @@ fn packets_give_the_single_ray_answers_on_the_bench_models() {
             );
             assert!(kind != "primary" || hits > 1000, "{name}: {hits} hits");
         }
+    }
+}
+
+/// The meshes placed once are merged into one tree of world-space triangles
+/// (`hytrace::accel::merge`); its hits are reported as the instances' own. Against the
+/// two-level tree of every instance, on the bench models: the same instance and triangle for
+/// every ray but those that graze an edge or a silhouette (the baked vertices are the
+/// transformed ones rounded to `f32`), and the same t up to that rounding.
+#[test]
+fn merged_meshes_give_the_instances_answers_on_the_bench_models() {
+    use hytrace::accel::MeshAccel;
+    use hytrace::bench::rays;
+    let mut merged_models = 0;
+    let models = bench_models();
+    let instanced = models.iter().any(|(_, s)| s.meshes.instances.len() > 1);
+    for (name, scene) in models {
+        let two_level = MeshAccel::with_merging(&scene.meshes, BuildQuality::Medium, false);
+        let merged = MeshAccel::new(&scene.meshes, BuildQuality::Medium);
+        assert!(two_level.tlas.merged().is_none());
+        let Some((_, origin)) = merged.tlas.merged() else {
+            // (a model of one mesh placed once has nothing to merge)
+            assert!(scene.meshes.instances.len() < 2, "{name}: nothing merged");
+            continue;
+        };
+        merged_models += 1;
+        assert!(!origin.is_empty());
+        let camera = rays::framing_camera(&scene, 16.0 / 9.0);
+        let primary = rays::primary_from(&camera, 384, 216);
+        let (ao, shadow) = rays::secondary(&scene, &two_level, &primary);
+        let incoherent = rays::incoherent(&scene, 20_000);
+        for (kind, set) in [
+            ("primary", &primary),
+            ("ao", &ao),
+            ("shadow", &shadow),
+            ("incoherent", &incoherent),
+        ] {
+            let r: Vec<Ray> = set.iter().map(|q| q.ray).collect();
+            let t: Vec<f32> = set.iter().map(|q| q.tmax).collect();
+            let (mut a, mut b) = (vec![None; r.len()], vec![None; r.len()]);
+            two_level
+                .tlas
+                .closest_hits(&two_level.blas, &r, 0.0, &t, &mut a);
+            merged.tlas.closest_hits(&merged.blas, &r, 0.0, &t, &mut b);
+            // (`grazing`: rays whose answers differ, each on an edge or coincident faces)
+            let (mut hits, mut grazing) = (0, 0);
+            let near_edge = |u: f32, v: f32| u.min(v).min(1.0 - u - v) < 1e-3;
+            for (i, (a, b)) in a.iter().zip(&b).enumerate() {
+                match (a, b) {
+                    (Some(a), Some(b)) if (a.instance, a.triangle) == (b.instance, b.triangle) => {
+                        hits += 1;
+                        let scale = r[i].origin.abs().max_element().max(a.t).max(1.0);
+                        assert!(
+                            (a.t - b.t).abs() <= 1e-4 * scale,
+                            "{name} {kind} ray {i}: t {} against {}",
+                            a.t,
+                            b.t
+                        );
+                    }
+                    (None, None) => {}
+                    (a, b) => {
+                        // Two parts' coincident faces (CAD models have them) meet the ray at
+                        // one t: rounding may pick either.
+                        let coincident = match (a, b) {
+                            (Some(a), Some(b)) => {
+                                let scale = r[i].origin.abs().max_element().max(a.t).max(1.0);
+                                (a.t - b.t).abs() <= 1e-4 * scale
+                            }
+                            _ => false,
+                        };
+                        for h in [a, b].into_iter().flatten() {
+                            assert!(
+                                coincident || near_edge(h.u, h.v),
+                                "{name} {kind} ray {i}: {a:?} against {b:?}"
+                            );
+                        }
+                        grazing += 1;
+                    }
+                }
+            }
+            eprintln!("{name} {kind}: {hits} hits alike, {grazing} grazing");
+            assert!(
+                grazing * 1000 <= r.len(),
+                "{name} {kind}: {grazing} of {} rays differ",
+                r.len()
+            );
+            // Any hit: the same, but for grazing rays.
+            let (mut x, mut y) = (vec![false; r.len()], vec![false; r.len()]);
+            two_level
+                .tlas
+                .any_hits(&two_level.blas, &r, 0.0, &t, &mut x);
+            merged.tlas.any_hits(&merged.blas, &r, 0.0, &t, &mut y);
+            let differ = x.iter().zip(&y).filter(|(x, y)| x != y).count();
+            assert!(
+                differ * 1000 <= r.len(),
+                "{name} {kind}: any hit differs on {differ}"
+            );
+        }
+    }
+    if instanced {
+        assert!(merged_models > 0, "the instanced bench models merge");
     }
 }

@@ -125,42 +125,79 @@ fn geom_bounds(b: (Vec3, Vec3)) -> Aabb {
 /// split box is grown by 16·ε·(largest |coordinate| of its triangle) — several times the
 /// clipping error — and clamped back to the triangle's own box. Returns the boxes and, per
 /// box, the triangle it bounds.
+///
+/// The triangles are split in runs of [`SPLIT_RUN`] on the rayon pool: a box's splits depend
+/// only on its own triangle and the mesh's area statistics, so the boxes are those of one pass
+/// over all, in an order fixed by the runs (the same on any number of threads). Merged meshes
+/// made this pass a fifth of a large build when it ran on one thread.
 fn split_boxes(tris: &[[Vec3; 3]]) -> (Vec<OAabb>, Vec<u32>) {
+    use rayon::prelude::*;
     let tri_box = |t: &[Vec3; 3]| (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
-    let mut largest_half_area = 0.0f32;
-    let mut avg_area = 0.0f32;
-    let mut boxes: Vec<OAabb> = tris
-        .iter()
-        .map(|t| {
-            let (lo, hi) = tri_box(t);
-            let b = to_oaabb(lo, hi);
-            let half_area = b.half_area();
-            largest_half_area = largest_half_area.max(half_area);
-            avg_area += half_area;
-            b
+    // Per run: its boxes, the sum and the largest of their half areas (summed run by run in
+    // order below, so the mean does not depend on the thread count).
+    let runs: Vec<(Vec<OAabb>, f32, f32)> = tris
+        .par_chunks(SPLIT_RUN)
+        .map(|run| {
+            let (mut sum, mut largest) = (0.0f32, 0.0f32);
+            let boxes = run
+                .iter()
+                .map(|t| {
+                    let (lo, hi) = tri_box(t);
+                    let b = to_oaabb(lo, hi);
+                    let half_area = b.half_area();
+                    largest = largest.max(half_area);
+                    sum += half_area;
+                    b
+                })
+                .collect();
+            (boxes, sum, largest)
         })
         .collect();
-    avg_area /= tris.len() as f32;
-    let mut owner: Vec<u32> = (0..tris.len() as u32).collect();
+    let largest_half_area = runs.iter().fold(0.0f32, |m, r| m.max(r.2));
+    let avg_area = runs.iter().map(|r| r.1).sum::<f32>() / tris.len() as f32;
     let otris: Vec<obvhs::triangle::Triangle> = tris
-        .iter()
+        .par_iter()
         .map(|t| obvhs::triangle::Triangle {
             v0: t[0].into(),
             v1: t[1].into(),
             v2: t[2].into(),
         })
         .collect();
-    obvhs::splits::split_aabbs_preset(&mut boxes, &mut owner, &otris, avg_area, largest_half_area);
-    for (b, &o) in boxes.iter_mut().zip(&owner) {
-        let t = &tris[o as usize];
-        let (lo, hi) = tri_box(t);
-        let m = t[0].abs().max(t[1].abs()).max(t[2].abs()).max_element();
-        let pad = Vec3A::splat(16.0 * f32::EPSILON * m);
-        b.min = (b.min - pad).max(lo.into());
-        b.max = (b.max + pad).min(hi.into());
+    let split: Vec<(Vec<OAabb>, Vec<u32>)> = runs
+        .into_par_iter()
+        .enumerate()
+        .map(|(k, (mut boxes, _, _))| {
+            let first = (k * SPLIT_RUN) as u32;
+            let mut owner: Vec<u32> = (first..first + boxes.len() as u32).collect();
+            obvhs::splits::split_aabbs_preset(
+                &mut boxes,
+                &mut owner,
+                &otris,
+                avg_area,
+                largest_half_area,
+            );
+            for (b, &o) in boxes.iter_mut().zip(&owner) {
+                let t = &tris[o as usize];
+                let (lo, hi) = tri_box(t);
+                let m = t[0].abs().max(t[1].abs()).max(t[2].abs()).max_element();
+                let pad = Vec3A::splat(16.0 * f32::EPSILON * m);
+                b.min = (b.min - pad).max(lo.into());
+                b.max = (b.max + pad).min(hi.into());
+            }
+            (boxes, owner)
+        })
+        .collect();
+    let total = split.iter().map(|r| r.0.len()).sum();
+    let (mut boxes, mut owner) = (Vec::with_capacity(total), Vec::with_capacity(total));
+    for (b, o) in split {
+        boxes.extend(b);
+        owner.extend(o);
     }
     (boxes, owner)
 }
+
+/// Triangles per run of [`split_boxes`].
+const SPLIT_RUN: usize = 8192;
 
 /// Which triangle hits count, for surfaces with holes (glTF's alpha masks): a query asks
 /// [`HitFilter::tests`] once per instance it reaches, and [`HitFilter::accept`] for each hit
@@ -226,6 +263,7 @@ impl MeshBvh {
     /// Builds the tree over `triangles` (indices into `positions`). Never panics on bad
     /// geometry: an empty mesh gives an empty tree that nothing hits.
     pub fn build(positions: &[Vec3], triangles: &[[u32; 3]], quality: BuildQuality) -> MeshBvh {
+        use rayon::prelude::*;
         let start = Instant::now();
         let mut stats = BuildStats {
             input: triangles.len(),
@@ -264,12 +302,12 @@ impl MeshBvh {
         };
         let tris: Vec<[Vec3; 3]> = tree
             .order
-            .iter()
+            .par_iter()
             .map(|&b| kept[owner[b as usize] as usize])
             .collect();
         let ids: Vec<u32> = tree
             .order
-            .iter()
+            .par_iter()
             .map(|&b| kept_ids[owner[b as usize] as usize])
             .collect();
         let leaves = leaf::group(&mut tree.nodes, &tris, &ids);
@@ -1062,7 +1100,23 @@ pub struct InstanceBvh {
     /// Per-ray node margin = this × max |origin component| (see `build`).
     origin_margin: f32,
     mesh_count: usize,
+    /// The merged mesh's instance index (the number of scene instances), or `u32::MAX`.
+    merged_index: u32,
+    /// Per triangle of the merged mesh, its scene instance and triangle.
+    origin: Vec<(u32, u32)>,
     stats: BuildStats,
+}
+
+/// Instances merged into one mesh for [`InstanceBvh::build_merged`]: the index of that mesh
+/// (its triangles baked into world space) and, per triangle of it, the scene instance and
+/// triangle it stands for, in increasing order (so that the walk's tie rule, smaller instance
+/// then smaller triangle, is the merged mesh's own rule of the smaller triangle).
+#[derive(Debug, Clone, Default)]
+pub struct Merged {
+    /// Index of the merged mesh in the `&[MeshBvh]` given to the build and the queries.
+    pub mesh: usize,
+    /// Per merged triangle: (scene instance, triangle of its mesh).
+    pub origin: Vec<(u32, u32)>,
 }
 
 impl InstanceBvh {
@@ -1070,17 +1124,63 @@ impl InstanceBvh {
     /// empty mesh, or with a singular or non-finite transform are left out (counted in
     /// [`BuildStats::dropped_invalid`]).
     pub fn build(meshes: &[MeshBvh], instances: &[Instance], quality: BuildQuality) -> Self {
+        Self::build_merged(meshes, instances, None, quality)
+    }
+
+    /// [`Self::build`] with some instances merged into one mesh of world-space triangles
+    /// (see [`Merged`]): those instances are left out of the tree, the merged mesh goes in
+    /// untransformed, and a hit on its triangle `k` is reported as the hit on triangle
+    /// `merged.origin[k].1` of instance `merged.origin[k].0`, as if the instance had been
+    /// walked itself. Filters are not asked about merged triangles: the caller merges no
+    /// instance a filter tests.
+    pub fn build_merged(
+        meshes: &[MeshBvh],
+        instances: &[Instance],
+        merged: Option<Merged>,
+        quality: BuildQuality,
+    ) -> Self {
         let start = Instant::now();
         let mut stats = BuildStats {
             input: instances.len(),
             ..Default::default()
         };
-        let mut placed = Vec::with_capacity(instances.len());
-        let mut boxes = Vec::with_capacity(instances.len());
+        let mut left_out = vec![false; instances.len()];
+        let mut origin = Vec::new();
+        let mut all: Vec<(usize, Instance)> = Vec::with_capacity(instances.len() + 1);
+        let merged_index = match merged {
+            Some(m) => {
+                for &(i, _) in &m.origin {
+                    if let Some(l) = left_out.get_mut(i as usize) {
+                        *l = true;
+                    }
+                }
+                origin = m.origin;
+                // After every scene instance: the merged mesh's own slot.
+                all.push((
+                    instances.len(),
+                    Instance {
+                        mesh: m.mesh,
+                        transform: Affine3A::IDENTITY,
+                    },
+                ));
+                instances.len() as u32
+            }
+            None => u32::MAX,
+        };
+        all.extend(
+            instances
+                .iter()
+                .copied()
+                .enumerate()
+                .filter(|&(i, _)| !left_out[i]),
+        );
+        let mut placed = Vec::with_capacity(all.len());
+        let mut boxes = Vec::with_capacity(all.len());
         let mut max_cond = 1.0f32;
-        for (i, inst) in instances.iter().enumerate() {
+        for &(i, inst) in &all {
             let Some(mesh) = meshes.get(inst.mesh).filter(|m| !m.is_empty()) else {
-                stats.dropped_invalid += 1;
+                // (a merged mesh of nothing is nobody's instance)
+                stats.dropped_invalid += usize::from(i < instances.len());
                 continue;
             };
             let m = inst.transform;
@@ -1136,7 +1236,11 @@ impl InstanceBvh {
         let mut tree = wide::build(&boxes, &quality.params());
         wide::one_primitive_per_leaf(&mut tree, &boxes);
         let placed: Vec<PlacedInstance> = tree.order.iter().map(|&k| placed[k as usize]).collect();
-        stats.kept = placed.len();
+        let merged_in = placed.iter().any(|p| p.index == merged_index);
+        let merged_count = left_out.iter().filter(|&&l| l).count();
+        // Scene instances traced: those in the tree and those merged into its merged mesh.
+        stats.kept =
+            placed.len() - usize::from(merged_in) + if merged_in { merged_count } else { 0 };
         stats.references = placed.len();
         stats.nodes = tree.nodes.len();
         stats.max_depth = tree.max_depth;
@@ -1147,8 +1251,27 @@ impl InstanceBvh {
             bounds: geom_bounds(tree.bounds),
             origin_margin,
             mesh_count: meshes.len(),
+            merged_index,
+            origin,
             stats,
         }
+    }
+
+    /// The scene's (instance, triangle) of triangle `triangle` of the placed instance `p`:
+    /// its own unless `p` is the merged mesh.
+    #[inline(always)]
+    fn scene_ids(&self, p: &PlacedInstance, triangle: u32) -> (u32, u32) {
+        if p.index == self.merged_index {
+            self.origin[triangle as usize]
+        } else {
+            (p.index, triangle)
+        }
+    }
+
+    /// Whether `filter` tests the hits of the placed instance `p` (never the merged mesh's).
+    #[inline(always)]
+    fn filtered(&self, p: &PlacedInstance, filter: &impl HitFilter) -> bool {
+        p.index != self.merged_index && filter.tests(p.index)
     }
 
     /// Walks the instances the world ray may meet; `f(instance, object-space ray, tmax)`.
@@ -1235,18 +1358,19 @@ impl InstanceBvh {
         let mut best: Option<InstanceHit> = None;
         self.walk::<true>(meshes, ray, tmin, tmax, |p, mesh, shear, nr, tmax| {
             let test = |t: u32, u: f32, v: f32| filter.accept(p.index, t, u, v);
-            let accept: Accept<'_> = filter.tests(p.index).then_some(&test);
-            if let Some(h) = mesh.closest_in(shear, nr, tmin, *tmax, accept)
-                && beats(&best, h.t, p.index, h.triangle)
-            {
-                best = Some(InstanceHit {
-                    t: h.t,
-                    instance: p.index,
-                    triangle: h.triangle,
-                    u: h.u,
-                    v: h.v,
-                });
-                *tmax = h.t;
+            let accept: Accept<'_> = self.filtered(p, filter).then_some(&test);
+            if let Some(h) = mesh.closest_in(shear, nr, tmin, *tmax, accept) {
+                let (instance, triangle) = self.scene_ids(p, h.triangle);
+                if beats(&best, h.t, instance, triangle) {
+                    best = Some(InstanceHit {
+                        t: h.t,
+                        instance,
+                        triangle,
+                        u: h.u,
+                        v: h.v,
+                    });
+                    *tmax = h.t;
+                }
             }
             ControlFlow::Continue(())
         });
@@ -1296,11 +1420,12 @@ impl InstanceBvh {
             let mut alone =
                 self.chunk::<Closest>(meshes, rays, tmin, tmax, filter, |p, i, h, tmax| {
                     let Some(h) = h else { return };
-                    if beats(&out[i], h.t, p.index, h.triangle) {
+                    let (instance, triangle) = self.scene_ids(p, h.triangle);
+                    if beats(&out[i], h.t, instance, triangle) {
                         out[i] = Some(InstanceHit {
                             t: h.t,
-                            instance: p.index,
-                            triangle: h.triangle,
+                            instance,
+                            triangle,
                             u: h.u,
                             v: h.v,
                         });
@@ -1491,7 +1616,7 @@ impl InstanceBvh {
                     continue;
                 };
                 let test = |t: u32, u: f32, v: f32| filter.accept(p.index, t, u, v);
-                let accept: Accept<'_> = filter.tests(p.index).then_some(&test);
+                let accept: Accept<'_> = self.filtered(p, filter).then_some(&test);
                 let answers = &mut answers[..n];
                 if p.identity {
                     // The world rays themselves, bounded afresh (in a frustum walk) when only
@@ -1661,7 +1786,7 @@ impl InstanceBvh {
         let mut found = false;
         self.walk::<false>(meshes, ray, tmin, tmax, |p, mesh, shear, nr, tmax| {
             let test = |t: u32, u: f32, v: f32| filter.accept(p.index, t, u, v);
-            let accept: Accept<'_> = filter.tests(p.index).then_some(&test);
+            let accept: Accept<'_> = self.filtered(p, filter).then_some(&test);
             if mesh.any_in(shear, nr, tmin, *tmax, accept) {
                 found = true;
                 return ControlFlow::Break(());
@@ -1678,10 +1803,17 @@ impl InstanceBvh {
         &self.nodes
     }
 
-    /// The scene index of each instance in the tree, in leaf order.
+    /// The scene index of each instance in the tree, in leaf order (the merged mesh's is the
+    /// number of scene instances, see [`Self::merged`]).
     #[cfg(feature = "gpu")]
     pub(crate) fn leaf_instances(&self) -> impl Iterator<Item = u32> + '_ {
         self.placed.iter().map(|p| p.index)
+    }
+
+    /// The merged mesh's instance index and, per triangle of it, the scene instance and
+    /// triangle it stands for ([`Self::build_merged`]); `None` without one.
+    pub fn merged(&self) -> Option<(u32, &[(u32, u32)])> {
+        (self.merged_index != u32::MAX).then_some((self.merged_index, &self.origin[..]))
     }
 
     /// A ray's node-test margin is this times its origin's largest |component| (see

@@ -5,10 +5,12 @@
 //! unbounded objects (planes, infinite repetition) are kept apart and span the whole ray. A
 //! linear scan over the same bounds remains available to check the BVH against.
 //! Meshes: a BVH per mesh ([`bvh::MeshBvh`]) under a BVH over instances
-//! ([`bvh::InstanceBvh`]), with a watertight triangle test ([`triangle`]).
+//! ([`bvh::InstanceBvh`]), with a watertight triangle test ([`triangle`]); the meshes placed
+//! only once are baked into world space and merged into one tree ([`merge`]).
 
 pub mod bvh;
 pub mod field;
+pub mod merge;
 pub mod triangle;
 
 use crate::geom::{Aabb, Ray};
@@ -113,7 +115,9 @@ impl SdfAccel {
 /// The meshes' two-level BVH.
 #[derive(Debug, Clone)]
 pub struct MeshAccel {
-    /// One BVH per mesh, in object space.
+    /// One BVH per scene mesh, in object space (empty for a mesh whose one instance is
+    /// merged), then, when instances are merged, the merged mesh's in world space (see
+    /// [`bvh::InstanceBvh::merged`]).
     pub blas: Vec<bvh::MeshBvh>,
     /// The BVH over instances.
     pub tlas: bvh::InstanceBvh,
@@ -149,12 +153,43 @@ impl MeshAccel {
     /// tree is built by one thread and is a function of its mesh alone, so the trees do not
     /// depend on the number of threads).
     pub fn new(meshes: &SceneMeshes, quality: bvh::BuildQuality) -> Self {
+        Self::with_merging(meshes, quality, true)
+    }
+
+    /// [`Self::new`], merging the single-use meshes ([`merge`]) only when `merge`: the
+    /// two-level tree of every instance otherwise (what the merged tree is checked against).
+    pub fn with_merging(meshes: &SceneMeshes, quality: bvh::BuildQuality, merge: bool) -> Self {
         use rayon::prelude::*;
         let start = std::time::Instant::now();
-        let blas: Vec<_> = meshes
+        let merged = merge.then(|| merge::MergedMeshes::of(meshes)).flatten();
+        // Meshes whose one instance is merged need no tree of their own.
+        let mut needed = vec![false; meshes.meshes.len()];
+        for (k, inst) in meshes.instances.iter().enumerate() {
+            if merged.as_ref().is_none_or(|m| !m.merged[k])
+                && let Some(n) = needed.get_mut(inst.mesh)
+            {
+                *n = true;
+            }
+        }
+        let empty: (&[glam::Vec3], &[[u32; 3]]) = (&[], &[]);
+        let mut jobs: Vec<(&[glam::Vec3], &[[u32; 3]])> = meshes
             .meshes
+            .iter()
+            .zip(&needed)
+            .map(|(m, &n)| {
+                if n {
+                    (&m.positions[..], &m.triangles[..])
+                } else {
+                    empty
+                }
+            })
+            .collect();
+        if let Some(m) = &merged {
+            jobs.push((&m.positions, &m.triangles));
+        }
+        let blas: Vec<_> = jobs
             .par_iter()
-            .map(|m| bvh::MeshBvh::build(&m.positions, &m.triangles, quality))
+            .map(|&(positions, triangles)| bvh::MeshBvh::build(positions, triangles, quality))
             .collect();
         let instances: Vec<bvh::Instance> = meshes
             .instances
@@ -164,7 +199,15 @@ impl MeshAccel {
                 transform: i.transform,
             })
             .collect();
-        let tlas = bvh::InstanceBvh::build(&blas, &instances, quality);
+        let tlas = bvh::InstanceBvh::build_merged(
+            &blas,
+            &instances,
+            merged.map(|m| bvh::Merged {
+                mesh: meshes.meshes.len(),
+                origin: m.origin,
+            }),
+            quality,
+        );
         let alpha_tested = (0..meshes.instances.len())
             .map(|i| meshes.alpha_tested(i))
             .collect();

@@ -81,7 +81,7 @@ pub fn run(args: InfoArgs) -> Result<()> {
     println!(
         "mesh BVH     {:?} quality: {} BLAS with {} nodes (deepest {} levels), TLAS {} nodes ({} levels), built in {:.3} s",
         scene.tracer.bvh,
-        mesh.blas.len(),
+        mesh.blas.iter().filter(|b| !b.is_empty()).count(),
         mesh.blas.iter().map(|b| b.node_count()).sum::<usize>(),
         mesh.blas
             .iter()
@@ -92,6 +92,15 @@ pub fn run(args: InfoArgs) -> Result<()> {
         mesh.tlas.stats().max_depth,
         mesh.build_time.as_secs_f64()
     );
+    if let Some((_, origin)) = mesh.tlas.merged() {
+        let mut instances: Vec<u32> = origin.iter().map(|o| o.0).collect();
+        instances.dedup();
+        println!(
+            "merged       {} instances of meshes placed once ({} triangles) traced as one tree in world space",
+            instances.len(),
+            origin.len()
+        );
+    }
     println!(
         "SDF BVH      {} nodes; all structures built in {:.3} s",
         tracer.sdf_accel().node_count(),

@@ -306,8 +306,11 @@ gpu_struct! {
         /// A ray's node-test margin in the instances' BVH is this times its origin's largest
         /// |component| (`InstanceBvh::origin_margin`).
         pub tlas_origin_margin: f32,
-        /// Unused.
-        pub pad1: u32,
+        /// Where the merged mesh's (instance, triangle) pairs start in the reference buffer
+        /// (`InstanceBvh::merged`): a tree leaf naming instance `instance_count` is the merged
+        /// mesh, and its triangle `k` stands for triangle `refs[start + 2k + 1]` of instance
+        /// `refs[start + 2k]`.
+        pub merged_origin_start: u32,
         /// Unused.
         pub pad2: u32,
         /// Unused.

@@ -30,7 +30,7 @@ use super::shaders::{
     wrap_code,
 };
 use crate::accel::SdfAccel;
-use crate::accel::bvh::{AabbBvh, FIRST_MASK, LEAF_BIT, WideNode, leaf_first};
+use crate::accel::bvh::{AabbBvh, FIRST_MASK, LEAF_BIT, MeshBvh, WideNode, leaf_first};
 use crate::accel::field::{EMPTY_LEAF, FieldOctree, LEAF};
 use crate::geom::Aabb;
 use crate::scene::{Scene, TracerSettings};
@@ -241,22 +241,24 @@ impl SceneData {
                     material: mesh.triangle_material.get(t).copied().unwrap_or(0),
                 });
             }
-            let leaves = bvh.leaf_blocks();
-            let blocks_start = data.tri_blocks.len() as u32;
-            for (block, ids) in leaves.blocks.iter().zip(&leaves.ids) {
-                let mut r = TriBlockRecord::default();
-                for (row, lanes) in block.v.iter().enumerate() {
-                    [r.v[2 * row], r.v[2 * row + 1]] = halves(lanes);
-                }
-                r.slot = halves(&block.slot);
-                r.id = halves(ids);
-                data.tri_blocks.push(r);
-            }
-            let root = data.add_tree(bvh.wide_nodes(), blocks_start)?;
-            data.max_depth = data.max_depth.max(bvh.stats().max_depth);
+            let root = data.add_mesh_tree(bvh)?;
             data.meshes.push(MeshRecord {
                 root,
                 ..record_start
+            });
+        }
+
+        // The merged mesh of single-use instances (`accel::merge`): its tree and leaf blocks
+        // only (a hit on it is looked up as the instance's own triangle, whose attributes are
+        // above).
+        let merged_mesh = data.meshes.len() as u32;
+        if let Some(bvh) = accel.blas.get(sm.meshes.len()) {
+            let root = data.add_mesh_tree(bvh)?;
+            data.meshes.push(MeshRecord {
+                root,
+                vertex_start: 0,
+                triangle_start: 0,
+                has_uvs: 0,
             });
         }
 
@@ -292,6 +294,31 @@ impl SceneData {
             });
         }
         data.globals.instance_count = sm.instances.len() as u32;
+        if let Some((index, origin)) = accel.tlas.merged() {
+            debug_assert_eq!(index, data.globals.instance_count);
+            data.instances.push(InstanceRecord {
+                world_to_object: [
+                    [1.0, 0.0, 0.0, 0.0],
+                    [0.0, 1.0, 0.0, 0.0],
+                    [0.0, 0.0, 1.0, 0.0],
+                ],
+                normal_matrix: [
+                    [1.0, 0.0, 0.0, 0.0],
+                    [0.0, 1.0, 0.0, 0.0],
+                    [0.0, 0.0, 1.0, 0.0],
+                ],
+                mesh: merged_mesh,
+                material_base: 0,
+                material_override: NONE,
+                alpha_tested: 0,
+            });
+            data.globals.merged_origin_start = data.refs.len() as u32;
+            data.refs.extend(
+                origin
+                    .iter()
+                    .flat_map(|&(instance, triangle)| [instance, triangle]),
+            );
+        }
         let refs_start = data.refs.len() as u32;
         data.refs.extend(accel.tlas.leaf_instances());
         data.globals.tlas_root = data.add_tree(accel.tlas.wide_nodes(), refs_start)?;
@@ -415,6 +442,24 @@ impl SceneData {
         self.globals.normals = normals_code(s.normals);
         self.globals.object_root = NONE;
         self.globals.tlas_root = NONE;
+    }
+
+    /// Appends a mesh's tree and its leaf blocks; returns its root ([`NONE`] when empty).
+    fn add_mesh_tree(&mut self, bvh: &MeshBvh) -> Result<u32, GpuError> {
+        let leaves = bvh.leaf_blocks();
+        let blocks_start = self.tri_blocks.len() as u32;
+        for (block, ids) in leaves.blocks.iter().zip(&leaves.ids) {
+            let mut r = TriBlockRecord::default();
+            for (row, lanes) in block.v.iter().enumerate() {
+                [r.v[2 * row], r.v[2 * row + 1]] = halves(lanes);
+            }
+            r.slot = halves(&block.slot);
+            r.id = halves(ids);
+            self.tri_blocks.push(r);
+        }
+        let root = self.add_tree(bvh.wide_nodes(), blocks_start)?;
+        self.max_depth = self.max_depth.max(bvh.stats().max_depth);
+        Ok(root)
     }
 
     /// Appends a wide tree's nodes, rebased: inner children by where its nodes start, leaf

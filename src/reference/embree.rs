@@ -14,7 +14,10 @@
 //!   alpha masks (`MASK` materials) get intersect and occluded filter functions
 //!   (`rtcSetGeometryIntersectFilterFunction`) that reject hits on the masks' holes with the
 //!   tracer's own test ([`SceneMeshes::masked_out`](crate::scene::SceneMeshes::masked_out)),
-//!   so masked surfaces are compared as the tracer sees them.
+//!   so masked surfaces are compared as the tracer sees them. The meshes placed only once are
+//!   merged as the tracer merges them ([`MergedMeshes`]): one triangle geometry of their
+//!   world-space vertices (the same `f32` values), instanced with the identity; its hits are
+//!   reported as hits on the instances' own triangles.
 //! * **SDF objects** whose tree is one analytic primitive (Sphere, Box, Plane, Torus, Cylinder,
 //!   Cone, Capsule, Ellipsoid) under any nesting of `Transform` (rotation, uniform scale,
 //!   translation) and `Material` nodes become `RTC_GEOMETRY_TYPE_USER` geometries. Their
@@ -57,6 +60,7 @@ use super::analytic::{self, AnalyticHit};
 use super::certified::{self, Root, Search};
 use super::interval64::{self, Program, Registers as IntervalRegisters};
 use super::mesher::{self, MeshOptions, SdfMesh};
+use crate::accel::merge::MergedMeshes;
 use crate::geom::{Aabb, Ray};
 use crate::scene::Scene;
 use crate::sdf::SdfNode;
@@ -755,6 +759,9 @@ pub struct EmbreeScene {
     device: Device,
     /// Top-level geometry ID → what it is.
     ids: Vec<Option<ObjectId>>,
+    /// The merged meshes' top-level geometry ID and, per triangle, the scene instance and
+    /// triangle it stands for.
+    merged: Option<(u32, Vec<(u32, u32)>)>,
     /// Per mesh, the unnormalised counter-clockwise face normal of each triangle.
     face_normals: Vec<Vec<Vec3>>,
     /// Per instance: (mesh, normal matrix).
@@ -903,13 +910,25 @@ impl EmbreeScene {
             ids[i] = Some(what);
         };
 
-        // Meshes: one scene per mesh, instanced.
+        // Meshes: one scene per mesh, instanced, but for the meshes placed once: merged into
+        // one scene of world-space triangles, instanced with the identity, as our tracer
+        // merges them (`accel::merge`, the same `f32` vertices), so that both trace the same
+        // triangles through the same kind of structure.
         let meshes = &scene.meshes;
+        let merged = MergedMeshes::of(meshes);
+        let mut needed = vec![false; meshes.meshes.len()];
+        for (k, inst) in meshes.instances.iter().enumerate() {
+            if merged.as_ref().is_none_or(|m| !m.merged[k])
+                && let Some(n) = needed.get_mut(inst.mesh)
+            {
+                *n = true;
+            }
+        }
         let mut alpha = AlphaFilter::of(meshes);
-        let mut mesh_scenes = Vec::with_capacity(meshes.meshes.len());
+        let mut mesh_scenes = Vec::with_capacity(meshes.meshes.len() + 1);
         for (m, mesh) in meshes.meshes.iter().enumerate() {
             let s = SceneHandle::with_quality(&device, quality, options.robust)?;
-            if !mesh.triangles.is_empty() {
+            if needed[m] && !mesh.triangles.is_empty() {
                 let g = triangle_geometry(&device, &mesh.positions, &mesh.triangles)?;
                 if let Some(a) = alpha.as_mut().filter(|a| a.masked_meshes.contains(&m)) {
                     a.attach(&g);
@@ -935,14 +954,29 @@ impl EmbreeScene {
             })
             .collect();
         let mut instances = Vec::with_capacity(meshes.instances.len());
+        let mut merged_top = None;
+        if let Some(m) = &merged {
+            // (no alpha filter: no merged instance has a mask)
+            let s = SceneHandle::with_quality(&device, quality, options.robust)?;
+            let g = triangle_geometry(&device, &m.positions, &m.triangles)?;
+            s.attach(&g);
+            s.commit();
+            device.check("building the merged meshes' scene")?;
+            let g = instance(&device, &s, &Affine3A::IDENTITY)?;
+            merged_top = Some((top.attach(&g), m.origin.clone()));
+            mesh_scenes.push(s);
+        }
         for (k, inst) in meshes.instances.iter().enumerate() {
+            instances.push((inst.mesh, inst.normal_matrix));
+            if merged.as_ref().is_some_and(|m| m.merged[k]) {
+                continue;
+            }
             let g = instance(&device, &mesh_scenes[inst.mesh], &inst.transform)?;
             let id = top.attach(&g);
             record(id, ObjectId::MeshInstance(k));
             if let Some(a) = alpha.as_mut() {
                 a.set_instance(id, k as u32);
             }
-            instances.push((inst.mesh, inst.normal_matrix));
         }
 
         // The clip box of planes.
@@ -1119,6 +1153,7 @@ impl EmbreeScene {
             _alpha: alpha,
             device,
             ids,
+            merged: merged_top,
             face_normals,
             instances,
             sdf_face_normals,
@@ -1139,6 +1174,19 @@ impl EmbreeScene {
         } else {
             (geom_id, false)
         };
+        if let Some((merged_top, origin)) = &self.merged
+            && inside_instance
+            && top_id == *merged_top
+        {
+            let &(k, triangle) = origin.get(prim_id as usize)?;
+            let (mesh, nm) = self.instances[k as usize];
+            let normal = (nm * self.face_normals[mesh][triangle as usize]).normalize_or_zero();
+            return Some(QueryHit {
+                t,
+                normal,
+                object: ObjectId::MeshInstance(k as usize),
+            });
+        }
         let object = self.ids.get(top_id as usize).copied().flatten()?;
         let normal = match object {
             ObjectId::MeshInstance(k) if inside_instance => {

@@ -94,6 +94,9 @@ pub struct AccelOptions {
     /// Coherent rays ([`SceneTracer::closest_hits`]) marched in SIMD packets (else one by
     /// one, which gives the same answers).
     pub packets: bool,
+    /// The meshes placed once traced as one tree in world space ([`crate::accel::merge`];
+    /// else each under its instance, the two-level tree it is checked against).
+    pub merge_meshes: bool,
 }
 
 impl Default for AccelOptions {
@@ -104,6 +107,7 @@ impl Default for AccelOptions {
             specialise: true,
             native: true,
             packets: true,
+            merge_meshes: true,
         }
     }
 }
@@ -216,11 +220,8 @@ impl<'a> SceneTracer<'a> {
         Self::with_options(
             scene,
             AccelOptions {
-                sdf_bvh: true,
                 mesh_quality: scene.tracer.bvh,
-                specialise: true,
-                native: true,
-                packets: true,
+                ..Default::default()
             },
         )
     }
@@ -237,7 +238,11 @@ impl<'a> SceneTracer<'a> {
             } else {
                 SdfAccel::linear(&scene.objects)
             },
-            meshes: MeshAccel::new(&scene.meshes, options.mesh_quality),
+            meshes: MeshAccel::with_merging(
+                &scene.meshes,
+                options.mesh_quality,
+                options.merge_meshes,
+            ),
             fields,
             field_build_time,
             packets: options.packets,

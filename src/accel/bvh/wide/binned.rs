@@ -119,6 +119,19 @@ impl Run {
         }
         run
     }
+    /// [`Run::of`], in parallel parts for a large run (unions are exact: the same run).
+    fn of_parallel(refs: &[PrimRef]) -> Run {
+        if refs.len() <= PARALLEL_RUN {
+            return Run::of(refs);
+        }
+        refs.par_chunks(PARALLEL_RUN / 2).map(Run::of).reduce(
+            || Run::EMPTY,
+            |a, b| Run {
+                bounds: a.bounds.union(b.bounds),
+                centroids: a.centroids.union(b.centroids),
+            },
+        )
+    }
 }
 
 /// Splits `refs` in two by the binned SAH (or, when every centroid is the same point, in the
@@ -149,16 +162,37 @@ fn split_binned(refs: &mut [PrimRef], run: &Run) -> (usize, Run, Run) {
         // Non-negative and below BINS (a NaN becomes 0 through the saturating cast).
         [b.x as usize, b.y as usize, b.z as usize]
     };
-    let mut bins = [[Bounds::EMPTY; BINS]; 3];
-    let mut counts = [[0u32; BINS]; 3];
-    for r in refs.iter() {
-        let b = bin_of(r.centroid2());
-        let (lo, hi) = (r.lo(), r.hi());
-        for axis in 0..3 {
-            bins[axis][b[axis]].grow(lo, hi);
-            counts[axis][b[axis]] += 1;
+    let bin_run = |refs: &[PrimRef]| {
+        let mut bins = [[Bounds::EMPTY; BINS]; 3];
+        let mut counts = [[0u32; BINS]; 3];
+        for r in refs {
+            let b = bin_of(r.centroid2());
+            let (lo, hi) = (r.lo(), r.hi());
+            for axis in 0..3 {
+                bins[axis][b[axis]].grow(lo, hi);
+                counts[axis][b[axis]] += 1;
+            }
         }
-    }
+        (bins, counts)
+    };
+    // A large run (the top of a large mesh, where one split waits for nothing else) is binned
+    // in parallel parts; unions of boxes and sums of counts are exact, so the bins are the same.
+    let (bins, counts) = if refs.len() > PARALLEL_RUN {
+        refs.par_chunks(PARALLEL_RUN / 2).map(bin_run).reduce(
+            || ([[Bounds::EMPTY; BINS]; 3], [[0u32; BINS]; 3]),
+            |(mut b, mut c), (b2, c2)| {
+                for axis in 0..3 {
+                    for k in 0..BINS {
+                        b[axis][k] = b[axis][k].union(b2[axis][k]);
+                        c[axis][k] += c2[axis][k];
+                    }
+                }
+                (b, c)
+            },
+        )
+    } else {
+        bin_run(refs)
+    };
     // Sweep: cost of splitting after bin k = area(left)·|left| + area(right)·|right|.
     let mut best: Option<(f32, usize, usize)> = None;
     for axis in 0..3 {
@@ -201,24 +235,36 @@ fn split_binned(refs: &mut [PrimRef], run: &Run) -> (usize, Run, Run) {
     let (o, sc) = (origin[axis], scale[axis]);
     let n = refs.len();
     let mut partition = |scratch: &mut Vec<PrimRef>| {
+        // Written without filling it first (a pass of its own): every slot is written below.
         scratch.clear();
-        scratch.resize(n, refs[0]);
+        scratch.reserve(n);
+        let buf = &mut scratch.spare_capacity_mut()[..n];
         let (mut l, mut r) = (0, n);
         for p in refs.iter() {
             let bin = ((p.centroid2()[axis] - o) * sc).min((BINS - 1) as f32) as usize;
             let right = usize::from(bin > k);
-            scratch[l] = *p;
-            scratch[r - 1] = *p;
+            buf[l].write(*p);
+            buf[r - 1].write(*p);
             l += 1 - right;
             r -= right;
         }
-        debug_assert_eq!(l, r);
-        refs.copy_from_slice(scratch);
+        // Each slot below the final `l` was written while `l` pointed at it, each from the
+        // final `r` up while `r − 1` did; they meet.
+        assert_eq!(l, r);
+        for (d, s) in refs.iter_mut().zip(buf.iter()) {
+            // SAFETY: every slot of `buf` was written (above).
+            *d = unsafe { s.assume_init() };
+        }
         l
     };
     // Large runs (near the top of a large mesh, a few per build) get an array of their own,
-    // freed at once, so that no thread keeps one as large as the largest mesh it has built.
-    let mid = if n > SCRATCH_KEPT {
+    // freed at once, so that no thread keeps one as large as the largest mesh it has built;
+    // the largest are partitioned in parallel.
+    let mid = if n > PARALLEL_RUN {
+        partition_parallel(refs, |p| {
+            ((p.centroid2()[axis] - o) * sc).min((BINS - 1) as f32) as usize > k
+        })
+    } else if n > SCRATCH_KEPT {
         partition(&mut Vec::with_capacity(n))
     } else {
         SCRATCH.with_borrow_mut(partition)
@@ -235,6 +281,59 @@ fn split_binned(refs: &mut [PrimRef], run: &Run) -> (usize, Run, Run) {
 /// Largest run the kept scratch array serves (1.8 MB of references).
 const SCRATCH_KEPT: usize = 1 << 16;
 
+/// Runs of more primitives than this are binned, partitioned and measured in parallel parts
+/// of half as many.
+const PARALLEL_RUN: usize = 1 << 15;
+
+/// The partition of [`split_binned`] in parallel parts: each part's primitives that are not
+/// `right` go, in order, after those of the parts before it from the left end, and the others,
+/// in order, before those of the parts before it from the right end — exactly where the
+/// one-pass partition puts them (its right side comes out reversed), so the tree does not
+/// depend on the run's size or the thread count. Returns the size of the left side.
+fn partition_parallel(refs: &mut [PrimRef], right: impl Fn(&PrimRef) -> bool + Sync) -> usize {
+    let part = PARALLEL_RUN / 2;
+    let lefts: Vec<usize> = refs
+        .par_chunks(part)
+        .map(|c| c.iter().filter(|p| !right(p)).count())
+        .collect();
+    let n = refs.len();
+    let n_left: usize = lefts.iter().sum();
+    let mut scratch = vec![refs[0]; n];
+    {
+        // Each part's two segments of the scratch array: its lefts in the left side, its
+        // rights (from the top down, part 0 highest) in the right side.
+        let (mut left_side, right_side) = scratch.split_at_mut(n_left);
+        let mut right_side = right_side;
+        let mut segments = Vec::with_capacity(lefts.len());
+        for (chunk, &l) in refs.chunks(part).zip(&lefts) {
+            let r = chunk.len() - l;
+            let (ls, rest) = left_side.split_at_mut(l);
+            left_side = rest;
+            let (rest, rs) = right_side.split_at_mut(right_side.len() - r);
+            right_side = rest;
+            segments.push((ls, rs));
+        }
+        refs.par_chunks(part)
+            .zip(segments)
+            .for_each(|(chunk, (ls, rs))| {
+                let (mut l, mut r) = (0, rs.len());
+                for p in chunk {
+                    if right(p) {
+                        r -= 1;
+                        rs[r] = *p;
+                    } else {
+                        ls[l] = *p;
+                        l += 1;
+                    }
+                }
+            });
+    }
+    refs.par_chunks_mut(part)
+        .zip(scratch.par_chunks(part))
+        .for_each(|(d, s)| d.copy_from_slice(s));
+    n_left
+}
+
 thread_local! {
     /// The partition's scratch array, one per thread of the pool, kept between builds.
     static SCRATCH: std::cell::RefCell<Vec<PrimRef>> = const { std::cell::RefCell::new(Vec::new()) };
@@ -245,7 +344,7 @@ thread_local! {
 /// nothing predicts, each waiting on its own last update.
 fn cut(refs: &[PrimRef], mid: usize) -> (usize, Run, Run) {
     let (a, b) = refs.split_at(mid);
-    (mid, Run::of(a), Run::of(b))
+    (mid, Run::of_parallel(a), Run::of_parallel(b))
 }
 
 /// The split when every centroid is the same point: any is as good, and halves keep the tree
@@ -388,16 +487,8 @@ pub(crate) fn build(boxes: &[OAabb]) -> WideBvh {
     if let Some(empty) = super::empty_tree_of(boxes) {
         return empty;
     }
-    let mut refs: Vec<PrimRef> = boxes
-        .par_iter()
-        .enumerate()
-        .map(|(i, b)| PrimRef {
-            lo: b.min.into(),
-            id: i as u32,
-            hi: b.max.into(),
-        })
-        .collect();
-    let run = Run::of(&refs);
+    let mut refs = prim_refs(boxes);
+    let run = Run::of_parallel(&refs);
     let root = match build_subtree(&mut refs, 0, run) {
         // A root that is one leaf is a node with one leaf child.
         leaf @ Built::Leaf { .. } => vec![(run.bounds, leaf)],
@@ -413,6 +504,19 @@ pub(crate) fn build(boxes: &[OAabb]) -> WideBvh {
         max_depth,
         bounds: (run.bounds.lo.into(), run.bounds.hi.into()),
     }
+}
+
+/// The references of `boxes`, each with its index.
+fn prim_refs(boxes: &[OAabb]) -> Vec<PrimRef> {
+    boxes
+        .par_iter()
+        .enumerate()
+        .map(|(i, b)| PrimRef {
+            lo: b.min.into(),
+            id: i as u32,
+            hi: b.max.into(),
+        })
+        .collect()
 }
 
 /// Appends the node of `children` and its subtrees; returns its index.
@@ -529,6 +633,37 @@ mod tests {
             check(&boxes, &build(&boxes));
         }
         assert!(build(&[]).nodes.is_empty());
+    }
+
+    /// The parallel partition puts every primitive where the one-pass partition does (the
+    /// left side in order, the right side reversed), for runs that are not a whole number of
+    /// parts and for one-sided splits.
+    #[test]
+    fn parallel_partition_is_the_one_pass_partition() {
+        for (n, threshold) in [
+            (100_003usize, 0.3f32),
+            (PARALLEL_RUN + 1, 0.9),
+            (70_000, 20.0),
+            (40_000, -20.0),
+        ] {
+            let refs = prim_refs(&random_boxes(n, n as u64));
+            let right = |p: &PrimRef| p.lo.x > threshold;
+            let mut expected = refs.clone();
+            let (mut l, mut r) = (0, n);
+            for p in &refs {
+                if right(p) {
+                    r -= 1;
+                    expected[r] = *p;
+                } else {
+                    expected[l] = *p;
+                    l += 1;
+                }
+            }
+            let mut got = refs.clone();
+            assert_eq!(partition_parallel(&mut got, right), l);
+            let ids = |v: &[PrimRef]| v.iter().map(|p| p.id).collect::<Vec<_>>();
+            assert_eq!(ids(&got), ids(&expected));
+        }
     }
 
     /// The tree depends on the boxes only: built on one thread and on four, it is the same
