@@ -3,9 +3,10 @@
 //! A two-level BVH pays at every instance a ray reaches: its box in the instance tree (boxes of
 //! a model's parts overlap a lot, and a transformed object box is looser than the part), the
 //! ray mapped into object space and set up again, and a walk of the part's tree from its root.
-//! Measured on the bench's glTF models (`examples/instance_cost.rs`, one thread), tracing
-//! their single-use meshes as one tree of world-space triangles was 5–20 % faster by model and
-//! ray kind. A mesh placed several times keeps its one tree under its instances (baking it
+//! Measured on the bench's instanced glTF models (`hytrace bench --only mesh`, one thread),
+//! tracing their single-use meshes as one tree of world-space triangles made primary, shadow
+//! and AO rays 4–16 % faster and the CAD models' incoherent rays 4–8 % (BENCHMARKS.md, "Meshes
+//! placed once, traced as one tree"). A mesh placed several times keeps its one tree under its instances (baking it
 //! would copy it once per placement), as renderers that flatten scenes do (Blender's Cycles
 //! bakes the transforms of objects that are not instanced).
 //!
