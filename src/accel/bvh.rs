@@ -1107,6 +1107,18 @@ pub struct InstanceBvh {
     stats: BuildStats,
 }
 
+/// Whether an instance can be placed with the object → world map `m`: finite, invertible,
+/// with a finite inverse (the instance tree leaves the others out, and nothing merges them).
+pub(crate) fn placeable(m: &Affine3A) -> bool {
+    let finite = |a: &Affine3A| {
+        a.matrix3.x_axis.is_finite()
+            && a.matrix3.y_axis.is_finite()
+            && a.matrix3.z_axis.is_finite()
+            && a.translation.is_finite()
+    };
+    m.matrix3.determinant() != 0.0 && finite(m) && finite(&m.inverse())
+}
+
 /// Instances merged into one mesh for [`InstanceBvh::build_merged`]: the index of that mesh
 /// (its triangles baked into world space) and, per triangle of it, the scene instance and
 /// triangle it stands for, in increasing order (so that the walk's tie rule, smaller instance
@@ -1184,17 +1196,11 @@ impl InstanceBvh {
                 continue;
             };
             let m = inst.transform;
-            let inv = m.inverse();
-            let finite = |a: &Affine3A| {
-                a.matrix3.x_axis.is_finite()
-                    && a.matrix3.y_axis.is_finite()
-                    && a.matrix3.z_axis.is_finite()
-                    && a.translation.is_finite()
-            };
-            if !(m.matrix3.determinant() != 0.0 && finite(&m) && finite(&inv)) {
+            if !placeable(&m) {
                 stats.dropped_invalid += 1;
                 continue;
             }
+            let inv = m.inverse();
             // World box: the transformed corners of the exact object box, grown so that the
             // world-space cull never rejects what the object-space test would hit. The ray
             // is mapped with rounding, so the object-space ray is the exact preimage only up

@@ -19,7 +19,7 @@
 //! merged index is the smaller (instance, triangle): the tie rule of the two-level walk.
 
 use crate::scene::SceneMeshes;
-use glam::{Affine3A, Vec3};
+use glam::Vec3;
 
 /// The triangles of the merged instances, in world space, and where each came from.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -50,12 +50,6 @@ impl MergedMeshes {
                 *u += 1;
             }
         }
-        let finite = |a: &Affine3A| {
-            a.matrix3.x_axis.is_finite()
-                && a.matrix3.y_axis.is_finite()
-                && a.matrix3.z_axis.is_finite()
-                && a.translation.is_finite()
-        };
         // Per instance, its baked vertices when it qualifies (baked on the rayon pool: one
         // pass over every vertex of the merged meshes).
         let baked: Vec<Option<Vec<Vec3>>> = (0..meshes.instances.len())
@@ -66,9 +60,7 @@ impl MergedMeshes {
                 let m = inst.transform;
                 let qualifies = uses[inst.mesh] == 1
                     && !mesh.triangles.is_empty()
-                    && finite(&m)
-                    && m.matrix3.determinant() != 0.0
-                    && finite(&m.inverse())
+                    && crate::accel::bvh::placeable(&m)
                     && !meshes.alpha_tested(k);
                 if !qualifies {
                     return None;
@@ -117,12 +109,26 @@ impl MergedMeshes {
     }
 }
 
+/// Per mesh of `meshes`, whether some instance that is not merged places it: the meshes
+/// that need a tree (a scene of their own in Embree's mirror) besides the merged one.
+pub fn own_tree_needed(meshes: &SceneMeshes, merged: Option<&MergedMeshes>) -> Vec<bool> {
+    let mut needed = vec![false; meshes.meshes.len()];
+    for (k, inst) in meshes.instances.iter().enumerate() {
+        if merged.is_none_or(|m| !m.merged[k])
+            && let Some(n) = needed.get_mut(inst.mesh)
+        {
+            *n = true;
+        }
+    }
+    needed
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::scene::mesh::TriangleMesh;
     use crate::scene::meshes::SceneInstance;
-    use glam::Mat3A;
+    use glam::{Affine3A, Mat3A};
 
     fn instance(mesh: usize, transform: Affine3A) -> SceneInstance {
         SceneInstance {

@@ -163,14 +163,7 @@ impl MeshAccel {
         let start = std::time::Instant::now();
         let merged = merge.then(|| merge::MergedMeshes::of(meshes)).flatten();
         // Meshes whose one instance is merged need no tree of their own.
-        let mut needed = vec![false; meshes.meshes.len()];
-        for (k, inst) in meshes.instances.iter().enumerate() {
-            if merged.as_ref().is_none_or(|m| !m.merged[k])
-                && let Some(n) = needed.get_mut(inst.mesh)
-            {
-                *n = true;
-            }
-        }
+        let needed = merge::own_tree_needed(meshes, merged.as_ref());
         let empty: (&[glam::Vec3], &[[u32; 3]]) = (&[], &[]);
         let mut jobs: Vec<(&[glam::Vec3], &[[u32; 3]])> = meshes
             .meshes

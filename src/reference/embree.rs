@@ -60,7 +60,7 @@ use super::analytic::{self, AnalyticHit};
 use super::certified::{self, Root, Search};
 use super::interval64::{self, Program, Registers as IntervalRegisters};
 use super::mesher::{self, MeshOptions, SdfMesh};
-use crate::accel::merge::MergedMeshes;
+use crate::accel::merge::{MergedMeshes, own_tree_needed};
 use crate::geom::{Aabb, Ray};
 use crate::scene::Scene;
 use crate::sdf::SdfNode;
@@ -916,14 +916,7 @@ impl EmbreeScene {
         // triangles through the same kind of structure.
         let meshes = &scene.meshes;
         let merged = MergedMeshes::of(meshes);
-        let mut needed = vec![false; meshes.meshes.len()];
-        for (k, inst) in meshes.instances.iter().enumerate() {
-            if merged.as_ref().is_none_or(|m| !m.merged[k])
-                && let Some(n) = needed.get_mut(inst.mesh)
-            {
-                *n = true;
-            }
-        }
+        let needed = own_tree_needed(meshes, merged.as_ref());
         let mut alpha = AlphaFilter::of(meshes);
         let mut mesh_scenes = Vec::with_capacity(meshes.meshes.len() + 1);
         for (m, mesh) in meshes.meshes.iter().enumerate() {
