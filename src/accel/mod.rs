@@ -149,9 +149,10 @@ impl bvh::HitFilter for AlphaTest<'_> {
 }
 
 impl MeshAccel {
-    /// Builds the BVHs of a scene's meshes, the meshes in parallel on the rayon pool (each
-    /// tree is built by one thread and is a function of its mesh alone, so the trees do not
-    /// depend on the number of threads).
+    /// Builds the BVHs of a scene's meshes, the meshes placed once merged into one tree
+    /// ([`merge`]). The trees are built side by side on the rayon pool, each large one in
+    /// parallel itself; every tree is a function of its mesh alone, the same on any number of
+    /// threads.
     pub fn new(meshes: &SceneMeshes, quality: bvh::BuildQuality) -> Self {
         Self::with_merging(meshes, quality, true)
     }
