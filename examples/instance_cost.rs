@@ -1,5 +1,6 @@
 //! What instance boundaries cost the mesh walks: a model's bench rays traced through its
-//! two-level tree (a tree per mesh, instances over them, as `MeshAccel::new` builds it) and
+//! two-level tree (a tree per mesh, every instance over them: `MeshAccel::with_merging` without
+//! merging the meshes placed once, which `MeshAccel::new` does) and
 //! through one tree over all its triangles baked into world space under one instance:
 //! `cargo run --release --example instance_cost -- MODEL [seconds] [--obj PATH]`.
 //!
@@ -79,7 +80,7 @@ fn main() -> anyhow::Result<()> {
         .transpose()?;
     let scene = Scene::from_model(Path::new(model), None)?;
     let quality = BuildQuality::Medium;
-    let instanced = MeshAccel::new(&scene.meshes, quality);
+    let instanced = MeshAccel::with_merging(&scene.meshes, quality, false);
 
     // Every instance's triangles in world space, one mesh.
     let (mut positions, mut triangles): (Vec<Vec3>, Vec<[u32; 3]>) = (Vec::new(), Vec::new());
