@@ -38,6 +38,41 @@ use crate::sdf::tape::Tape;
 use crate::trace::SceneTracer;
 use glam::Vec3;
 
+/// An instance's record: its world → object map and normal matrix as rows, its mesh record
+/// and materials.
+fn instance_record(
+    world_to_object: &glam::Affine3A,
+    normal_matrix: &glam::Mat3A,
+    mesh: u32,
+    material_base: u32,
+    material_override: u32,
+    alpha_tested: bool,
+) -> InstanceRecord {
+    let (x, y, z, t) = (
+        world_to_object.matrix3.x_axis,
+        world_to_object.matrix3.y_axis,
+        world_to_object.matrix3.z_axis,
+        world_to_object.translation,
+    );
+    let nm = normal_matrix;
+    InstanceRecord {
+        world_to_object: [
+            [x.x, y.x, z.x, t.x],
+            [x.y, y.y, z.y, t.y],
+            [x.z, y.z, z.z, t.z],
+        ],
+        normal_matrix: [
+            nm.x_axis.extend(0.0).to_array(),
+            nm.y_axis.extend(0.0).to_array(),
+            nm.z_axis.extend(0.0).to_array(),
+        ],
+        mesh,
+        material_base,
+        material_override,
+        alpha_tested: alpha_tested as u32,
+    }
+}
+
 /// The host-side contents of the scene buffers.
 #[derive(Debug, Clone, Default)]
 pub struct SceneData {
@@ -265,53 +300,27 @@ impl SceneData {
         // Instances: all recorded (surfaces are looked up by scene index); the tree over the
         // valid ones is the CPU's, with its per-ray node margin.
         for (k, inst) in sm.instances.iter().enumerate() {
-            let inv = inst.transform.inverse();
-            let rows = |a: &glam::Affine3A| -> [[f32; 4]; 3] {
-                let (x, y, z, t) = (
-                    a.matrix3.x_axis,
-                    a.matrix3.y_axis,
-                    a.matrix3.z_axis,
-                    a.translation,
-                );
-                [
-                    [x.x, y.x, z.x, t.x],
-                    [x.y, y.y, z.y, t.y],
-                    [x.z, y.z, z.z, t.z],
-                ]
-            };
-            let nm = inst.normal_matrix;
-            data.instances.push(InstanceRecord {
-                world_to_object: rows(&inv),
-                normal_matrix: [
-                    nm.x_axis.extend(0.0).to_array(),
-                    nm.y_axis.extend(0.0).to_array(),
-                    nm.z_axis.extend(0.0).to_array(),
-                ],
-                mesh: inst.mesh as u32,
-                material_base: inst.material_base,
-                material_override: inst.material_override.unwrap_or(NONE),
-                alpha_tested: accel.alpha_tested.get(k).copied().unwrap_or(false) as u32,
-            });
+            data.instances.push(instance_record(
+                &inst.transform.inverse(),
+                &inst.normal_matrix,
+                inst.mesh as u32,
+                inst.material_base,
+                inst.material_override.unwrap_or(NONE),
+                accel.alpha_tested.get(k).copied().unwrap_or(false),
+            ));
         }
         data.globals.instance_count = sm.instances.len() as u32;
         if let Some((index, origin)) = accel.tlas.merged() {
             debug_assert_eq!(index, data.globals.instance_count);
-            data.instances.push(InstanceRecord {
-                world_to_object: [
-                    [1.0, 0.0, 0.0, 0.0],
-                    [0.0, 1.0, 0.0, 0.0],
-                    [0.0, 0.0, 1.0, 0.0],
-                ],
-                normal_matrix: [
-                    [1.0, 0.0, 0.0, 0.0],
-                    [0.0, 1.0, 0.0, 0.0],
-                    [0.0, 0.0, 1.0, 0.0],
-                ],
-                mesh: merged_mesh,
-                material_base: 0,
-                material_override: NONE,
-                alpha_tested: 0,
-            });
+            // Untransformed, and never alpha-tested (no merged instance has a mask).
+            data.instances.push(instance_record(
+                &glam::Affine3A::IDENTITY,
+                &glam::Mat3A::IDENTITY,
+                merged_mesh,
+                0,
+                NONE,
+                false,
+            ));
             data.globals.merged_origin_start = data.refs.len() as u32;
             data.refs.extend(
                 origin

@@ -233,16 +233,18 @@ fn split_binned(refs: &mut [PrimRef], run: &Run) -> (usize, Run, Run) {
     // array, and only the cursor of its side moves (a slot written for the other side is
     // written again by a later primitive; at the end the cursors meet).
     let (o, sc) = (origin[axis], scale[axis]);
+    // Past bin k: the binning's classification, the same operations on the same values.
+    let goes_right =
+        |p: &PrimRef| ((p.centroid2()[axis] - o) * sc).min((BINS - 1) as f32) as usize > k;
     let n = refs.len();
-    let mut partition = |scratch: &mut Vec<PrimRef>| {
+    let partition = |scratch: &mut Vec<PrimRef>| {
         // Written without filling it first (a pass of its own): every slot is written below.
         scratch.clear();
         scratch.reserve(n);
         let buf = &mut scratch.spare_capacity_mut()[..n];
         let (mut l, mut r) = (0, n);
         for p in refs.iter() {
-            let bin = ((p.centroid2()[axis] - o) * sc).min((BINS - 1) as f32) as usize;
-            let right = usize::from(bin > k);
+            let right = usize::from(goes_right(p));
             buf[l].write(*p);
             buf[r - 1].write(*p);
             l += 1 - right;
@@ -257,15 +259,11 @@ fn split_binned(refs: &mut [PrimRef], run: &Run) -> (usize, Run, Run) {
         }
         l
     };
-    // Large runs (near the top of a large mesh, a few per build) get an array of their own,
-    // freed at once, so that no thread keeps one as large as the largest mesh it has built;
-    // the largest are partitioned in parallel.
+    // The largest runs (near the top of a large mesh, a few per build) are partitioned in
+    // parallel, through an array of their own freed at once, so that no thread keeps one as
+    // large as the largest mesh it has built.
     let mid = if n > PARALLEL_RUN {
-        partition_parallel(refs, |p| {
-            ((p.centroid2()[axis] - o) * sc).min((BINS - 1) as f32) as usize > k
-        })
-    } else if n > SCRATCH_KEPT {
-        partition(&mut Vec::with_capacity(n))
+        partition_parallel(refs, goes_right)
     } else {
         SCRATCH.with_borrow_mut(partition)
     };
@@ -278,11 +276,8 @@ fn split_binned(refs: &mut [PrimRef], run: &Run) -> (usize, Run, Run) {
     cut(refs, mid)
 }
 
-/// Largest run the kept scratch array serves (1.8 MB of references).
-const SCRATCH_KEPT: usize = 1 << 16;
-
 /// Runs of more primitives than this are binned, partitioned and measured in parallel parts
-/// of half as many.
+/// of half as many; the kept scratch array serves the others (0.9 MB of references at most).
 const PARALLEL_RUN: usize = 1 << 15;
 
 /// The partition of [`split_binned`] in parallel parts: each part's primitives that are not
@@ -670,7 +665,7 @@ mod tests {
     /// node for node and in the same primitive order.
     #[test]
     fn the_tree_does_not_depend_on_the_thread_count() {
-        // More than `SCRATCH_KEPT`, so that both partition arrays serve.
+        // More than `PARALLEL_RUN`, so that both partitions serve.
         let boxes = random_boxes(100_000, 11);
         let on = |threads: usize| {
             rayon::ThreadPoolBuilder::new()
