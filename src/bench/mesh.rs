@@ -271,26 +271,32 @@ fn build_embree(
 /// Embree's build times of a scene, ms: HIGH robust, HIGH default flags, MEDIUM default flags.
 type EmbreeBuilds = [f64; 3];
 
-/// Builds the referee of `scene` `rounds` times (taking turns with `ours`, which is called
-/// once per round and returns its own times) and keeps the first scenes built; returns the
-/// referee (if Embree is built in) and the median build times.
+/// Builds the referee of `scene` `rounds` times after a warm-up round (taking turns with
+/// `ours`, which is called once per round, told whether the round is timed, and keeps its own
+/// times) and keeps the first scenes built; returns the referee (if Embree is built in) and
+/// the median build times of the timed rounds. The warm-up round spares both builders the
+/// costs of a first build in the process (thread pools starting, memory first touched),
+/// which made single medians of three swing by a third.
 #[cfg(feature = "embree")]
 fn build_referee(
     scene: &Scene,
     packet: Option<usize>,
     rounds: usize,
-    mut ours: impl FnMut(),
+    mut ours: impl FnMut(bool),
 ) -> anyhow::Result<(Option<Referee>, Option<EmbreeBuilds>)> {
     use crate::reference::embree::{EmbreeQuality, PacketWidth};
     let mut times: [Vec<f64>; 3] = Default::default();
     let mut kept = None;
-    for _ in 0..rounds.max(1) {
-        ours();
+    for round in 0..=rounds.max(1) {
+        let timed = round > 0;
+        ours(timed);
         let (robust, a) = build_embree(scene, true, EmbreeQuality::High)?;
         let (default, b) = build_embree(scene, false, EmbreeQuality::High)?;
         let (_, c) = build_embree(scene, false, EmbreeQuality::Medium)?;
-        for (t, x) in times.iter_mut().zip([a, b, c]) {
-            t.push(x);
+        if timed {
+            for (t, x) in times.iter_mut().zip([a, b, c]) {
+                t.push(x);
+            }
         }
         if kept.is_none() {
             kept = Some((robust, default));
@@ -318,10 +324,10 @@ fn build_referee(
     _: &Scene,
     _: Option<usize>,
     rounds: usize,
-    mut ours: impl FnMut(),
+    mut ours: impl FnMut(bool),
 ) -> anyhow::Result<(Option<Referee>, Option<EmbreeBuilds>)> {
-    for _ in 0..rounds.max(1) {
-        ours();
+    for round in 0..=rounds.max(1) {
+        ours(round > 0);
     }
     Ok((None, None))
 }
@@ -523,15 +529,17 @@ pub fn run(opts: &BenchOptions) -> anyhow::Result<MeshReport> {
         eprintln!("bench: mesh scene {name}");
         let scene = load(&opts.assets, rel)?;
         // Builds are timed in turns (ours at the bench's preset, ours at Medium, then
-        // Embree's), three rounds unless quick; the median is reported.
+        // Embree's), after a warm-up round, three rounds unless quick; the median is reported.
         let rounds = if opts.quick { 1 } else { 3 };
         let (mut ours_ms, mut medium_ms) = (Vec::new(), Vec::new());
         let mut accel = None;
-        let (referee, embree_ms) = build_referee(&scene, opts.embree_packet, rounds, || {
+        let (referee, embree_ms) = build_referee(&scene, opts.embree_packet, rounds, |timed| {
             let a = MeshAccel::new(&scene.meshes, opts.bvh);
-            ours_ms.push(a.build_time.as_secs_f64() * 1e3);
             let m = MeshAccel::new(&scene.meshes, crate::accel::bvh::BuildQuality::Medium);
-            medium_ms.push(m.build_time.as_secs_f64() * 1e3);
+            if timed {
+                ours_ms.push(a.build_time.as_secs_f64() * 1e3);
+                medium_ms.push(m.build_time.as_secs_f64() * 1e3);
+            }
             accel.get_or_insert(a);
         })?;
         let accel = accel.expect("built at least once");
@@ -780,7 +788,7 @@ impl MeshReport {
         );
         let _ = writeln!(
             s,
-            "Primary rays {}×{} from a camera framing the model's bounds; AO rays (cosine-distributed, closest hit within the model's radius) and shadow rays (to a point light above) from every primary hit; {} incoherent rays (uniform origins in the bounds, uniform directions); our BVH: the {} preset, watertight traversal and triangle test. Embree: build quality HIGH, in two modes, *default* (Embree's default scene flags: fastest, not watertight) and *robust* (`RTC_SCENE_FLAG_ROBUST`: watertight), each queried one ray at a time (`rtcIntersect1`/`rtcOccluded1`, \"/1\") and in packets of {packet} rays cut in order from the same 64-ray chunks ours gets, with valid masks (`rtcIntersect{packet}`/`rtcOccluded{packet}`, \"/{packet}\"; native packets in this library: {native}). Embree 4 has no stream queries (`rtcIntersect1M` was removed in 4.0).\n",
+            "Primary rays {}×{} from a camera framing the model's bounds; AO rays (cosine-distributed, closest hit within the model's radius) and shadow rays (to a point light above) from every primary hit; {} incoherent rays (uniform origins in the bounds, uniform directions); our BVH: the {} preset, watertight traversal and triangle test; build times are medians of three rounds of both builders in turns, after a warm-up round. Embree: build quality HIGH, in two modes, *default* (Embree's default scene flags: fastest, not watertight) and *robust* (`RTC_SCENE_FLAG_ROBUST`: watertight), each queried one ray at a time (`rtcIntersect1`/`rtcOccluded1`, \"/1\") and in packets of {packet} rays cut in order from the same 64-ray chunks ours gets, with valid masks (`rtcIntersect{packet}`/`rtcOccluded{packet}`, \"/{packet}\"; native packets in this library: {native}). Embree 4 has no stream queries (`rtcIntersect1M` was removed in 4.0).\n",
             self.width, self.height, self.incoherent, self.bvh
         );
         let _ = writeln!(
@@ -932,7 +940,8 @@ pub fn scaling(opts: &BenchOptions) -> anyhow::Result<Vec<MeshScalingRow>> {
             scene.meshes.triangle_count()
         );
         let mut accel = None;
-        let (referee, embree_ms) = build_referee(&scene, opts.embree_packet, 1, || {
+        // (The timed round's tree is the one kept, and its time the one reported.)
+        let (referee, embree_ms) = build_referee(&scene, opts.embree_packet, 1, |_| {
             accel = Some(MeshAccel::new(&scene.meshes, opts.bvh));
         })?;
         let accel = accel.expect("built once");

@@ -290,27 +290,43 @@ fn split_binned(refs: &mut [PrimRef], run: &Run) -> (usize, Run, Run) {
         // Each slot below the final `l` was written while `l` pointed at it, each from the
         // final `r` up while `r − 1` did; they meet.
         assert_eq!(l, r);
-        for (d, s) in refs.iter_mut().zip(buf.iter()) {
-            // SAFETY: every slot of `buf` was written (above).
-            *d = unsafe { s.assume_init() };
-        }
-        l
+        // The copy back measures the two sides' runs on the way, one side after the other (a
+        // pass of `cut` saved; measured during the partition, in turns that nothing predicts,
+        // each run waited on its own last update).
+        let (left_dst, right_dst) = refs.split_at_mut(l);
+        let (left_src, right_src) = buf.split_at(l);
+        let copy = |dst: &mut [PrimRef], src: &[std::mem::MaybeUninit<PrimRef>]| {
+            let mut run = Run::EMPTY;
+            for (d, s) in dst.iter_mut().zip(src) {
+                // SAFETY: every slot of `buf` was written (above).
+                let p = unsafe { s.assume_init() };
+                run.add(&p);
+                *d = p;
+            }
+            run
+        };
+        (l, copy(left_dst, left_src), copy(right_dst, right_src))
     };
+    // The partition classifies as the binning did (the same function on the same values), so
+    // both sides hold what the sweep counted; should they not, a cut in the middle keeps the
+    // build finite.
+    let one_sided = |mid: usize| mid == 0 || mid == n;
     // The largest runs (near the top of a large mesh, a few per build) are partitioned in
     // parallel, through an array of their own freed at once, so that no thread keeps one as
     // large as the largest mesh it has built.
-    let mid = if n > PARALLEL_RUN {
-        partition_parallel(refs, goes_right)
-    } else {
-        SCRATCH.with_borrow_mut(partition)
-    };
-    // The partition classifies as the binning did (the same operations on the same values),
-    // so both sides hold what the sweep counted; should they not, a cut in the middle keeps
-    // the build finite.
-    if mid == 0 || mid == n {
+    if n > PARALLEL_RUN {
+        let mid = partition_parallel(refs, goes_right);
+        return if one_sided(mid) {
+            split_middle(refs)
+        } else {
+            cut(refs, mid)
+        };
+    }
+    let (mid, left, right) = SCRATCH.with_borrow_mut(partition);
+    if one_sided(mid) {
         return split_middle(refs);
     }
-    cut(refs, mid)
+    (mid, left, right)
 }
 
 /// Runs of more primitives than this are binned, partitioned and measured in parallel parts
