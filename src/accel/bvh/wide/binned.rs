@@ -421,6 +421,7 @@ fn split_sorted(refs: &mut [PrimRef], run: &Run) -> (usize, Run, Run) {
     // reference's position (ties keep their order), then moved into place: a comparison sort
     // of the references themselves recomputed two centroids per comparison and moved 28-byte
     // records.
+    debug_assert!(n <= SWEEP_MAX, "only short runs are sorted");
     let mut keys = [0u64; SWEEP_MAX];
     for (i, (key, r)) in keys.iter_mut().zip(refs.iter()).enumerate() {
         *key = u64::from(total_order_bits(r.centroid2()[axis])) << 32 | i as u64;
