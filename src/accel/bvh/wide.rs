@@ -998,40 +998,71 @@ fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, cons
             next = Some(e);
             continue;
         }
-        // Gather and insertion-sort the hit children by entry distance (at most eight).
-        let mut hits = [Entry::default(); 8];
+        // Gather the hit children as keys, the entry distance's bits above the meta (the
+        // distances are ≥ 0, where the bits order as the values; a −0 is taken as +0), and
+        // sort them nearest first: by compare-exchange networks for two to four children,
+        // whose minima and maxima compile to selects (the insertion sort before branched on
+        // every comparison, and which way cannot be predicted).
+        let mut keys = [0u64; 8];
         let mut n = 0;
         while mask != 0 {
             let i = mask.trailing_zeros() as usize;
             mask &= mask - 1;
-            let e = Entry {
-                t: t[i],
-                meta: node.meta[i],
-                rays: (),
-            };
+            let (ti, meta) = (t[i], node.meta[i]);
             // In a grouped walk the leaves may just have shrunk tmax.
-            if GROUPED && e.t > *tmax {
+            if GROUPED && ti > *tmax {
                 continue;
             }
-            if e.meta & LEAF_BIT == 0 {
-                prefetch_node(nodes, e.meta);
+            if meta & LEAF_BIT == 0 {
+                prefetch_node(nodes, meta);
             }
-            let mut j = n;
-            while ORDERED && j > 0 && hits[j - 1].t > e.t {
-                hits[j] = hits[j - 1];
-                j -= 1;
-            }
-            hits[j] = e;
+            keys[n] = u64::from(ti.to_bits() & 0x7fff_ffff) << 32 | u64::from(meta);
             n += 1;
         }
         if n == 0 {
             continue;
         }
-        // Farthest first onto the stack; the nearest is handled next without a round trip.
-        for h in hits[1..n].iter().rev() {
-            stack.push(*h);
+        if ORDERED {
+            sort_keys(&mut keys, n);
         }
-        next = Some(hits[0]);
+        let entry = |key: u64| Entry {
+            t: f32::from_bits((key >> 32) as u32),
+            meta: key as u32,
+            rays: (),
+        };
+        // Farthest first onto the stack; the nearest is handled next without a round trip.
+        for &key in keys[1..n].iter().rev() {
+            stack.push(entry(key));
+        }
+        next = Some(entry(keys[0]));
+    }
+}
+
+/// Sorts `keys[..n]` ascending: compare-exchange networks (selects, no branches) up to four,
+/// an insertion sort above.
+#[inline(always)]
+fn sort_keys(keys: &mut [u64; 8], n: usize) {
+    let mut exchange = |a: usize, b: usize| {
+        let (x, y) = (keys[a], keys[b]);
+        keys[a] = x.min(y);
+        keys[b] = x.max(y);
+    };
+    match n {
+        0 | 1 => {}
+        2 => exchange(0, 1),
+        3 => {
+            exchange(0, 1);
+            exchange(1, 2);
+            exchange(0, 1);
+        }
+        4 => {
+            exchange(0, 1);
+            exchange(2, 3);
+            exchange(0, 2);
+            exchange(1, 3);
+            exchange(1, 2);
+        }
+        _ => keys[..n].sort_unstable(),
     }
 }
 
@@ -1121,6 +1152,26 @@ mod tests {
             if exact.is_some() {
                 assert!(got.contains(&(i as u32)));
             }
+        }
+    }
+
+    /// The walk's child order: every count of hit children, keys with repeated distances and
+    /// metas, against a full sort.
+    #[test]
+    fn child_keys_sort_ascending() {
+        let mut rng = crate::rng::Rng::new(17);
+        for case in 0..20_000 {
+            let n = case % 9;
+            let mut keys = [0u64; 8];
+            for k in keys.iter_mut().take(n) {
+                // Few distinct distances and metas, so that ties are common.
+                let t = rng.below(4) as f32 * 0.5;
+                *k = u64::from(t.to_bits()) << 32 | rng.below(3);
+            }
+            let mut expected = keys;
+            expected[..n].sort_unstable();
+            sort_keys(&mut keys, n);
+            assert_eq!(keys[..n], expected[..n], "case {case}");
         }
     }
 
