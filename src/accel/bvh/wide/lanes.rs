@@ -295,7 +295,9 @@ unsafe fn lanes_avx512<const MARGIN: bool, const ORDERED: bool, const GROUPED: b
             // one order can serve sixteen rays: by the nearest entry over the rays that meet
             // each (closest hit; any hit takes them in slot order). The nearest is visited
             // next, the others wait on the stack.
-            let mut order = [(0.0f32, 0usize); 8];
+            // (Sorted as keys, the nearest entry's bits above the slot, without branches as
+            // in the single-ray walk: the entries are ≥ 0, a −0 taken as +0.)
+            let mut order = [0u64; 8];
             let mut count = 0;
             while slots != 0 {
                 let child = slots.trailing_zeros() as usize;
@@ -305,15 +307,14 @@ unsafe fn lanes_avx512<const MARGIN: bool, const ORDERED: bool, const GROUPED: b
                 } else {
                     0.0
                 };
-                let mut j = count;
-                while ORDERED && j > 0 && order[j - 1].0 > key {
-                    order[j] = order[j - 1];
-                    j -= 1;
-                }
-                order[j] = (key, child);
+                order[count] = u64::from(key.to_bits() & 0x7fff_ffff) << 32 | child as u64;
                 count += 1;
             }
-            for (j, &(_, child)) in order[..count].iter().enumerate().rev() {
+            if ORDERED {
+                super::sort_keys(&mut order, count);
+            }
+            for (j, &key) in order[..count].iter().enumerate().rev() {
+                let child = (key & 7) as usize;
                 let meta = node.meta[child];
                 if meta & LEAF_BIT == 0 {
                     super::prefetch_node(nodes, meta);
