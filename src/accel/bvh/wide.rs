@@ -998,11 +998,10 @@ fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, cons
             next = Some(e);
             continue;
         }
-        // Gather the hit children as keys, the entry distance's bits above the meta (the
-        // distances are ≥ 0, where the bits order as the values; a −0 is taken as +0), and
-        // sort them nearest first: by compare-exchange networks for two to four children,
-        // whose minima and maxima compile to selects (the insertion sort before branched on
-        // every comparison, and which way cannot be predicted).
+        // Gather the hit children as keys of their entry distance and meta ([`child_key`]),
+        // and sort them nearest first: by compare-exchange networks for two to four
+        // children, whose minima and maxima compile to selects (the insertion sort before
+        // branched on every comparison, and which way cannot be predicted).
         let mut keys = [0u64; 8];
         let mut n = 0;
         while mask != 0 {
@@ -1016,7 +1015,7 @@ fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, cons
             if meta & LEAF_BIT == 0 {
                 prefetch_node(nodes, meta);
             }
-            keys[n] = u64::from(ti.to_bits() & 0x7fff_ffff) << 32 | u64::from(meta);
+            keys[n] = child_key(ti, meta);
             n += 1;
         }
         if n == 0 {
@@ -1036,6 +1035,14 @@ fn traverse_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, cons
         }
         next = Some(entry(keys[0]));
     }
+}
+
+/// A child's sort key: its entry distance's bits above `low` (its meta, or its slot), so that
+/// keys order as the distances, ties by `low`. Entry distances are ≥ 0, where the bits order
+/// as the values; a −0 is taken as +0.
+#[inline(always)]
+fn child_key(t: f32, low: u32) -> u64 {
+    u64::from(t.to_bits() & 0x7fff_ffff) << 32 | u64::from(low)
 }
 
 /// Sorts `keys[..n]` ascending: compare-exchange networks (selects, no branches) up to four,

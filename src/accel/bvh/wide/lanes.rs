@@ -295,8 +295,8 @@ unsafe fn lanes_avx512<const MARGIN: bool, const ORDERED: bool, const GROUPED: b
             // one order can serve sixteen rays: by the nearest entry over the rays that meet
             // each (closest hit; any hit takes them in slot order). The nearest is visited
             // next, the others wait on the stack.
-            // (Sorted as keys, the nearest entry's bits above the slot, without branches as
-            // in the single-ray walk: the entries are ≥ 0, a −0 taken as +0.)
+            // (Sorted as keys of the nearest entry and the slot, without branches, as in the
+            // single-ray walk.)
             let mut order = [0u64; 8];
             let mut count = 0;
             while slots != 0 {
@@ -307,7 +307,7 @@ unsafe fn lanes_avx512<const MARGIN: bool, const ORDERED: bool, const GROUPED: b
                 } else {
                     0.0
                 };
-                order[count] = u64::from(key.to_bits() & 0x7fff_ffff) << 32 | child as u64;
+                order[count] = super::child_key(key, child as u32);
                 count += 1;
             }
             if ORDERED {
