@@ -555,3 +555,58 @@ fn field_octrees_locate_evaluate_and_walk_as_on_the_cpu() {
         );
     }
 }
+
+/// A context compiles a module's pipeline once: a second request for the same text and entry
+/// point gets the same pipeline and layouts, another text or entry point its own, and a
+/// module the device rejects fails on every request, naming it.
+#[test]
+fn pipelines_are_compiled_once_per_context() {
+    let ctx = ctx();
+    let source = "@group(0) @binding(0) var<storage, read_write> out: array<u32>;
+        @compute @workgroup_size(1) fn first() { out[0] = 1u; }
+        @compute @workgroup_size(1) fn second() { out[0] = 2u; }";
+    let layouts = || {
+        vec![
+            ctx.device
+                .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                    label: Some("one output"),
+                    entries: &[wgpu::BindGroupLayoutEntry {
+                        binding: 0,
+                        visibility: wgpu::ShaderStages::COMPUTE,
+                        ty: wgpu::BindingType::Buffer {
+                            ty: wgpu::BufferBindingType::Storage { read_only: false },
+                            has_dynamic_offset: false,
+                            min_binding_size: None,
+                        },
+                        count: None,
+                    }],
+                }),
+        ]
+    };
+    let get = |source: &str, entry: &str| ctx.compute_pipeline("tiny", source, entry, layouts);
+    let a = get(source, "first").unwrap_or_else(|e| panic!("{e}"));
+    let again = get(source, "first").unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(a.pipeline, again.pipeline, "the same pipeline twice");
+    assert_eq!(
+        a.layouts, again.layouts,
+        "with the layouts it was made with"
+    );
+    // a clone of the context shares its pipelines
+    let clone = ctx.clone();
+    let b = clone
+        .compute_pipeline("tiny", source, "first", layouts)
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(a.pipeline, b.pipeline);
+    let other_entry = get(source, "second").unwrap_or_else(|e| panic!("{e}"));
+    assert_ne!(a.pipeline, other_entry.pipeline);
+    let other_text = get(&source.replace("1u;", "3u;"), "first").unwrap_or_else(|e| panic!("{e}"));
+    assert_ne!(a.pipeline, other_text.pipeline);
+    let broken = source.replace("out[0] = 1u;", "out[0] = undefined_name;");
+    for _ in 0..2 {
+        let e = get(&broken, "first").expect_err("a module that does not validate");
+        assert!(
+            matches!(e, hytrace::gpu::GpuError::Shader { ref name, .. } if name == "tiny"),
+            "{e}"
+        );
+    }
+}

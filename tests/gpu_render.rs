@@ -42,12 +42,8 @@ struct Gpu {
 }
 
 fn gpu() -> Gpu {
-    let ctx = GpuContext::new().unwrap_or_else(|e| {
-        panic!(
-            "no GPU adapter ({e}); on a machine without a GPU install Mesa's lavapipe \
-             (Debian: mesa-vulkan-drivers, see scripts/setup.sh)"
-        )
-    });
+    // One device for the tests of this file, so that they share its compiled kernel.
+    let ctx = common::gpu::ctx().clone();
     let renderer = GpuRenderer::new(&ctx);
     let gpu = Gpu { ctx, renderer };
     // lavapipe compiles the kernel on its first dispatch: a tiny warm-up render keeps that

@@ -2,6 +2,8 @@
 //! creation and read-back.
 
 use super::GpuError;
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, OnceLock};
 use wgpu::util::DeviceExt;
 
 /// The smallest storage buffer created: larger than any record of [`super::records`].
@@ -10,7 +12,7 @@ pub const MIN_STORAGE_BYTES: usize = 512;
 const _: () = assert!(size_of::<super::records::TriBlockRecord>() <= MIN_STORAGE_BYTES);
 const _: () = assert!(size_of::<super::records::WideNodeRecord>() <= MIN_STORAGE_BYTES);
 
-/// A wgpu device and queue (cloning shares them).
+/// A wgpu device and queue (cloning shares them, and the compiled pipelines).
 #[derive(Clone)]
 pub struct GpuContext {
     /// The device.
@@ -19,7 +21,22 @@ pub struct GpuContext {
     pub queue: wgpu::Queue,
     info: wgpu::AdapterInfo,
     limits: wgpu::Limits,
+    pipelines: Arc<Mutex<HashMap<PipelineKey, Arc<PipelineSlot>>>>,
 }
+
+/// A compute pipeline and the bind group layouts it was created with (group 0 first).
+#[derive(Clone, Debug)]
+pub struct ComputePipeline {
+    /// The pipeline.
+    pub pipeline: wgpu::ComputePipeline,
+    /// Its bind group layouts, by group.
+    pub layouts: Vec<wgpu::BindGroupLayout>,
+}
+
+/// A module's text and entry point: what makes two pipelines the same.
+type PipelineKey = (String, String);
+/// A pipeline being compiled or compiled (or the message of its failure), filled once.
+type PipelineSlot = OnceLock<Result<ComputePipeline, String>>;
 
 impl GpuContext {
     /// Opens the first Vulkan adapter wgpu offers, software ones (llvmpipe) included, with the
@@ -74,7 +91,79 @@ impl GpuContext {
             queue,
             info,
             limits,
+            pipelines: Arc::default(),
         })
+    }
+
+    /// The compute pipeline of `source`'s `entry` over bind groups of `layouts`, compiled on
+    /// the first request and shared by every later one (with the layouts it was made with)
+    /// on this context and its clones; a module that fails validation fails as
+    /// [`GpuError::Shader`] named `label`, every time.
+    ///
+    /// Why a cache: a driver compiles a pipeline in full at each creation and wgpu does not
+    /// share equal ones. The scene library is one large module: lavapipe takes 3–9 s to
+    /// create one of its pipelines even with Mesa's shader cache warm (a hardware driver
+    /// tens of milliseconds), and every scene's query, probe or renderer would pay that
+    /// again. Requests for different modules compile side by side; requests for one being
+    /// compiled wait for it.
+    pub fn compute_pipeline(
+        &self,
+        label: &str,
+        source: &str,
+        entry: &str,
+        layouts: impl FnOnce() -> Vec<wgpu::BindGroupLayout>,
+    ) -> Result<ComputePipeline, GpuError> {
+        let slot = {
+            // A poisoned map is still whole: slots are only ever added.
+            let mut map = self.pipelines.lock().unwrap_or_else(|e| e.into_inner());
+            map.entry((source.to_string(), entry.to_string()))
+                .or_default()
+                .clone()
+        };
+        slot.get_or_init(|| self.create_compute_pipeline(label, source, entry, layouts()))
+            .clone()
+            .map_err(|message| GpuError::Shader {
+                name: label.to_string(),
+                message,
+            })
+    }
+
+    fn create_compute_pipeline(
+        &self,
+        label: &str,
+        source: &str,
+        entry: &str,
+        layouts: Vec<wgpu::BindGroupLayout>,
+    ) -> Result<ComputePipeline, String> {
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let module = self
+            .device
+            .create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
+            });
+        let groups: Vec<Option<&wgpu::BindGroupLayout>> = layouts.iter().map(Some).collect();
+        let layout = self
+            .device
+            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(label),
+                bind_group_layouts: &groups,
+                immediate_size: 0,
+            });
+        let pipeline = self
+            .device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(label),
+                layout: Some(&layout),
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            });
+        match pollster::block_on(scope.pop()) {
+            Some(e) => Err(e.to_string()),
+            None => Ok(ComputePipeline { pipeline, layouts }),
+        }
     }
 
     /// The adapter's name, e.g. `llvmpipe (LLVM 15.0.6, 256 bits)`.

@@ -45,7 +45,8 @@ pub struct Kernel {
 const PROBE_PASSES: u32 = 4;
 
 impl Kernel {
-    /// Compiles a kernel over the scene library.
+    /// Compiles a kernel over the scene library (once per context: later requests share the
+    /// pipeline, see [`GpuContext::compute_pipeline`]).
     pub fn new(ctx: &GpuContext, kernel: &KernelSource) -> Result<Self, GpuError> {
         Self::from_source(ctx, kernel, &kernel.module())
     }
@@ -57,47 +58,18 @@ impl Kernel {
         kernel: &KernelSource,
         source: &str,
     ) -> Result<Self, GpuError> {
-        let (name, entry) = (kernel.file, kernel.entry);
-        let scene_layout = scene_layout(ctx);
-        let io_layout = ctx
-            .device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some(name),
-                entries: &layout_entries(&kernel.io()),
-            });
-        let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let module = ctx
-            .device
-            .create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(name),
-                source: wgpu::ShaderSource::Wgsl(source.into()),
-            });
-        let layout = ctx
-            .device
-            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some(name),
-                bind_group_layouts: &[Some(&scene_layout), Some(&io_layout)],
-                immediate_size: 0,
-            });
-        let pipeline = ctx
-            .device
-            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(name),
-                layout: Some(&layout),
-                module: &module,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
-                cache: None,
-            });
-        if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(GpuError::Shader {
-                name: name.to_string(),
-                message: e.to_string(),
-            });
-        }
+        let compiled = ctx.compute_pipeline(kernel.file, source, kernel.entry, || {
+            let io_layout = ctx
+                .device
+                .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                    label: Some(kernel.file),
+                    entries: &layout_entries(&kernel.io()),
+                });
+            vec![scene_layout(ctx), io_layout]
+        })?;
         Ok(Kernel {
-            pipeline,
-            io_layout,
+            pipeline: compiled.pipeline,
+            io_layout: compiled.layouts[1].clone(),
         })
     }
 

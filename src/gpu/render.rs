@@ -10,7 +10,7 @@ use super::shade::{
     RenderPixel, RenderTile, ShadeCamera, ShadeLight, ShadeSettings, pass_bindings,
     shading_bindings, wgsl_prelude,
 };
-use super::shaders::{bind_buffers, layout_entries, with_kernel};
+use super::shaders::{Bindings, bind_buffers, layout_entries, with_kernel};
 use crate::render::progressive::{PixelSums, SampleSums};
 use crate::render::{Framebuffer, RenderOptions, Tile};
 use crate::scene::Scene;
@@ -106,43 +106,37 @@ pub struct GpuPasses {
 }
 
 impl GpuRenderer {
-    /// Compiles the render kernel for the context's device.
+    /// Compiles the render kernel for the context's device (once per context: later
+    /// renderers share the pipeline, see [`GpuContext::compute_pipeline`]).
+    ///
+    /// # Panics
+    /// If the device rejects the render kernel, which is validated in the tests: a bug.
     pub fn new(ctx: &GpuContext) -> Self {
         let device = &ctx.device;
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("render.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(render_shader_source().into()),
-        });
-        let shading_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("render scene bindings"),
-            entries: &layout_entries(&shading_bindings()),
-        });
-        let passes_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("render pass bindings"),
-            entries: &layout_entries(&pass_bindings()),
-        });
-        let buffers_layout = scene_layout(ctx);
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("render pipeline layout"),
-            bind_group_layouts: &[
-                Some(&buffers_layout),
-                Some(&shading_layout),
-                Some(&passes_layout),
-            ],
-            immediate_size: 0,
-        });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("render pipeline"),
-            layout: Some(&pipeline_layout),
-            module: &module,
-            entry_point: Some("render_tile_main"),
-            compilation_options: Default::default(),
-            cache: None,
-        });
+        let compiled = ctx
+            .compute_pipeline(
+                "render.wgsl",
+                &render_shader_source(),
+                "render_tile_main",
+                || {
+                    let layout = |label, bindings: &Bindings| {
+                        device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                            label: Some(label),
+                            entries: &layout_entries(bindings),
+                        })
+                    };
+                    vec![
+                        scene_layout(ctx),
+                        layout("render scene bindings", &shading_bindings()),
+                        layout("render pass bindings", &pass_bindings()),
+                    ]
+                },
+            )
+            .unwrap_or_else(|e| panic!("{e}"));
         GpuRenderer {
-            pipeline,
-            scene_layout: shading_layout,
-            passes_layout,
+            pipeline: compiled.pipeline,
+            scene_layout: compiled.layouts[1].clone(),
+            passes_layout: compiled.layouts[2].clone(),
         }
     }
 
