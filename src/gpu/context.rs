@@ -102,10 +102,10 @@ impl GpuContext {
     ///
     /// Why a cache: a driver compiles a pipeline in full at each creation and wgpu does not
     /// share equal ones. The scene library is one large module: lavapipe takes 3–9 s to
-    /// create one of its pipelines even with Mesa's shader cache warm (a hardware driver
-    /// tens of milliseconds), and every scene's query, probe or renderer would pay that
-    /// again. Requests for different modules compile side by side; requests for one being
-    /// compiled wait for it.
+    /// create one of its pipelines even with Mesa's shader cache warm, and every scene's
+    /// query, probe or renderer paid that again. Requests for different modules compile side
+    /// by side; requests for one being compiled wait for it. The cache keeps one entry per
+    /// module text and entry point: the product's kernels are a handful of fixed texts.
     pub fn compute_pipeline(
         &self,
         label: &str,
