@@ -1508,7 +1508,8 @@ fn packets_give_the_single_ray_answers() {
 }
 
 /// Rays from nearby origins in all directions (AO and diffuse rays of neighbouring pixels)
-/// make no frustum; on CPUs with AVX-512 they are traced sixteen at a time in lane walks. The
+/// make no frustum; on CPUs with AVX-512 or AVX2 they are traced sixteen at a time in lane
+/// walks. The
 /// answers are the single-ray ones, bit for bit, including groups holding a ray parallel to an
 /// axis, a ray from a non-finite origin, or per-ray limits that retire rays.
 #[test]

@@ -1386,8 +1386,8 @@ impl InstanceBvh {
     /// [`Self::closest_hit`] of every ray `rays[i]` over `[tmin, tmax[i]]`, into `out[i]`: the
     /// same answers, bit for bit. Consecutive rays are traced together, [`PACKET`] at a time,
     /// when they are coherent (same octant, none parallel to an axis: neighbouring primary rays
-    /// of a camera, shadow rays towards one light); otherwise, on CPUs with AVX-512, sixteen at
-    /// a time in lane walks when they start close together (AO and diffuse rays of
+    /// of a camera, shadow rays towards one light); otherwise, on CPUs with AVX-512 or AVX2,
+    /// sixteen at a time in lane walks when they start close together (AO and diffuse rays of
     /// neighbouring pixels, see `wide::lanes`); the rest one by one.
     ///
     /// # Panics
@@ -1519,7 +1519,7 @@ impl InstanceBvh {
     /// Traces a chunk of at most [`PACKET`] rays with query `Q` (answers to `keep` as in
     /// [`Self::packet`]): as one frustum walk when they are coherent, otherwise in lane walks
     /// of [`wide::LANES`] neighbours. Returns the mask of the rays neither could take (on CPUs
-    /// without AVX-512, all of an incoherent chunk), which the caller traces one by one.
+    /// without AVX2, all of an incoherent chunk), which the caller traces one by one.
     fn chunk<Q: PacketQuery>(
         &self,
         meshes: &[MeshBvh],
@@ -1532,8 +1532,8 @@ impl InstanceBvh {
         if self.packet::<Q, false>(meshes, rays, tmin, tmax, filter, &mut keep) {
             return 0;
         }
-        if !wide::has_avx512() {
-            // No lane walks here: the rays go one by one at once (asking each group would
+        if !wide::has_lanes() {
+            // No lane walks here (no AVX2): the rays go one by one at once (asking each group would
             // compute every ray's node ray twice).
             return wide::all_rays(rays.len());
         }

@@ -57,7 +57,7 @@ mod binned;
 mod lanes;
 mod packet;
 pub(crate) use binned::build as build_binned;
-pub(crate) use lanes::{LANES, has_avx512, lanes_take, traverse_lanes};
+pub(crate) use lanes::{LANES, has_avx512, has_lanes, lanes_take, traverse_lanes};
 pub(crate) use packet::{Frustum, traverse_packet};
 
 /// Marks a leaf child in [`WideNode::meta`]; the other bits of a leaf are `(count − 1) << 29 |
@@ -626,12 +626,15 @@ fn has_avx2() -> bool {
 
 /// The child-box tests in use.
 pub(crate) fn node_test_name() -> &'static str {
-    if lanes::has_avx512() {
-        "8-wide AVX2; 16-ray lane walks in AVX-512 (runtime-detected)"
-    } else if has_avx2() {
-        "8-wide AVX2 (runtime-detected)"
-    } else {
-        "2×4-wide SSE (glam Vec4, AVX2 not available)"
+    match lanes::lane_set() {
+        Some(lanes::LaneSet::Avx512) => {
+            "8-wide AVX2; 16-ray lane walks in AVX-512 (runtime-detected)"
+        }
+        Some(lanes::LaneSet::Avx2) => {
+            "8-wide AVX2; 16-ray lane walks in pairs of AVX2 registers (runtime-detected)"
+        }
+        None if has_avx2() => "8-wide AVX2 (runtime-detected)",
+        None => "2×4-wide SSE (glam Vec4, AVX2 not available)",
     }
 }
 

@@ -1,7 +1,7 @@
 //! Lane walks: up to sixteen rays walk a tree together, one ray per lane of an AVX-512
-//! register, each child box tested for all of them at once — the packet traversal of rays
-//! that start close together but share no frustum (AO and diffuse rays of neighbouring
-//! pixels).
+//! register (or of two AVX2 registers), each child box tested for all of them at once — the
+//! packet traversal of rays that start close together but share no frustum (AO and diffuse
+//! rays of neighbouring pixels).
 //!
 //! This is the ray-per-lane packet traversal of Wald, Slusallek, Benthin & Wagner ("Interactive
 //! Rendering with Coherent Ray Tracing", CGF 20(3), 2001), as Embree runs it for its 16-ray
@@ -26,6 +26,13 @@
 //!
 //! Rays parallel to an axis (a containment test there) or with a non-finite origin are left to
 //! the single-ray walk: [`lanes_take`] turns such a set away.
+//!
+//! **Two instruction sets, one walk.** The walk and its node test are written once over
+//! [`Lanes16`], sixteen `f32` lanes with the few operations they need, which one AVX-512
+//! register or a pair of AVX2 registers provides ([`lane_set`] picks at run time). The single-ray
+//! walk is bound by the latency of its node-to-child chain (about 50 ns per visit on the bench
+//! models), not by its arithmetic, so a lane walk pays on AVX2 too, where a child's test of
+//! sixteen rays takes two registers' operations instead of one.
 
 use std::mem::MaybeUninit;
 use std::ops::ControlFlow;
@@ -42,7 +49,7 @@ pub(crate) const LANES: usize = 16;
 /// AO rays: 2 and 3 within 3 % of each other, 5 and more slower.)
 const SOLO: u32 = 2;
 
-/// Whether lane walks can run on this CPU (AVX-512F, detected at run time; std caches it).
+/// Whether this CPU has AVX-512F (and AVX2), detected at run time; std caches it.
 #[inline(always)]
 pub(crate) fn has_avx512() -> bool {
     #[cfg(target_arch = "x86_64")]
@@ -56,11 +63,46 @@ pub(crate) fn has_avx512() -> bool {
     }
 }
 
-/// Whether `rays` can share a lane walk here: AVX-512 present, 1..=[`LANES`] rays, all
+/// The registers a lane walk's sixteen lanes live in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum LaneSet {
+    /// One 512-bit register.
+    Avx512,
+    /// Two 256-bit registers.
+    Avx2,
+}
+
+/// The lanes this CPU runs lane walks in: AVX-512 where present, else AVX2, else none (then
+/// every ray walks alone).
+#[inline(always)]
+pub(crate) fn lane_set() -> Option<LaneSet> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if has_avx512() {
+            Some(LaneSet::Avx512)
+        } else if std::arch::is_x86_feature_detected!("avx2") {
+            Some(LaneSet::Avx2)
+        } else {
+            None
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        None
+    }
+}
+
+/// Whether lane walks run on this CPU.
+#[inline(always)]
+pub(crate) fn has_lanes() -> bool {
+    lane_set().is_some()
+}
+
+/// Whether `rays` can share a lane walk here: lanes present, 1..=[`LANES`] rays, all
 /// [`plain`].
 #[inline(always)]
 pub(crate) fn lanes_take(rays: &[NodeRay]) -> bool {
-    has_avx512() && (1..=LANES).contains(&rays.len()) && rays.iter().all(plain)
+    has_lanes() && (1..=LANES).contains(&rays.len()) && rays.iter().all(plain)
 }
 
 /// A ray the lane test takes as the single-ray test does: none of its axes parallel (there the
@@ -106,8 +148,8 @@ pub(super) fn hand_leaves<const TOGETHER: bool>(
     // The loop written twice: one loop choosing per ray between the two reads measured 2–3 %
     // slower on the engine's primary rays.
     #[cfg(target_arch = "x86_64")]
-    if has_avx512() {
-        // SAFETY: `has_avx512` includes AVX2.
+    if has_lanes() {
+        // SAFETY: either lane set includes AVX2.
         let column = unsafe { LeafColumns::new(by_child, leaves) };
         while meeting != 0 {
             let ray = meeting.trailing_zeros() as usize;
@@ -196,15 +238,48 @@ pub(crate) fn traverse_lanes<const MARGIN: bool, const ORDERED: bool, const GROU
         "a lane walk takes what lanes_take accepts"
     );
     #[cfg(target_arch = "x86_64")]
-    // SAFETY: `lanes_take` checked AVX-512F and AVX2.
+    // SAFETY: `lanes_take` checked that this CPU has the lane set `lane_set` names.
     unsafe {
-        lanes_avx512::<MARGIN, ORDERED, GROUPED>(nodes, rays, active, tmin, tmax, margin, leaf)
+        let set = lane_set().expect("lanes_take holds only where lanes run");
+        traverse_lanes_in::<MARGIN, ORDERED, GROUPED>(
+            set, nodes, rays, active, tmin, tmax, margin, leaf,
+        );
     }
     #[cfg(not(target_arch = "x86_64"))]
     let _ = (nodes, active, tmin, margin, leaf);
 }
 
-/// The lane walk.
+/// [`traverse_lanes`] in lane set `set`.
+///
+/// # Safety
+/// The CPU must support `set`'s instruction set.
+#[allow(clippy::too_many_arguments)]
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn traverse_lanes_in<const MARGIN: bool, const ORDERED: bool, const GROUPED: bool>(
+    set: LaneSet,
+    nodes: &[WideNode],
+    rays: &[NodeRay],
+    active: u32,
+    tmin: f32,
+    tmax: &mut [f32],
+    margin: f32,
+    leaf: impl FnMut(PacketLeaf, &mut [f32]) -> ControlFlow<()>,
+) {
+    // SAFETY: per the contract.
+    unsafe {
+        match set {
+            LaneSet::Avx512 => lanes_avx512::<MARGIN, ORDERED, GROUPED>(
+                nodes, rays, active, tmin, tmax, margin, leaf,
+            ),
+            LaneSet::Avx2 => lanes_avx2::<MARGIN, ORDERED, GROUPED>(
+                nodes, rays, active, tmin, tmax, margin, leaf,
+            ),
+        }
+    }
+}
+
+/// The lane walk in one AVX-512 register.
 ///
 /// # Safety
 /// The CPU must support AVX-512F and AVX2.
@@ -218,20 +293,65 @@ unsafe fn lanes_avx512<const MARGIN: bool, const ORDERED: bool, const GROUPED: b
     tmin: f32,
     tmax: &mut [f32],
     margin: f32,
+    leaf: impl FnMut(PacketLeaf, &mut [f32]) -> ControlFlow<()>,
+) {
+    // SAFETY: AVX-512F is enabled here.
+    unsafe {
+        lane_walk::<simd::Zmm, MARGIN, ORDERED, GROUPED>(
+            nodes, rays, active, tmin, tmax, margin, leaf,
+        )
+    }
+}
+
+/// The lane walk in pairs of AVX2 registers.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[allow(clippy::too_many_arguments)]
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn lanes_avx2<const MARGIN: bool, const ORDERED: bool, const GROUPED: bool>(
+    nodes: &[WideNode],
+    rays: &[NodeRay],
+    active: u32,
+    tmin: f32,
+    tmax: &mut [f32],
+    margin: f32,
+    leaf: impl FnMut(PacketLeaf, &mut [f32]) -> ControlFlow<()>,
+) {
+    // SAFETY: AVX2 is enabled here.
+    unsafe {
+        lane_walk::<simd::YmmPair, MARGIN, ORDERED, GROUPED>(
+            nodes, rays, active, tmin, tmax, margin, leaf,
+        )
+    }
+}
+
+/// The lane walk, in lanes `V`; inlined into a function that enables `V`'s instruction set.
+///
+/// # Safety
+/// The CPU must support `V`'s instruction set ([`Lanes16`]).
+#[allow(clippy::too_many_arguments)]
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn lane_walk<V: Lanes16, const MARGIN: bool, const ORDERED: bool, const GROUPED: bool>(
+    nodes: &[WideNode],
+    rays: &[NodeRay],
+    active: u32,
+    tmin: f32,
+    tmax: &mut [f32],
+    margin: f32,
     mut leaf: impl FnMut(PacketLeaf, &mut [f32]) -> ControlFlow<()>,
 ) {
-    use std::arch::x86_64::*;
     if nodes.is_empty() || tmin.is_nan() {
         return;
     }
     let all = super::all_rays(rays.len()) as u16;
-    // SAFETY (whole body): loads and stores of sixteen f32 from and to arrays of sixteen f32
-    // (the masked load of `tmax` reads only its first `rays.len()`); AVX-512F is enabled here.
+    // SAFETY (whole body): `V`'s operations, which the caller's CPU supports.
     unsafe {
-        let (o, inv) = PacketLanes::of(rays).group(0);
-        let m = _mm512_set1_ps(margin);
-        let low = _mm512_set1_ps(tmin);
-        let none = _mm512_set1_ps(f32::NEG_INFINITY);
+        let (o, inv) = PacketLanes::of(rays).group::<V>(0);
+        let m = V::splat(margin);
+        let low = V::splat(tmin);
         let mut stack: Stack<LaneEntry> = Stack::new();
         let mut next = Some(LaneEntry {
             t: [tmin; LANES],
@@ -240,10 +360,10 @@ unsafe fn lanes_avx512<const MARGIN: bool, const ORDERED: bool, const GROUPED: b
         });
         while let Some(e) = next.take().or_else(|| stack.pop()) {
             // Each lane's current tmax (a retired or NaN one fails every comparison).
-            let far = _mm512_mask_loadu_ps(none, all, tmax.as_ptr());
-            let entry = _mm512_loadu_ps(e.t.as_ptr());
+            let far = V::load_first(tmax, f32::NEG_INFINITY);
+            let entry = V::load(&e.t);
             // (entry ≥ tmin, so a ray whose tmax fell below tmin is dropped too)
-            let live = _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(e.rays, entry, far);
+            let live = entry.le(far, e.rays);
             if live == 0 {
                 continue;
             }
@@ -277,7 +397,7 @@ unsafe fn lanes_avx512<const MARGIN: bool, const ORDERED: bool, const GROUPED: b
             }
             let node = &nodes[e.meta as usize];
             let (entries, hits, mut slots) =
-                node_lanes::<MARGIN>(node, &o, &inv, low, far, m, live, 0xff);
+                node_lanes::<V, MARGIN>(node, &o, &inv, low, far, m, live, 0xff);
             if GROUPED {
                 let leaves = slots & super::leaf_slots_with::<true>(node);
                 if leaves != 0 {
@@ -303,7 +423,7 @@ unsafe fn lanes_avx512<const MARGIN: bool, const ORDERED: bool, const GROUPED: b
                 let child = slots.trailing_zeros() as usize;
                 slots &= slots - 1;
                 let key = if ORDERED {
-                    _mm512_mask_reduce_min_ps(hits[child], entries[child])
+                    entries[child].min_where(hits[child])
                 } else {
                     0.0
                 };
@@ -324,7 +444,7 @@ unsafe fn lanes_avx512<const MARGIN: bool, const ORDERED: bool, const GROUPED: b
                     meta,
                     rays: hits[child],
                 };
-                _mm512_storeu_ps(c.t.as_mut_ptr(), entries[child]);
+                entries[child].store(&mut c.t);
                 if j == 0 {
                     next = Some(c);
                 } else {
@@ -337,7 +457,7 @@ unsafe fn lanes_avx512<const MARGIN: bool, const ORDERED: bool, const GROUPED: b
 
 /// The rays of a frustum packet (at most [`super::PACKET`]) as lanes, for the packet walk's
 /// per-ray tests where its rays part ways ([`super::traverse_packet`]): sixteen rays' tests of
-/// a child in one register instead of each ray's own eight-child test in turn.
+/// a child in one register (or two) instead of each ray's own eight-child test in turn.
 pub(crate) struct PacketLanes {
     o: [[f32; super::PACKET]; 3],
     inv: [[f32; super::PACKET]; 3],
@@ -353,7 +473,7 @@ impl PacketLanes {
         slot: &'s mut MaybeUninit<PacketLanes>,
         rays: &[NodeRay],
     ) -> Option<&'s PacketLanes> {
-        let fit = has_avx512() && rays.len() <= super::PACKET && rays.iter().all(plain);
+        let fit = has_lanes() && rays.len() <= super::PACKET && rays.iter().all(plain);
         if !fit {
             return None;
         }
@@ -394,24 +514,28 @@ impl PacketLanes {
     /// past the rays hold the origin 0 and 1/d = 1).
     ///
     /// # Safety
-    /// The CPU must support AVX-512F.
+    /// The CPU must support `V`'s instruction set.
     #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f")]
-    #[inline]
-    unsafe fn group(
-        &self,
-        first: usize,
-    ) -> (
-        [std::arch::x86_64::__m512; 3],
-        [std::arch::x86_64::__m512; 3],
-    ) {
-        use std::arch::x86_64::_mm512_loadu_ps;
-        let load = |a: &[f32; super::PACKET]| {
-            let lanes: &[f32; LANES] = a[first..first + LANES].try_into().expect("sixteen");
-            // SAFETY: an unaligned load of sixteen f32 from an array of sixteen.
-            unsafe { _mm512_loadu_ps(lanes.as_ptr()) }
-        };
-        (self.o.each_ref().map(load), self.inv.each_ref().map(load))
+    #[inline(always)]
+    unsafe fn group<V: Lanes16>(&self, first: usize) -> ([V; 3], [V; 3]) {
+        // (No closure: one is compiled without the caller's instruction set, and the loads
+        // in it would be calls.)
+        // SAFETY (whole body): per the contract.
+        unsafe {
+            let mut o = [V::splat(0.0); 3];
+            let mut inv = [V::splat(0.0); 3];
+            for axis in 0..3 {
+                let lanes: &[f32; LANES] = self.o[axis][first..first + LANES]
+                    .try_into()
+                    .expect("sixteen");
+                o[axis] = V::load(lanes);
+                let lanes: &[f32; LANES] = self.inv[axis][first..first + LANES]
+                    .try_into()
+                    .expect("sixteen");
+                inv[axis] = V::load(lanes);
+            }
+            (o, inv)
+        }
     }
 
     /// Per child of `node` among `children` (bit i for child i), the mask of the rays of
@@ -431,14 +555,42 @@ impl PacketLanes {
     ) -> [u32; 8] {
         debug_assert_eq!(tmax.len(), self.n);
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: a `PacketLanes` exists only where `has_avx512` holds.
-        unsafe {
-            self.node_hits_avx512::<MARGIN>(node, tmin, tmax, alive, children, margin)
+        {
+            let set = lane_set().expect("lanes are made only where they run");
+            self.node_hits_in_set::<MARGIN>(set, node, tmin, tmax, alive, children, margin)
         }
         #[cfg(not(target_arch = "x86_64"))]
         unreachable!(
             "lanes exist only on x86_64: {node:?} {tmin} {tmax:?} {alive} {children} {margin}"
         )
+    }
+
+    /// [`Self::node_hits`] in lane set `set`, which this CPU must have (a `PacketLanes` exists
+    /// only where some set runs; an AVX-512 CPU runs both).
+    #[cfg(target_arch = "x86_64")]
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn node_hits_in_set<const MARGIN: bool>(
+        &self,
+        set: LaneSet,
+        node: &WideNode,
+        tmin: f32,
+        tmax: &[f32],
+        alive: u32,
+        children: u32,
+        margin: f32,
+    ) -> [u32; 8] {
+        // SAFETY: `set` is this CPU's lane set, or AVX2 on a CPU with AVX-512, which has it.
+        unsafe {
+            match set {
+                LaneSet::Avx512 => {
+                    self.node_hits_avx512::<MARGIN>(node, tmin, tmax, alive, children, margin)
+                }
+                LaneSet::Avx2 => {
+                    self.node_hits_avx2::<MARGIN>(node, tmin, tmax, alive, children, margin)
+                }
+            }
+        }
     }
 
     /// # Safety
@@ -454,7 +606,44 @@ impl PacketLanes {
         children: u32,
         margin: f32,
     ) -> [u32; 8] {
-        use std::arch::x86_64::*;
+        // SAFETY: AVX-512F is enabled here.
+        unsafe { self.node_hits_in::<simd::Zmm, MARGIN>(node, tmin, tmax, alive, children, margin) }
+    }
+
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn node_hits_avx2<const MARGIN: bool>(
+        &self,
+        node: &WideNode,
+        tmin: f32,
+        tmax: &[f32],
+        alive: u32,
+        children: u32,
+        margin: f32,
+    ) -> [u32; 8] {
+        // SAFETY: AVX2 is enabled here.
+        unsafe {
+            self.node_hits_in::<simd::YmmPair, MARGIN>(node, tmin, tmax, alive, children, margin)
+        }
+    }
+
+    /// [`Self::node_hits`] in lanes `V`.
+    ///
+    /// # Safety
+    /// The CPU must support `V`'s instruction set.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn node_hits_in<V: Lanes16, const MARGIN: bool>(
+        &self,
+        node: &WideNode,
+        tmin: f32,
+        tmax: &[f32],
+        alive: u32,
+        children: u32,
+        margin: f32,
+    ) -> [u32; 8] {
         let mut by_child = [0u32; 8];
         for group in (0..self.n).step_by(LANES) {
             let live = (alive >> group) as u16;
@@ -462,26 +651,21 @@ impl PacketLanes {
                 continue;
             }
             let count = (self.n - group).min(LANES);
-            // SAFETY: the masked load of `tmax` reads only its `count` entries from `group`
-            // on; AVX-512F is enabled here.
-            let (hits, _) = unsafe {
-                let (o, inv) = self.group(group);
-                let far = _mm512_mask_loadu_ps(
-                    _mm512_set1_ps(f32::NEG_INFINITY),
-                    super::all_rays(count) as u16,
-                    tmax[group..].as_ptr(),
-                );
-                let (_, hits, slots) = node_lanes::<MARGIN>(
+            // SAFETY: per the contract.
+            let hits = unsafe {
+                let (o, inv) = self.group::<V>(group);
+                let far = V::load_first(&tmax[group..group + count], f32::NEG_INFINITY);
+                let (_, hits, _) = node_lanes::<V, MARGIN>(
                     node,
                     &o,
                     &inv,
-                    _mm512_set1_ps(tmin),
+                    V::splat(tmin),
                     far,
-                    _mm512_set1_ps(margin),
+                    V::splat(margin),
                     live,
                     children,
                 );
-                (hits, slots)
+                hits
             };
             for child in 0..8 {
                 by_child[child] |= u32::from(hits[child]) << group;
@@ -498,67 +682,285 @@ impl PacketLanes {
 /// single-ray test ([`super::child_hits_avx2`]) on the same values.
 ///
 /// # Safety
-/// The CPU must support AVX-512F.
+/// The CPU must support `V`'s instruction set.
 #[allow(clippy::too_many_arguments)]
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-#[inline]
-unsafe fn node_lanes<const MARGIN: bool>(
+#[inline(always)]
+unsafe fn node_lanes<V: Lanes16, const MARGIN: bool>(
     node: &WideNode,
-    o: &[std::arch::x86_64::__m512; 3],
-    inv: &[std::arch::x86_64::__m512; 3],
-    low: std::arch::x86_64::__m512,
-    far: std::arch::x86_64::__m512,
-    margin: std::arch::x86_64::__m512,
+    o: &[V; 3],
+    inv: &[V; 3],
+    low: V,
+    far: V,
+    margin: V,
     live: u16,
     children: u32,
-) -> ([std::arch::x86_64::__m512; 8], [u16; 8], u32) {
-    use std::arch::x86_64::*;
-    let shrink = _mm512_set1_ps(1.0 - super::WIDEN);
-    let grow = _mm512_set1_ps(1.0 + super::WIDEN);
-    let mut entries = [_mm512_setzero_ps(); 8];
-    let mut hits = [0u16; 8];
-    let mut slots = 0u32;
-    let mut wanted = children & 0xff;
-    while wanted != 0 {
-        let child = wanted.trailing_zeros() as usize;
-        wanted &= wanted - 1;
-        if node.bounds[0][child] > node.bounds[1][child] {
-            // An empty slot (the inverted box): no ray enters it.
-            continue;
-        }
-        let mut tn = low;
-        let mut tf = far;
-        for axis in 0..3 {
-            let mut lo = _mm512_set1_ps(node.bounds[2 * axis][child]);
-            let mut hi = _mm512_set1_ps(node.bounds[2 * axis + 1][child]);
-            if MARGIN {
-                lo = _mm512_sub_ps(lo, margin);
-                hi = _mm512_add_ps(hi, margin);
+) -> ([V; 8], [u16; 8], u32) {
+    // SAFETY (whole body): `V`'s operations, which the caller's CPU supports.
+    unsafe {
+        let shrink = V::splat(1.0 - super::WIDEN);
+        let grow = V::splat(1.0 + super::WIDEN);
+        let mut entries = [V::splat(0.0); 8];
+        let mut hits = [0u16; 8];
+        let mut slots = 0u32;
+        let mut wanted = children & 0xff;
+        while wanted != 0 {
+            let child = wanted.trailing_zeros() as usize;
+            wanted &= wanted - 1;
+            if node.bounds[0][child] > node.bounds[1][child] {
+                // An empty slot (the inverted box): no ray enters it.
+                continue;
             }
-            // Both planes' distances; the smaller is the entry plane's. For a filled slot
-            // lo ≤ hi, and rounding is monotonic, so the smaller is exactly the value the
-            // single-ray test computes from the entry plane its ray chose by the sign of 1/d
-            // (for an empty slot, skipped above, it would not be).
-            let t_lo = _mm512_mul_ps(_mm512_sub_ps(lo, o[axis]), inv[axis]);
-            let t_hi = _mm512_mul_ps(_mm512_sub_ps(hi, o[axis]), inv[axis]);
-            tn = _mm512_max_ps(tn, _mm512_min_ps(t_lo, t_hi));
-            tf = _mm512_min_ps(tf, _mm512_max_ps(t_lo, t_hi));
+            let mut tn = low;
+            let mut tf = far;
+            for axis in 0..3 {
+                let mut lo = V::splat(node.bounds[2 * axis][child]);
+                let mut hi = V::splat(node.bounds[2 * axis + 1][child]);
+                if MARGIN {
+                    lo = lo.sub(margin);
+                    hi = hi.add(margin);
+                }
+                // Both planes' distances; the smaller is the entry plane's. For a filled slot
+                // lo ≤ hi, and rounding is monotonic, so the smaller is exactly the value the
+                // single-ray test computes from the entry plane its ray chose by the sign of
+                // 1/d (for an empty slot, skipped above, it would not be).
+                let t_lo = lo.sub(o[axis]).mul(inv[axis]);
+                let t_hi = hi.sub(o[axis]).mul(inv[axis]);
+                tn = tn.max(t_lo.min(t_hi));
+                tf = tf.min(t_lo.max(t_hi));
+            }
+            let tn = tn.mul(shrink);
+            let tf = tf.mul(grow);
+            let hit = tn.le(tf, live);
+            entries[child] = tn;
+            hits[child] = hit;
+            slots |= u32::from(hit != 0) << child;
         }
-        let tn = _mm512_mul_ps(tn, shrink);
-        let tf = _mm512_mul_ps(tf, grow);
-        let hit = _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(live, tn, tf);
-        entries[child] = tn;
-        hits[child] = hit;
-        slots |= u32::from(hit != 0) << child;
+        (entries, hits, slots)
     }
-    (entries, hits, slots)
+}
+
+/// Sixteen `f32` lanes and the operations a lane walk performs on them. Each operation is the
+/// IEEE operation of the single-ray test's instructions lane by lane (no FMA, the same min and
+/// max), so a lane's values are bit for bit its ray's own whichever registers hold them.
+///
+/// Written by hand: `std::simd` is unstable, and the SIMD crates (`wide`, `pulp`) choose an
+/// instruction set per build or through closures the walk's callbacks cannot cross; these
+/// methods are inlined into a function that enables the set ([`lanes_avx512`],
+/// [`lanes_avx2`]).
+#[cfg(target_arch = "x86_64")]
+trait Lanes16: Copy {
+    /// Every lane `x`.
+    unsafe fn splat(x: f32) -> Self;
+    /// The sixteen values of `a`.
+    unsafe fn load(a: &[f32; LANES]) -> Self;
+    /// The values of `a` (at most sixteen) in its lanes, `fill` in the lanes past them.
+    unsafe fn load_first(a: &[f32], fill: f32) -> Self;
+    /// The lanes into `a`.
+    unsafe fn store(self, a: &mut [f32; LANES]);
+    unsafe fn add(self, b: Self) -> Self;
+    unsafe fn sub(self, b: Self) -> Self;
+    unsafe fn mul(self, b: Self) -> Self;
+    /// The lane-wise minimum as `minps` takes it (`b` where either is NaN).
+    unsafe fn min(self, b: Self) -> Self;
+    /// The lane-wise maximum as `maxps` takes it (`b` where either is NaN).
+    unsafe fn max(self, b: Self) -> Self;
+    /// The lanes of `live` where `self ≤ b` (ordered: false for a NaN).
+    unsafe fn le(self, b: Self, live: u16) -> u16;
+    /// The least value among the lanes of `mask` (not empty).
+    unsafe fn min_where(self, mask: u16) -> f32;
+}
+
+#[cfg(target_arch = "x86_64")]
+mod simd {
+    //! The two lane sets of [`super::Lanes16`].
+
+    use std::arch::x86_64::*;
+
+    use super::{LANES, Lanes16};
+
+    /// Sixteen lanes in one AVX-512 register.
+    #[derive(Clone, Copy)]
+    pub(super) struct Zmm(__m512);
+
+    // SAFETY (every method): AVX-512F, which the caller's CPU supports (the trait's contract);
+    // loads and stores within the arrays given.
+    impl Lanes16 for Zmm {
+        #[inline(always)]
+        unsafe fn splat(x: f32) -> Self {
+            unsafe { Zmm(_mm512_set1_ps(x)) }
+        }
+        #[inline(always)]
+        unsafe fn load(a: &[f32; LANES]) -> Self {
+            unsafe { Zmm(_mm512_loadu_ps(a.as_ptr())) }
+        }
+        #[inline(always)]
+        unsafe fn load_first(a: &[f32], fill: f32) -> Self {
+            debug_assert!(a.len() <= LANES);
+            let mask = super::super::all_rays(a.len()) as u16;
+            // (the masked load reads only the first `a.len()` values)
+            unsafe { Zmm(_mm512_mask_loadu_ps(_mm512_set1_ps(fill), mask, a.as_ptr())) }
+        }
+        #[inline(always)]
+        unsafe fn store(self, a: &mut [f32; LANES]) {
+            unsafe { _mm512_storeu_ps(a.as_mut_ptr(), self.0) }
+        }
+        #[inline(always)]
+        unsafe fn add(self, b: Self) -> Self {
+            unsafe { Zmm(_mm512_add_ps(self.0, b.0)) }
+        }
+        #[inline(always)]
+        unsafe fn sub(self, b: Self) -> Self {
+            unsafe { Zmm(_mm512_sub_ps(self.0, b.0)) }
+        }
+        #[inline(always)]
+        unsafe fn mul(self, b: Self) -> Self {
+            unsafe { Zmm(_mm512_mul_ps(self.0, b.0)) }
+        }
+        #[inline(always)]
+        unsafe fn min(self, b: Self) -> Self {
+            unsafe { Zmm(_mm512_min_ps(self.0, b.0)) }
+        }
+        #[inline(always)]
+        unsafe fn max(self, b: Self) -> Self {
+            unsafe { Zmm(_mm512_max_ps(self.0, b.0)) }
+        }
+        #[inline(always)]
+        unsafe fn le(self, b: Self, live: u16) -> u16 {
+            unsafe { _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(live, self.0, b.0) }
+        }
+        #[inline(always)]
+        unsafe fn min_where(self, mask: u16) -> f32 {
+            unsafe { _mm512_mask_reduce_min_ps(mask, self.0) }
+        }
+    }
+
+    /// Sixteen lanes in two AVX2 registers, lanes 0–7 in the first.
+    #[derive(Clone, Copy)]
+    pub(super) struct YmmPair([__m256; 2]);
+
+    impl YmmPair {
+        /// Lanes `first..first + 8` of `mask` as an all-ones or all-zeros lane each.
+        ///
+        /// # Safety
+        /// The CPU must support AVX2.
+        #[inline(always)]
+        unsafe fn lanes_of(mask: u16, first: u32) -> __m256 {
+            unsafe {
+                let bit = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+                let m = _mm256_set1_epi32(i32::from(mask >> first) & 0xff);
+                _mm256_castsi256_ps(_mm256_cmpeq_epi32(_mm256_and_si256(m, bit), bit))
+            }
+        }
+    }
+
+    // SAFETY (every method): AVX2, which the caller's CPU supports (the trait's contract);
+    // loads and stores within the arrays given.
+    impl Lanes16 for YmmPair {
+        #[inline(always)]
+        unsafe fn splat(x: f32) -> Self {
+            unsafe { YmmPair([_mm256_set1_ps(x); 2]) }
+        }
+        #[inline(always)]
+        unsafe fn load(a: &[f32; LANES]) -> Self {
+            unsafe {
+                YmmPair([
+                    _mm256_loadu_ps(a.as_ptr()),
+                    _mm256_loadu_ps(a[8..].as_ptr()),
+                ])
+            }
+        }
+        #[inline(always)]
+        unsafe fn load_first(a: &[f32], fill: f32) -> Self {
+            debug_assert!(a.len() <= LANES);
+            if a.len() == LANES {
+                let a: &[f32; LANES] = a.try_into().expect("sixteen");
+                return unsafe { Self::load(a) };
+            }
+            // Through a copy: a masked load of the second half would start past a short
+            // slice's end.
+            let mut lanes = [fill; LANES];
+            lanes[..a.len()].copy_from_slice(a);
+            unsafe { Self::load(&lanes) }
+        }
+        #[inline(always)]
+        unsafe fn store(self, a: &mut [f32; LANES]) {
+            unsafe {
+                _mm256_storeu_ps(a.as_mut_ptr(), self.0[0]);
+                _mm256_storeu_ps(a[8..].as_mut_ptr(), self.0[1]);
+            }
+        }
+        #[inline(always)]
+        unsafe fn add(self, b: Self) -> Self {
+            unsafe {
+                YmmPair([
+                    _mm256_add_ps(self.0[0], b.0[0]),
+                    _mm256_add_ps(self.0[1], b.0[1]),
+                ])
+            }
+        }
+        #[inline(always)]
+        unsafe fn sub(self, b: Self) -> Self {
+            unsafe {
+                YmmPair([
+                    _mm256_sub_ps(self.0[0], b.0[0]),
+                    _mm256_sub_ps(self.0[1], b.0[1]),
+                ])
+            }
+        }
+        #[inline(always)]
+        unsafe fn mul(self, b: Self) -> Self {
+            unsafe {
+                YmmPair([
+                    _mm256_mul_ps(self.0[0], b.0[0]),
+                    _mm256_mul_ps(self.0[1], b.0[1]),
+                ])
+            }
+        }
+        #[inline(always)]
+        unsafe fn min(self, b: Self) -> Self {
+            unsafe {
+                YmmPair([
+                    _mm256_min_ps(self.0[0], b.0[0]),
+                    _mm256_min_ps(self.0[1], b.0[1]),
+                ])
+            }
+        }
+        #[inline(always)]
+        unsafe fn max(self, b: Self) -> Self {
+            unsafe {
+                YmmPair([
+                    _mm256_max_ps(self.0[0], b.0[0]),
+                    _mm256_max_ps(self.0[1], b.0[1]),
+                ])
+            }
+        }
+        #[inline(always)]
+        unsafe fn le(self, b: Self, live: u16) -> u16 {
+            unsafe {
+                let lo = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(self.0[0], b.0[0]));
+                let hi = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(self.0[1], b.0[1]));
+                (lo | hi << 8) as u16 & live
+            }
+        }
+        #[inline(always)]
+        unsafe fn min_where(self, mask: u16) -> f32 {
+            unsafe {
+                let inf = _mm256_set1_ps(f32::INFINITY);
+                let lo = _mm256_blendv_ps(inf, self.0[0], Self::lanes_of(mask, 0));
+                let hi = _mm256_blendv_ps(inf, self.0[1], Self::lanes_of(mask, 8));
+                let m = _mm256_min_ps(lo, hi);
+                let m = _mm_min_ps(_mm256_castps256_ps128(m), _mm256_extractf128_ps::<1>(m));
+                let m = _mm_min_ps(m, _mm_movehl_ps(m, m));
+                let m = _mm_min_ss(m, _mm_shuffle_ps::<0b01>(m, m));
+                _mm_cvtss_f32(m)
+            }
+        }
+    }
 }
 
 #[cfg(all(test, target_arch = "x86_64"))]
 mod tests {
-    use std::arch::x86_64::*;
-
     use glam::Vec3;
 
     use super::super::tests::{grid, record_leaf};
@@ -566,13 +968,20 @@ mod tests {
     use super::*;
     use crate::rng::Rng;
 
-    /// Whether this CPU runs lane walks (the walks are only used where it does).
-    fn lanes_here() -> bool {
-        let here = has_avx512();
-        if !here {
-            eprintln!("no AVX-512 on this CPU: lane walks are never taken here");
+    /// The lane sets this CPU runs, each to be checked (an AVX-512 CPU runs both). An x86_64
+    /// CPU without AVX2 runs no lane walk, and these tests then have nothing to check.
+    fn lane_sets_here() -> Vec<LaneSet> {
+        let mut sets = Vec::new();
+        if has_avx512() {
+            sets.push(LaneSet::Avx512);
         }
-        here
+        if std::arch::is_x86_feature_detected!("avx2") {
+            sets.push(LaneSet::Avx2);
+        }
+        if sets.is_empty() {
+            eprintln!("no AVX2 on this CPU: lane walks are never taken here");
+        }
+        sets
     }
 
     #[test]
@@ -606,13 +1015,48 @@ mod tests {
         }
     }
 
-    /// The rays' origins and 1/d as lane vectors.
-    ///
-    /// # Safety
-    /// The CPU must support AVX-512F.
-    unsafe fn soa(rays: &[NodeRay]) -> ([__m512; 3], [__m512; 3]) {
-        // SAFETY: AVX-512F per the contract.
-        unsafe { PacketLanes::of(rays).group(0) }
+    /// [`node_lanes`] in lane set `set` for sixteen rays: per child the lanes' entry
+    /// distances and hit mask, and the children some ray meets.
+    fn node_lanes_in(
+        set: LaneSet,
+        node: &WideNode,
+        rays: &[NodeRay],
+        tmin: f32,
+        tmax: &[f32; LANES],
+        margin: f32,
+    ) -> ([[f32; LANES]; 8], [u16; 8], u32) {
+        /// # Safety
+        /// The CPU must support `V`'s instruction set.
+        unsafe fn run<V: Lanes16>(
+            node: &WideNode,
+            rays: &[NodeRay],
+            tmin: f32,
+            tmax: &[f32; LANES],
+            margin: f32,
+        ) -> ([[f32; LANES]; 8], [u16; 8], u32) {
+            // SAFETY: per the contract.
+            unsafe {
+                let (o, inv) = PacketLanes::of(rays).group::<V>(0);
+                let (low, far, m) = (V::splat(tmin), V::load(tmax), V::splat(margin));
+                let (entries, hits, slots) = if margin > 0.0 {
+                    node_lanes::<V, true>(node, &o, &inv, low, far, m, u16::MAX, 0xff)
+                } else {
+                    node_lanes::<V, false>(node, &o, &inv, low, far, m, u16::MAX, 0xff)
+                };
+                let mut t = [[0.0; LANES]; 8];
+                for (t, e) in t.iter_mut().zip(entries) {
+                    e.store(t);
+                }
+                (t, hits, slots)
+            }
+        }
+        // SAFETY: `set` is one of `lane_sets_here`.
+        unsafe {
+            match set {
+                LaneSet::Avx512 => run::<simd::Zmm>(node, rays, tmin, tmax, margin),
+                LaneSet::Avx2 => run::<simd::YmmPair>(node, rays, tmin, tmax, margin),
+            }
+        }
     }
 
     /// Lane by lane, the node test gives each ray's own entry distances and hit mask (the
@@ -620,9 +1064,12 @@ mod tests {
     /// every octant, per-ray tmax, margins.
     #[test]
     fn the_lane_node_test_is_each_rays_own() {
-        if !lanes_here() {
-            return;
+        for set in lane_sets_here() {
+            the_lane_node_test_is_each_rays_own_in(set);
         }
+    }
+
+    fn the_lane_node_test_is_each_rays_own_in(set: LaneSet) {
         let mut rng = Rng::new(41);
         let mut hits = 0;
         for case in 0..4000 {
@@ -663,17 +1110,8 @@ mod tests {
             } else {
                 0.0
             };
-            // SAFETY: AVX-512F was detected above.
-            let (entries, lane_hits, slots) = unsafe {
-                let (o, inv) = soa(&rays);
-                let (low, far) = (_mm512_set1_ps(tmin), _mm512_loadu_ps(tmax.as_ptr()));
-                let m = _mm512_set1_ps(margin);
-                if margin > 0.0 {
-                    node_lanes::<true>(&node, &o, &inv, low, far, m, u16::MAX, 0xff)
-                } else {
-                    node_lanes::<false>(&node, &o, &inv, low, far, m, u16::MAX, 0xff)
-                }
-            };
+            let tmax: [f32; LANES] = tmax.try_into().expect("sixteen");
+            let (entries, lane_hits, slots) = node_lanes_in(set, &node, &rays, tmin, &tmax, margin);
             let mut any = 0;
             for (k, r) in rays.iter().enumerate() {
                 let (t, mask) = if margin > 0.0 {
@@ -687,24 +1125,23 @@ mod tests {
                     assert_eq!(
                         lane,
                         (mask >> child) & 1,
-                        "case {case}, ray {k}, child {child}"
+                        "{set:?} case {case}, ray {k}, child {child}"
                     );
                     if lane != 0 {
-                        let mut e = [0.0f32; LANES];
-                        // SAFETY: a store of sixteen f32 into an array of sixteen.
-                        unsafe { _mm512_storeu_ps(e.as_mut_ptr(), entries[child]) };
-                        assert_eq!(e[k].to_bits(), t[child].to_bits(), "case {case}");
+                        let e = entries[child][k];
+                        assert_eq!(e.to_bits(), t[child].to_bits(), "{set:?} case {case}");
                         hits += 1;
                     }
                 }
             }
-            assert_eq!(slots, any, "case {case}");
+            assert_eq!(slots, any, "{set:?} case {case}");
         }
         assert!(hits > 5_000, "the cases must hit boxes: {hits}");
     }
 
     /// Leaves each ray of a lane walk is handed, per ray, sorted.
     fn lane_leaves(
+        set: LaneSet,
         nodes: &[WideNode],
         rays: &[NodeRay],
         tmax: &mut [f32],
@@ -719,16 +1156,36 @@ mod tests {
         let all = all_rays(rays.len());
         match (margin > 0.0, ordered) {
             (false, true) => {
-                traverse_lanes::<false, true, false>(nodes, rays, all, 0.0, tmax, 0.0, visit)
+                // SAFETY: `set` is one of `lane_sets_here`.
+                unsafe {
+                    traverse_lanes_in::<false, true, false>(
+                        set, nodes, rays, all, 0.0, tmax, 0.0, visit,
+                    )
+                }
             }
             (false, false) => {
-                traverse_lanes::<false, false, false>(nodes, rays, all, 0.0, tmax, 0.0, visit)
+                // SAFETY: `set` is one of `lane_sets_here`.
+                unsafe {
+                    traverse_lanes_in::<false, false, false>(
+                        set, nodes, rays, all, 0.0, tmax, 0.0, visit,
+                    )
+                }
             }
             (true, true) => {
-                traverse_lanes::<true, true, false>(nodes, rays, all, 0.0, tmax, margin, visit)
+                // SAFETY: `set` is one of `lane_sets_here`.
+                unsafe {
+                    traverse_lanes_in::<true, true, false>(
+                        set, nodes, rays, all, 0.0, tmax, margin, visit,
+                    )
+                }
             }
             (true, false) => {
-                traverse_lanes::<true, false, false>(nodes, rays, all, 0.0, tmax, margin, visit)
+                // SAFETY: `set` is one of `lane_sets_here`.
+                unsafe {
+                    traverse_lanes_in::<true, false, false>(
+                        set, nodes, rays, all, 0.0, tmax, margin, visit,
+                    )
+                }
             }
         }
         for s in &mut seen {
@@ -743,9 +1200,12 @@ mod tests {
     /// margin, in both orders.
     #[test]
     fn a_lane_walk_reaches_every_leaf_its_rays_reach() {
-        if !lanes_here() {
-            return;
+        for set in lane_sets_here() {
+            a_lane_walk_reaches_every_leaf_its_rays_reach_in(set);
         }
+    }
+
+    fn a_lane_walk_reaches_every_leaf_its_rays_reach_in(set: LaneSet) {
         let (_, bvh) = grid();
         let mut rng = Rng::new(77);
         let mut reached = 0;
@@ -762,7 +1222,7 @@ mod tests {
                 tmax[k] = f32::NEG_INFINITY;
             }
             let margin = if case % 3 == 0 { 0.01 } else { 0.0 };
-            let got = lane_leaves(&bvh.nodes, &rays, &mut tmax, margin, case % 4 != 0);
+            let got = lane_leaves(set, &bvh.nodes, &rays, &mut tmax, margin, case % 4 != 0);
             for (k, (r, got)) in rays.iter().zip(got).enumerate() {
                 if retired == Some(k) {
                     assert!(
@@ -800,9 +1260,12 @@ mod tests {
     /// 1 to 32 rays (one or two registers), any subset of live rays and of children asked about.
     #[test]
     fn packet_lanes_give_each_rays_own_verdicts() {
-        if !lanes_here() {
-            return;
+        for set in lane_sets_here() {
+            packet_lanes_give_each_rays_own_verdicts_in(set);
         }
+    }
+
+    fn packet_lanes_give_each_rays_own_verdicts_in(set: LaneSet) {
         let (_, bvh) = grid();
         let mut rng = Rng::new(5);
         let mut met = 0;
@@ -825,7 +1288,7 @@ mod tests {
             let alive = (rng.next_u64() as u32) & all_rays(n);
             let margin = if case % 2 == 0 { 0.0 } else { 0.05 };
             let mut slot = MaybeUninit::uninit();
-            let lanes = PacketLanes::make_in(&mut slot, &rays).expect("AVX-512 and plain rays");
+            let lanes = PacketLanes::make_in(&mut slot, &rays).expect("lanes and plain rays");
             // all children, or some (a frustum's): the others' masks are then empty
             let children = if case % 3 == 0 {
                 0xff
@@ -833,9 +1296,9 @@ mod tests {
                 rng.next_u64() as u32 & 0xff
             };
             let got = if margin > 0.0 {
-                lanes.node_hits::<true>(node, 0.0, &tmax, alive, children, margin)
+                lanes.node_hits_in_set::<true>(set, node, 0.0, &tmax, alive, children, margin)
             } else {
-                lanes.node_hits::<false>(node, 0.0, &tmax, alive, children, margin)
+                lanes.node_hits_in_set::<false>(set, node, 0.0, &tmax, alive, children, margin)
             };
             let mut want = [0u32; 8];
             for (k, r) in rays.iter().enumerate() {
@@ -851,7 +1314,7 @@ mod tests {
                     *w |= ((mask & children) >> child & 1) << k;
                 }
             }
-            assert_eq!(got, want, "case {case}");
+            assert_eq!(got, want, "{set:?} case {case}");
             met += want.iter().map(|w| w.count_ones()).sum::<u32>();
         }
         assert!(met > 5_000, "the rays must meet children: {met}");
@@ -859,7 +1322,7 @@ mod tests {
 
     #[test]
     fn rays_parallel_to_an_axis_or_from_nowhere_are_left_to_single_walks() {
-        if !lanes_here() {
+        if lane_sets_here().is_empty() {
             return;
         }
         let ok = NodeRay::new(Vec3::ZERO, Vec3::new(1.0, 2.0, 3.0));

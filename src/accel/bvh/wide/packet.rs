@@ -481,8 +481,8 @@ fn packet_impl<const MARGIN: bool, const AVX2: bool, const ORDERED: bool, const 
             // SAFETY: `make_in` wrote the slot when it made the lanes.
             let lanes = lanes_made.then(|| unsafe { lanes_slot.assume_init_ref() });
             if let Some(lanes) = lanes {
-                // Each ray's own test, sixteen rays to a register: the same verdicts as the
-                // loop below, which runs where there is no AVX-512. (This node's leaf tests
+                // Each ray's own test, sixteen rays to a register (or two): the same verdicts as
+                // the loop below, which runs where there is no AVX2. (This node's leaf tests
                 // come after all of its rays' node tests here, but a leaf test of one ray
                 // changes no other ray's `tmax`.)
                 let by_child = lanes.node_hits::<MARGIN>(node, tmin, tmax, alive, mask, margin);
