@@ -368,11 +368,11 @@ pub(crate) enum PacketLeaf {
 }
 
 /// From this many rays meeting leaf children of one node on, a frustum walk hands them over
-/// together ([`PacketLeaf::Rays`], on CPUs that run that test), and from this many meeting one block of eight triangles on,
-/// the mesh tests each triangle against sixteen rays at once rather than each ray against
-/// eight triangles at once: the two cost about the same at eight rays. (Measured on the
-/// bench's primary and shadow rays: 6 and 12 no better, the instanced models 5–15 % faster
-/// than without, the others within noise.)
+/// together ([`PacketLeaf::Rays`], on CPUs that run the test below), and from this many meeting
+/// one block of eight triangles on, the mesh tests each triangle against sixteen rays at once
+/// rather than each ray against eight triangles at once: the two cost about the same at eight
+/// rays. (Measured on the bench's primary and shadow rays: 6 and 12 no better, the instanced
+/// models 5–15 % faster than without, the others within noise.)
 pub(crate) const RAYS_TOGETHER: u32 = 8;
 
 /// The leaf slots of a [`PacketLeaf::Rays`] that ray `ray` meets (bit i for slot i).

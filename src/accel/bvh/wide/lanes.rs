@@ -561,7 +561,10 @@ impl PacketLanes {
         #[cfg(target_arch = "x86_64")]
         {
             let set = lane_set().expect("lanes are made only where they run");
-            self.node_hits_in_set::<MARGIN>(set, node, tmin, tmax, alive, children, margin)
+            // SAFETY: `lane_set` names a set this CPU has.
+            unsafe {
+                self.node_hits_in_set::<MARGIN>(set, node, tmin, tmax, alive, children, margin)
+            }
         }
         #[cfg(not(target_arch = "x86_64"))]
         unreachable!(
@@ -569,12 +572,14 @@ impl PacketLanes {
         )
     }
 
-    /// [`Self::node_hits`] in lane set `set`, which this CPU must have (a `PacketLanes` exists
-    /// only where some set runs; an AVX-512 CPU runs both).
+    /// [`Self::node_hits`] in lane set `set` (an AVX-512 CPU runs both).
+    ///
+    /// # Safety
+    /// The CPU must support `set`'s instruction set.
     #[cfg(target_arch = "x86_64")]
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn node_hits_in_set<const MARGIN: bool>(
+    unsafe fn node_hits_in_set<const MARGIN: bool>(
         &self,
         set: LaneSet,
         node: &WideNode,
@@ -584,7 +589,7 @@ impl PacketLanes {
         children: u32,
         margin: f32,
     ) -> [u32; 8] {
-        // SAFETY: `set` is this CPU's lane set, or AVX2 on a CPU with AVX-512, which has it.
+        // SAFETY: per the contract.
         unsafe {
             match set {
                 LaneSet::Avx512 => {
@@ -1299,10 +1304,13 @@ mod tests {
             } else {
                 rng.next_u64() as u32 & 0xff
             };
-            let got = if margin > 0.0 {
-                lanes.node_hits_in_set::<true>(set, node, 0.0, &tmax, alive, children, margin)
-            } else {
-                lanes.node_hits_in_set::<false>(set, node, 0.0, &tmax, alive, children, margin)
+            // SAFETY: `set` is one of `lane_sets_here`.
+            let got = unsafe {
+                if margin > 0.0 {
+                    lanes.node_hits_in_set::<true>(set, node, 0.0, &tmax, alive, children, margin)
+                } else {
+                    lanes.node_hits_in_set::<false>(set, node, 0.0, &tmax, alive, children, margin)
+                }
             };
             let mut want = [0u32; 8];
             for (k, r) in rays.iter().enumerate() {
