@@ -788,6 +788,23 @@ mod simd {
 
     use super::{LANES, Lanes16};
 
+    /// The lane-wise operations of [`Lanes16`] for a lane set: one intrinsic per register
+    /// (a macro, not a closure: a closure is compiled without the caller's instruction set).
+    macro_rules! lane_wise {
+        (Zmm: $($name:ident $op:ident),*) => {$(
+            #[inline(always)]
+            unsafe fn $name(self, b: Self) -> Self {
+                unsafe { Zmm($op(self.0, b.0)) }
+            }
+        )*};
+        (YmmPair: $($name:ident $op:ident),*) => {$(
+            #[inline(always)]
+            unsafe fn $name(self, b: Self) -> Self {
+                unsafe { YmmPair([$op(self.0[0], b.0[0]), $op(self.0[1], b.0[1])]) }
+            }
+        )*};
+    }
+
     /// Sixteen lanes in one AVX-512 register.
     #[derive(Clone, Copy)]
     pub(super) struct Zmm(__m512);
@@ -814,26 +831,13 @@ mod simd {
         unsafe fn store(self, a: &mut [f32; LANES]) {
             unsafe { _mm512_storeu_ps(a.as_mut_ptr(), self.0) }
         }
-        #[inline(always)]
-        unsafe fn add(self, b: Self) -> Self {
-            unsafe { Zmm(_mm512_add_ps(self.0, b.0)) }
-        }
-        #[inline(always)]
-        unsafe fn sub(self, b: Self) -> Self {
-            unsafe { Zmm(_mm512_sub_ps(self.0, b.0)) }
-        }
-        #[inline(always)]
-        unsafe fn mul(self, b: Self) -> Self {
-            unsafe { Zmm(_mm512_mul_ps(self.0, b.0)) }
-        }
-        #[inline(always)]
-        unsafe fn min(self, b: Self) -> Self {
-            unsafe { Zmm(_mm512_min_ps(self.0, b.0)) }
-        }
-        #[inline(always)]
-        unsafe fn max(self, b: Self) -> Self {
-            unsafe { Zmm(_mm512_max_ps(self.0, b.0)) }
-        }
+        lane_wise!(Zmm:
+            add _mm512_add_ps,
+            sub _mm512_sub_ps,
+            mul _mm512_mul_ps,
+            min _mm512_min_ps,
+            max _mm512_max_ps
+        );
         #[inline(always)]
         unsafe fn le(self, b: Self, live: u16) -> u16 {
             unsafe { _mm512_mask_cmp_ps_mask::<_CMP_LE_OQ>(live, self.0, b.0) }
@@ -899,51 +903,13 @@ mod simd {
                 _mm256_storeu_ps(a[8..].as_mut_ptr(), self.0[1]);
             }
         }
-        #[inline(always)]
-        unsafe fn add(self, b: Self) -> Self {
-            unsafe {
-                YmmPair([
-                    _mm256_add_ps(self.0[0], b.0[0]),
-                    _mm256_add_ps(self.0[1], b.0[1]),
-                ])
-            }
-        }
-        #[inline(always)]
-        unsafe fn sub(self, b: Self) -> Self {
-            unsafe {
-                YmmPair([
-                    _mm256_sub_ps(self.0[0], b.0[0]),
-                    _mm256_sub_ps(self.0[1], b.0[1]),
-                ])
-            }
-        }
-        #[inline(always)]
-        unsafe fn mul(self, b: Self) -> Self {
-            unsafe {
-                YmmPair([
-                    _mm256_mul_ps(self.0[0], b.0[0]),
-                    _mm256_mul_ps(self.0[1], b.0[1]),
-                ])
-            }
-        }
-        #[inline(always)]
-        unsafe fn min(self, b: Self) -> Self {
-            unsafe {
-                YmmPair([
-                    _mm256_min_ps(self.0[0], b.0[0]),
-                    _mm256_min_ps(self.0[1], b.0[1]),
-                ])
-            }
-        }
-        #[inline(always)]
-        unsafe fn max(self, b: Self) -> Self {
-            unsafe {
-                YmmPair([
-                    _mm256_max_ps(self.0[0], b.0[0]),
-                    _mm256_max_ps(self.0[1], b.0[1]),
-                ])
-            }
-        }
+        lane_wise!(YmmPair:
+            add _mm256_add_ps,
+            sub _mm256_sub_ps,
+            mul _mm256_mul_ps,
+            min _mm256_min_ps,
+            max _mm256_max_ps
+        );
         #[inline(always)]
         unsafe fn le(self, b: Self, live: u16) -> u16 {
             unsafe {
