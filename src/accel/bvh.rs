@@ -30,8 +30,11 @@
 //! **Determinism.** obvhs's `parallel` feature (rayon in PLOC) is off, which this crate relies
 //! on: every build is single-threaded and a function of its input.
 
+mod huge_pages;
 mod leaf;
 mod wide;
+
+use huge_pages::HugePageArray;
 
 use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
@@ -253,7 +256,7 @@ pub struct MeshHit {
 #[derive(Debug, Clone)]
 pub struct MeshBvh {
     /// Leaf children point at blocks of `leaves` (see [`leaf::group`]).
-    nodes: Vec<WideNode>,
+    nodes: HugePageArray<WideNode>,
     leaves: leaf::Leaves,
     bounds: Aabb,
     stats: BuildStats,
@@ -317,7 +320,7 @@ impl MeshBvh {
         stats.max_depth = tree.max_depth;
         stats.build_time = start.elapsed();
         MeshBvh {
-            nodes: tree.nodes,
+            nodes: HugePageArray::from_vec(tree.nodes),
             leaves,
             bounds: geom_bounds(tree.bounds),
             stats,
@@ -1094,7 +1097,7 @@ const LANE_REACH: f32 = 0.25;
 /// that ray (it depends on the direction) and walks the mesh's tree with the current `tmax`.
 #[derive(Debug, Clone)]
 pub struct InstanceBvh {
-    nodes: Vec<WideNode>,
+    nodes: HugePageArray<WideNode>,
     placed: Vec<PlacedInstance>,
     bounds: Aabb,
     /// Per-ray node margin = this × max |origin component| (see `build`).
@@ -1252,7 +1255,7 @@ impl InstanceBvh {
         stats.max_depth = tree.max_depth;
         stats.build_time = start.elapsed();
         InstanceBvh {
-            nodes: tree.nodes,
+            nodes: HugePageArray::from_vec(tree.nodes),
             placed,
             bounds: geom_bounds(tree.bounds),
             origin_margin,
@@ -2121,7 +2124,7 @@ impl FewBoxes {
 /// (min > max on an axis) contain nothing and are never visited.
 #[derive(Debug, Clone)]
 pub struct AabbBvh {
-    nodes: Vec<WideNode>,
+    nodes: HugePageArray<WideNode>,
     /// Leaf order → (original index, box).
     boxes: Vec<(u32, Aabb)>,
     /// The finite boxes again, for a scan instead of the walk, when there are few of them.
@@ -2169,7 +2172,7 @@ impl AabbBvh {
         stats.max_depth = tree.max_depth;
         stats.build_time = start.elapsed();
         AabbBvh {
-            nodes: tree.nodes,
+            nodes: HugePageArray::from_vec(tree.nodes),
             few: FewBoxes::of(&leaf_boxes),
             boxes: leaf_boxes,
             unbounded_boxes: unbounded.iter().map(|&i| boxes[i as usize]).collect(),

@@ -457,7 +457,7 @@ impl SceneData {
     fn add_mesh_tree(&mut self, bvh: &MeshBvh) -> Result<u32, GpuError> {
         let leaves = bvh.leaf_blocks();
         let blocks_start = self.tri_blocks.len() as u32;
-        for (block, ids) in leaves.blocks.iter().zip(&leaves.ids) {
+        for (block, ids) in leaves.blocks.iter().zip(leaves.ids.iter()) {
             let mut r = TriBlockRecord::default();
             for (row, lanes) in block.v.iter().enumerate() {
                 [r.v[2 * row], r.v[2 * row + 1]] = halves(lanes);

@@ -18,14 +18,16 @@
 //! the scalar test, whose `f64` fallback decides them (`simd_lanes_match_the_scalar_test`).
 
 use arrayvec::ArrayVec;
+use bytemuck::Pod;
 use glam::Vec3;
 
+use super::HugePageArray;
 use super::wide::{LEAF_BIT, MAX_PRIMS, PACKET, WideNode};
 use crate::accel::triangle::{TriHit, WatertightRay};
 
 /// Eight triangles, structure of arrays: `v[3·k + axis][lane]` is coordinate `axis` of vertex k
 /// (0, 1, 2 = the triangle's a, b, c) of the lane's triangle. 320 bytes: five cache lines.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C, align(64))]
 pub(crate) struct TriBlock {
     pub v: [[f32; 8]; 9],
@@ -407,11 +409,11 @@ impl RayHits {
 /// Grouped leaves of a tree: the blocks, and per block the caller's id of each lane's triangle.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Leaves {
-    pub blocks: Vec<TriBlock>,
-    pub ids: Vec<[u32; 8]>,
+    pub blocks: HugePageArray<TriBlock>,
+    pub ids: HugePageArray<[u32; 8]>,
     /// Per block, the leaf slots its lanes belong to (bit i for child i): a block none of
     /// whose slots the ray met is skipped without loading it.
-    pub slots: Vec<u8>,
+    pub slots: HugePageArray<u8>,
 }
 
 impl Leaves {
@@ -448,7 +450,7 @@ pub(crate) fn prefetch<T>(value: &T) {
 /// mesh's build).
 pub(crate) fn group(nodes: &mut [WideNode], tris: &[[Vec3; 3]], ids: &[u32]) -> Leaves {
     use rayon::prelude::*;
-    let runs: Vec<Leaves> = nodes
+    let runs: Vec<RunLeaves> = nodes
         .par_chunks_mut(GROUP_RUN)
         .map(|run| group_run(run, tris, ids))
         .collect();
@@ -476,25 +478,46 @@ pub(crate) fn group(nodes: &mut [WideNode], tris: &[[Vec3; 3]], ids: &[u32]) -> 
                 }
             }
         });
-    let mut out = Leaves {
-        blocks: Vec::with_capacity(first),
-        ids: Vec::with_capacity(first),
-        slots: Vec::with_capacity(first),
-    };
-    for r in runs {
-        out.blocks.extend(r.blocks);
-        out.ids.extend(r.ids);
-        out.slots.extend(r.slots);
+    // Each run's blocks copied to their place in parallel: a large mesh's blocks are tens of
+    // megabytes, written once more into memory advised for huge pages (`super::huge_pages`).
+    fn gather<T: Pod + Send + Sync>(
+        out: &mut [T],
+        runs: &[RunLeaves],
+        part: impl Fn(&RunLeaves) -> &[T] + Sync,
+    ) {
+        let mut places = Vec::with_capacity(runs.len());
+        let mut rest = out;
+        for r in runs {
+            let (place, tail) = rest.split_at_mut(part(r).len());
+            places.push(place);
+            rest = tail;
+        }
+        places
+            .into_par_iter()
+            .zip(runs)
+            .for_each(|(place, r)| place.copy_from_slice(part(r)));
     }
-    out
+    Leaves {
+        blocks: HugePageArray::new_with(first, |out| gather(out, &runs, |r| &r.blocks)),
+        ids: HugePageArray::new_with(first, |out| gather(out, &runs, |r| &r.ids)),
+        slots: HugePageArray::new_with(first, |out| gather(out, &runs, |r| &r.slots)),
+    }
+}
+
+/// The blocks of one run of [`group`], numbered from 0.
+#[derive(Default)]
+struct RunLeaves {
+    blocks: Vec<TriBlock>,
+    ids: Vec<[u32; 8]>,
+    slots: Vec<u8>,
 }
 
 /// Nodes per run of [`group`].
 const GROUP_RUN: usize = 1024;
 
 /// [`group`] of the nodes of one run, its blocks numbered from 0.
-fn group_run(nodes: &mut [WideNode], tris: &[[Vec3; 3]], ids: &[u32]) -> Leaves {
-    let mut out = Leaves::default();
+fn group_run(nodes: &mut [WideNode], tris: &[[Vec3; 3]], ids: &[u32]) -> RunLeaves {
+    let mut out = RunLeaves::default();
     for node in nodes.iter_mut() {
         let mut lanes: ArrayVec<(usize, usize), 32> = ArrayVec::new();
         let mut leaf_slots: ArrayVec<usize, 8> = ArrayVec::new();

@@ -76,7 +76,7 @@ pub(crate) const WIDEN: f32 = 8.0 * f32::EPSILON;
 
 /// One node: the boxes of its (up to) eight children, structure-of-arrays. Empty slots hold the
 /// inverted box (min = +∞, max = −∞), which no ray enters.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C, align(32))]
 pub(crate) struct WideNode {
     /// `bounds[2·axis]` are the children's minima on `axis`, `bounds[2·axis + 1]` the maxima.
