@@ -9,16 +9,17 @@
 //! many distributions (Debian's included), and the standard allocator never asks. Embree asks
 //! for every allocation of its trees (`os_malloc` in its `common/sys/alloc.cpp`), so the bench
 //! compared its trees in huge pages with ours in small ones. Measured on the bench's rays
-//! (BENCHMARKS.md, "Trees in huge pages"): primary and AO rays 2–4 % faster on the bunny, the
+//! (BENCHMARKS.md, "Trees in huge pages"): primary and AO rays 1–4 % faster on the bunny, the
 //! saw and the engine, the other ray kinds within 1 %, and no change on the million-triangle
 //! model, whose walks wait on memory itself more than on page-table walks.
 //!
 //! **How.** An array of at least one huge page is written into a fresh anonymous mapping
-//! (`memmap2`) advised for huge pages before its first write, so that its pages are faulted in
-//! as huge pages; a smaller one, or one on a system without the advice, stays a `Vec`. The
-//! mapping starts out zeroed, a valid value of any [`Pod`] type, so it is filled as a slice of
-//! `T` without unsafe code; only the read path keeps a raw pointer, so that an index costs what
-//! a `Vec`'s does (these arrays are indexed in the innermost loops of every walk).
+//! (`memmap2`) whose whole huge pages under the array are advised for huge pages before the
+//! first write, so that they are faulted in as huge pages; a smaller array, or one on a system
+//! without the advice, stays a `Vec`. The mapping starts out zeroed, a valid value of any
+//! [`Pod`] type, so it is filled as a slice of `T` without unsafe code; only the read path keeps
+//! a raw pointer, so that an index costs what a `Vec`'s does (these arrays are indexed in the
+//! innermost loops of every walk).
 
 use std::fmt;
 use std::ops::Deref;
@@ -82,9 +83,15 @@ impl<T: Pod> HugePageArray<T> {
         }
     }
 
+    /// The array in `map` from byte `start` (see [`Self::huge_mapping`]), written by `fill`.
     #[cfg(target_os = "linux")]
-    fn in_map(mut map: memmap2::MmapMut, len: usize, fill: impl FnOnce(&mut [T])) -> Self {
-        let elements: &mut [T] = bytemuck::cast_slice_mut(&mut map[..len * size_of::<T>()]);
+    fn in_map(
+        (mut map, start): (memmap2::MmapMut, usize),
+        len: usize,
+        fill: impl FnOnce(&mut [T]),
+    ) -> Self {
+        let bytes = &mut map[start..start + len * size_of::<T>()];
+        let elements: &mut [T] = bytemuck::cast_slice_mut(bytes);
         fill(elements);
         HugePageArray {
             ptr: NonNull::from(&mut elements[0]),
@@ -93,20 +100,29 @@ impl<T: Pod> HugePageArray<T> {
         }
     }
 
-    /// A zeroed anonymous mapping for `len` elements advised for huge pages, or `None` when
-    /// the array is too small to gain from one or the system refuses the mapping or the advice
-    /// (the caller then uses a `Vec`). Page alignment (4 KB) covers every `T` the trees store.
+    /// A zeroed anonymous mapping for `len` elements, and the byte where they start, with the
+    /// whole huge pages they span advised for huge pages; or `None` when the array is smaller
+    /// than one huge page or the system refuses the mapping or the advice (the caller then
+    /// uses a `Vec`).
+    ///
+    /// The mapping is one huge page longer than the array, which starts at its first
+    /// huge-page boundary: the slack before it is never written, so never backed. Only the
+    /// array's whole huge pages are advised: a huge page is backed whole once any byte of it
+    /// is written, so the array's last, partial one stays in 4 KB pages rather than cost up to
+    /// 2 MB of memory that holds nothing.
     #[cfg(target_os = "linux")]
-    fn huge_mapping(len: usize) -> Option<memmap2::MmapMut> {
+    fn huge_mapping(len: usize) -> Option<(memmap2::MmapMut, usize)> {
         let bytes = len.checked_mul(size_of::<T>())?;
-        if bytes < HUGE_PAGE || align_of::<T>() > 4096 {
+        // (Alignments above a huge page would need a later start; no tree stores such a type.)
+        if bytes < HUGE_PAGE || align_of::<T>() > HUGE_PAGE {
             return None;
         }
-        // A whole number of huge pages: the kernel places only such anonymous mappings on a
-        // huge-page boundary, so that none of the array straddles a partial one.
-        let map = memmap2::MmapMut::map_anon(bytes.next_multiple_of(HUGE_PAGE)).ok()?;
-        map.advise(memmap2::Advice::HugePage).ok()?;
-        Some(map)
+        let map = memmap2::MmapMut::map_anon(bytes.checked_add(HUGE_PAGE)?).ok()?;
+        let start = (map.as_ptr() as usize).next_multiple_of(HUGE_PAGE) - map.as_ptr() as usize;
+        let whole = bytes / HUGE_PAGE * HUGE_PAGE;
+        map.advise_range(memmap2::Advice::HugePage, start, whole)
+            .ok()?;
+        Some((map, start))
     }
 }
 
@@ -161,31 +177,47 @@ mod tests {
         }
     }
 
-    /// A large array's mapping carries the advice (the `hg` flag of its line in
-    /// `/proc/self/smaps`): what this type exists for. Whether the kernel then grants huge
-    /// pages depends on its settings and on free memory, so that is not asserted.
+    /// The flags (`VmFlags` of `/proc/self/smaps`) of the mapping that holds `addr`.
     #[cfg(target_os = "linux")]
-    #[test]
-    fn large_arrays_are_advised_for_huge_pages() {
-        let a = HugePageArray::new_with(HUGE_PAGE, |out: &mut [u32]| out.fill(7));
-        assert!(matches!(a._owner, Owner::Map(_)), "a large array is mapped");
-        let start = a.as_ptr() as usize;
+    fn vm_flags_at(addr: usize) -> Vec<String> {
         let smaps = std::fs::read_to_string("/proc/self/smaps").expect("smaps");
         let mut in_map = false;
-        let mut flags = None;
         for line in smaps.lines() {
             let range = line.split_once(' ').and_then(|(r, _)| r.split_once('-'));
             if let Some((lo, hi)) = range
                 && let (Ok(lo), Ok(hi)) =
                     (usize::from_str_radix(lo, 16), usize::from_str_radix(hi, 16))
             {
-                in_map = (lo..hi).contains(&start);
+                in_map = (lo..hi).contains(&addr);
             } else if in_map && let Some(f) = line.strip_prefix("VmFlags:") {
-                flags = Some(f.split_whitespace().map(str::to_owned).collect::<Vec<_>>());
+                return f.split_whitespace().map(str::to_owned).collect();
             }
         }
-        let flags = flags.expect("the mapping is listed in smaps with its flags");
-        assert!(flags.iter().any(|f| f == "hg"), "not advised: {flags:?}");
+        panic!("no mapping with flags holds {addr:#x}");
+    }
+
+    /// A large array's whole huge pages carry the advice (the `hg` flag), and its last, partial
+    /// one does not: what this type exists for, without memory that holds nothing. Whether the
+    /// kernel then grants huge pages depends on its settings and on free memory, so that is
+    /// not asserted.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn whole_huge_pages_of_large_arrays_are_advised() {
+        let len = HUGE_PAGE / 4 * 3 / 2; // one and a half huge pages of u32
+        let a = HugePageArray::new_with(len, |out: &mut [u32]| out.fill(7));
+        assert!(matches!(a._owner, Owner::Map(_)), "a large array is mapped");
+        assert_eq!(
+            a.as_ptr() as usize % HUGE_PAGE,
+            0,
+            "it starts on a huge page"
+        );
+        let first = vm_flags_at(a.as_ptr() as usize);
+        assert!(first.iter().any(|f| f == "hg"), "not advised: {first:?}");
+        let last = vm_flags_at(&a[len - 1] as *const u32 as usize);
+        assert!(
+            !last.iter().any(|f| f == "hg"),
+            "partial page advised: {last:?}"
+        );
         assert!(a.iter().all(|&x| x == 7));
     }
 }

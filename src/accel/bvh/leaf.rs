@@ -21,7 +21,7 @@ use arrayvec::ArrayVec;
 use bytemuck::Pod;
 use glam::Vec3;
 
-use super::HugePageArray;
+use super::huge_pages::HugePageArray;
 use super::wide::{LEAF_BIT, MAX_PRIMS, PACKET, WideNode};
 use crate::accel::triangle::{TriHit, WatertightRay};
 
