@@ -39,7 +39,7 @@ enum Command {
 
 fn main() {
     quiet_wayland_probe();
-    let cli = Cli::parse();
+    let cli = Cli::try_parse().unwrap_or_else(|e| exit_on_command_line_error(e));
     let result = match cli.command {
         Some(Command::Render(args)) => cli::render::run(args),
         Some(Command::Slice(args)) => cli::slice::run(args),
@@ -55,6 +55,35 @@ fn main() {
         eprintln!("error: {e:#}");
         std::process::exit(1);
     }
+}
+
+/// Reports a bad command line on one line, as every other error is reported: clap's own
+/// report adds a tip, the usage and a pointer to `--help` on lines of their own. Help and
+/// version requests, and help shown for a missing subcommand, print as clap prints them.
+fn exit_on_command_line_error(e: clap::Error) -> ! {
+    use clap::error::ErrorKind;
+    if matches!(
+        e.kind(),
+        ErrorKind::DisplayHelp
+            | ErrorKind::DisplayVersion
+            | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
+    ) {
+        e.exit();
+    }
+    let text = e.render().to_string();
+    let first = text
+        .lines()
+        .map(str::trim_end)
+        .find(|l| !l.is_empty())
+        .unwrap_or("error: invalid command line");
+    // The values a flag takes, when clap lists them, stay on the line.
+    let values = text
+        .lines()
+        .map(str::trim)
+        .find(|l| l.starts_with("[possible values:"))
+        .map_or(String::new(), |v| format!(" {v}"));
+    eprintln!("{first}{values} (see --help)");
+    std::process::exit(2);
 }
 
 /// Gives the Vulkan loader's Wayland probe an absolute XDG_RUNTIME_DIR when the environment

@@ -480,6 +480,17 @@ fn zero_width_image_multiline() {
     );
 }
 
+/// A scene's exposure is checked where it is read: the file and its place, not a flag the
+/// user never gave.
+#[test]
+fn exposure_out_of_range() {
+    let message = expect_error(
+        &scene("    image: (\n        width: 8,\n        «exposure: 65»,\n    ),\n"),
+        &["exposure", "65", "out of range"],
+    );
+    assert!(!message.contains("--exposure"), "{message}");
+}
+
 #[test]
 fn huge_image_one_line() {
     expect_error(
@@ -1164,6 +1175,17 @@ fn cli_zero_threads() {
     ]);
     assert!(err.contains("threads"), "{err}");
     assert!(!out.exists());
+    // So many threads are refused before any is started (tens of thousands took minutes
+    // and then failed on the system's limits).
+    let err = render_fails(&[
+        os("--threads"),
+        os("100000"),
+        os("-o"),
+        out.as_os_str(),
+        os("-q"),
+    ]);
+    assert!(err.contains("--threads 100000"), "{err}");
+    assert!(!out.exists());
 }
 
 #[test]
@@ -1606,4 +1628,114 @@ fn coordinates_beyond_the_trees_reach() {
         message.contains("placed.ron:") && message.contains("as the scene places it"),
         "{message}"
     );
+}
+
+/// `render` says what a model file held that it does not draw as asked (here a missing
+/// material library), one line each on stderr, and `-q` keeps it quiet; the image is made.
+#[test]
+fn render_prints_the_loader_s_warnings() {
+    let dir = TempDir::new("render-warnings");
+    let obj = dir.write(
+        "tri.obj",
+        "mtllib missing.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+    );
+    let out = dir.path("tri.png");
+    let args = |quiet: bool| {
+        let mut a = vec![
+            os("render"),
+            obj.as_os_str(),
+            os("--width"),
+            os("16"),
+            os("--height"),
+            os("12"),
+            os("--backend"),
+            os("cpu"),
+            os("-o"),
+            out.as_os_str(),
+        ];
+        if quiet {
+            a.push(os("-q"));
+        }
+        a
+    };
+    let o = hytrace(&args(false));
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    assert!(
+        stderr
+            .lines()
+            .any(|l| l.starts_with("warning: ") && l.contains("missing.mtl")),
+        "{stderr}"
+    );
+    let o = hytrace(&args(true));
+    assert!(o.status.success());
+    assert!(
+        o.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// A byte-order mark before the text (some Windows editors write one) is skipped, and places
+/// in errors are counted from after it, as the editor shows them.
+#[test]
+fn byte_order_mark_is_skipped() {
+    expect_ok(&format!(
+        "\u{feff}{}",
+        scene("    objects: [(shape: Sphere(radius: 1))],\n")
+    ));
+    let e = Scene::from_source(
+        &format!(
+            "\u{feff}{}",
+            scene("    objects: [(shape: Sphere(radius: -1))],\n")
+        ),
+        Path::new("bom.ron"),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.starts_with("bom.ron:3:"), "{e}");
+}
+
+/// A camera 10²⁰ or 3·10³⁸ from its target is far, not at it: the difference of the two
+/// points overflowed before it was normalised.
+#[test]
+fn far_cameras_look_the_right_way() {
+    for far in ["1e20", "3e38"] {
+        let s = expect_ok(&format!(
+            "Scene(\n    camera: Perspective(position: ({far}, 0, 0), look_at: (-{far}, 0, 0)),\n    objects: [(shape: Sphere(radius: 1))],\n)\n"
+        ));
+        assert_eq!(s.camera.forward, glam::Vec3::NEG_X, "{far}");
+    }
+}
+
+/// A bad command line is reported on one line, as every other error is (clap's own report
+/// adds a tip, the usage and a pointer to `--help` on lines of their own); the values a flag
+/// takes stay on it.
+#[test]
+fn command_line_errors_are_one_line() {
+    for args in [
+        &["render", "--width", "-5"][..],
+        &["render", "--spp", "4294967296"],
+        &["render", "--tonemap", "foo"],
+        &["render", "--bogus"],
+        &["validate", "--seed", "-1"],
+        &["no-such-command"],
+    ] {
+        let argv: Vec<&std::ffi::OsStr> = args.iter().map(|a| os(a)).collect();
+        let o = hytrace(&argv);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(
+            lines.len() == 1 && lines[0].starts_with("error: "),
+            "{args:?}: {stderr}"
+        );
+    }
+    let o = hytrace(&[os("render"), os("--tonemap"), os("foo")]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(stderr.contains("reinhard"), "{stderr}");
+    // Help still prints whole, on stdout, with success.
+    let o = hytrace(&[os("render"), os("--help")]);
+    assert!(o.status.success());
+    assert!(String::from_utf8_lossy(&o.stdout).contains("Usage:"));
 }

@@ -119,6 +119,27 @@ mod shipped_scenes {
     }
 }
 
+/// implicit.ron at its own image size: rays that skim its quartic torus before entering it
+/// spend hundreds of Hart steps where f/λ falls to 10⁻⁴, and with a budget of 512 steps
+/// fifteen of them missed the torus (the 96×72 image above has none of them).
+#[test]
+fn implicit_at_its_own_size() {
+    let scene = shipped("implicit").unwrap();
+    let options = Options {
+        width: scene.image.width,
+        height: scene.image.height,
+        ..options()
+    };
+    let report = validate_with_embree(&scene, &options).unwrap_or_else(|e| panic!("implicit: {e}"));
+    assert!(
+        report.passed(),
+        "implicit at {}×{}: validation against Embree failed:\n{}",
+        options.width,
+        options.height,
+        report.failures.join("\n")
+    );
+}
+
 /// Real models on their own, as `hytrace render MODEL` frames them: mesh thresholds only.
 #[test]
 fn real_models_pass() {

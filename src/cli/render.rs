@@ -6,7 +6,7 @@ use hytrace::render::output::ToneMapping;
 use hytrace::render::view::View;
 use hytrace::render::write::write_image;
 use hytrace::render::{RenderOptions, cpu};
-use hytrace::scene::{MAX_IMAGE_SIDE, MAX_PIXELS, MAX_SAMPLES};
+use hytrace::scene::{MAX_EXPOSURE, MAX_IMAGE_SIDE, MAX_PIXELS, MAX_SAMPLES};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -77,7 +77,21 @@ pub(crate) struct ImageArgs {
     pub backend: Backend,
 }
 
+/// Most render threads `--threads` accepts: far past any machine's cores (a thread each is
+/// started up front, and tens of thousands exhaust the system's limits first).
+pub const MAX_THREADS: usize = 1024;
+
 impl ImageArgs {
+    /// Checks `--threads`: 1 to [`MAX_THREADS`].
+    pub fn check_threads(&self) -> Result<()> {
+        match self.threads {
+            Some(n) if n == 0 || n > MAX_THREADS => {
+                bail!("--threads {n} is out of range 1..={MAX_THREADS}")
+            }
+            _ => Ok(()),
+        }
+    }
+
     /// Checks the values given on the command line (the scene's own are checked on load).
     pub fn check(&self) -> Result<()> {
         for side in [self.width, self.height].into_iter().flatten() {
@@ -95,13 +109,11 @@ impl ImageArgs {
         {
             bail!("--spp {s} is out of range 1..={MAX_SAMPLES}");
         }
-        if self.threads == Some(0) {
-            bail!("--threads must be at least 1");
-        }
+        self.check_threads()?;
         if let Some(e) = self.exposure
-            && (!e.is_finite() || e.abs() > 64.0)
+            && (!e.is_finite() || e.abs() > MAX_EXPOSURE)
         {
-            bail!("--exposure {e} is out of range -64..=64 stops");
+            bail!("--exposure {e} is out of range -{MAX_EXPOSURE}..={MAX_EXPOSURE} stops");
         }
         Ok(())
     }
@@ -198,6 +210,24 @@ fn contents(scene: &hytrace::scene::Scene) -> String {
     }
 }
 
+/// Most loader warnings `render` prints; `hytrace info` lists them all.
+const SHOWN_WARNINGS: usize = 5;
+
+/// The loader's warnings (what a model file held that is not drawn, or drawn otherwise than
+/// it asks), one line each, on stderr: the image is still made, but not quite as the file
+/// says.
+pub(crate) fn print_warnings(warnings: &[String]) {
+    for w in warnings.iter().take(SHOWN_WARNINGS) {
+        eprintln!("warning: {w}");
+    }
+    if warnings.len() > SHOWN_WARNINGS {
+        eprintln!(
+            "warning: and {} more (`hytrace info` lists them all)",
+            warnings.len() - SHOWN_WARNINGS
+        );
+    }
+}
+
 /// Renders and writes the image.
 pub fn run(args: RenderArgs) -> Result<()> {
     let mut scene = super::load_any(args.scene.as_deref(), args.camera.as_deref())?;
@@ -224,12 +254,12 @@ pub fn run(args: RenderArgs) -> Result<()> {
     if samples == 0 || samples > MAX_SAMPLES {
         bail!("--spp {samples} is out of range 1..={MAX_SAMPLES}");
     }
-    if args.image.threads == Some(0) {
-        bail!("--threads must be at least 1");
-    }
+    args.image.check_threads()?;
+    // A flag's value was checked with the flags and a scene file's where it was read; what
+    // is left is a model's metered exposure, checked all the same.
     let exposure = args.image.exposure.unwrap_or(scene.image.exposure);
-    if !exposure.is_finite() || exposure.abs() > 64.0 {
-        bail!("--exposure {exposure} is out of range -64..=64 stops");
+    if !exposure.is_finite() || exposure.abs() > MAX_EXPOSURE {
+        bail!("the exposure {exposure} is out of range -{MAX_EXPOSURE}..={MAX_EXPOSURE} stops");
     }
     let tone = ToneMapping {
         exposure,
@@ -273,6 +303,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
         threads: args.image.threads,
         progress: !args.quiet && std::io::stderr().is_terminal(),
     };
+    if !args.quiet {
+        print_warnings(&scene.meshes.warnings);
+    }
     let backend = choose_backend(args.image.backend, args.quiet, args.verbose)?;
     let start = Instant::now();
     let (fb, used) = match &backend {

@@ -56,7 +56,13 @@ impl Camera {
         up: Vec3,
         projection: Projection,
     ) -> Result<Camera, String> {
-        let forward = (look_at - position).normalize_or_zero();
+        let mut forward = (look_at - position).normalize_or_zero();
+        let scale = position.abs().max(look_at.abs()).max_element();
+        if forward == Vec3::ZERO && scale.is_finite() && scale > 0.0 {
+            // The difference or its square overflowed (points 10²⁰ apart): the same direction
+            // from both points scaled down first.
+            forward = (look_at / scale - position / scale).normalize_or_zero();
+        }
         if forward == Vec3::ZERO {
             return Err("camera position and look_at are the same point".into());
         }

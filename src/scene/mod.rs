@@ -12,6 +12,7 @@ pub mod material;
 pub mod mesh;
 pub mod meshes;
 pub mod model;
+pub mod read;
 
 use crate::geom::Aabb;
 use crate::scene::material::MaterialParams;
@@ -31,6 +32,8 @@ pub const MAX_IMAGE_SIDE: u32 = 16384;
 pub const MAX_PIXELS: u64 = 64 * 1024 * 1024;
 /// The largest accepted samples per pixel.
 pub const MAX_SAMPLES: u32 = 1024;
+/// Largest exposure, in stops either way (2^±64 is far past any radiance an image holds).
+pub const MAX_EXPOSURE: f32 = 64.0;
 
 /// A scene error, always with the file it concerns and, where known, the place in it.
 #[derive(Debug, thiserror::Error)]
@@ -373,7 +376,7 @@ impl Scene {
 
     /// Reads and loads a scene file with `options`.
     pub fn load_with(path: &Path, options: &LoadOptions) -> Result<Scene, SceneError> {
-        let source = std::fs::read_to_string(path).map_err(|error| SceneError::Io {
+        let source = read::read_to_string(path).map_err(|error| SceneError::Io {
             file: path.to_path_buf(),
             error,
         })?;
@@ -408,6 +411,9 @@ impl Scene {
         path: &Path,
         options: &LoadOptions,
     ) -> Result<Scene, SceneError> {
+        // A byte-order mark (some Windows editors write one) is not part of the text: places
+        // are counted from after it, as the editor shows them.
+        let source = source.strip_prefix('\u{feff}').unwrap_or(source);
         let at = |offset: usize, message: String| {
             let p = locate::place_of(source, offset);
             SceneError::At {
@@ -469,6 +475,15 @@ impl Scene {
                 format!(
                     "samples = {} is out of range 1..={MAX_SAMPLES}",
                     img.samples
+                ),
+            ));
+        }
+        if img.exposure.0.abs() > MAX_EXPOSURE {
+            return Err(at(
+                top(&["image", "exposure"]),
+                format!(
+                    "exposure = {} is out of range -{MAX_EXPOSURE}..={MAX_EXPOSURE} stops",
+                    img.exposure.0
                 ),
             ));
         }
@@ -676,7 +691,9 @@ impl Scene {
             let shape = match (&o.shape, &o.mesh) {
                 (Some(shape), None) => shape,
                 (None, Some(file)) => {
-                    let place = locate::follow(source, span.0, &[locate::Nav::Field("mesh")]);
+                    // Found only for an error: `follow` reads the file's text again, and a scene
+                    // of many meshes paid for it once per object (quadratic in the file).
+                    let place = || locate::follow(source, span.0, &[locate::Nav::Field("mesh")]);
                     let (transform, _) = sdf::lower::transform_of(&SdfNode::Transform {
                         translate: o.translate,
                         rotate: o.rotate,
@@ -685,10 +702,10 @@ impl Scene {
                     });
                     let override_material = o.material.as_ref().map(|_| material);
                     let mesh_path = resolve_mesh_path(path, file, |v| options.variable(v))
-                        .map_err(|e| at(place, format!("{name}: {e}")))?;
+                        .map_err(|e| at(place(), format!("{name}: {e}")))?;
                     meshes
                         .add_file(&mesh_path, transform, override_material, &name)
-                        .map_err(|e| at(place, format!("{name}: {e}")))?;
+                        .map_err(|e| at(place(), format!("{name}: {e}")))?;
                     continue;
                 }
                 (Some(_), Some(_)) => {

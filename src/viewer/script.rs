@@ -54,7 +54,7 @@ pub const DRAG_MOVE_PAUSE: Duration = Duration::from_millis(15);
 
 /// Reads a script file.
 pub fn load(path: &Path) -> Result<Vec<Step>, String> {
-    let text = std::fs::read_to_string(path)
+    let text = crate::scene::read::read_to_string(path)
         .map_err(|e| format!("{}: cannot read the script: {e}", path.display()))?;
     parse(&text).map_err(|(line, message)| format!("{}:{line}: {message}", path.display()))
 }

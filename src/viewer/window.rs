@@ -699,7 +699,7 @@ impl Viewer {
                 // missing must reload it, not only a save of the scene file
                 if let Some(scene_file) = self.config.scene_file.clone() {
                     let mut files = self.good_files.clone();
-                    if let Ok(source) = std::fs::read_to_string(&scene_file) {
+                    if let Ok(source) = crate::scene::read::read_to_string(&scene_file) {
                         files.extend(Scene::mesh_files_named(
                             &source,
                             &scene_file,

@@ -131,12 +131,12 @@ pub(crate) fn build(boxes: &[OAabb], params: &BvhBuildParams) -> WideBvh {
     }
     let empty = (Vec3::INFINITY, Vec3::NEG_INFINITY);
     // As in obvhs::cwbvh::builder::build_cwbvh (obvhs 0.4), without the debug validation, and
-    // with exact duplicates spread apart for the builder only (see `spread_duplicates`).
-    let spread = spread_duplicates(boxes);
+    // with ties broken for the builder only (see `spread_for_the_builder`).
+    let spread = spread_for_the_builder(boxes);
     let indices: Vec<u32> = (0..boxes.len() as u32).collect();
     let mut bvh2 = PlocBuilder::with_capacity(boxes.len()).build(
         params.ploc_search_distance,
-        spread.as_deref().unwrap_or(boxes),
+        &spread,
         indices,
         params.sort_precision,
         params.search_depth_threshold,
@@ -243,19 +243,20 @@ pub(crate) fn one_primitive_per_leaf(tree: &mut WideBvh, boxes: &[OAabb]) {
     }
 }
 
-/// Boxes for the *builder* in which bitwise-identical boxes are told apart: each member of a
-/// group of g identical boxes is moved by δ·∛g·(h₁, h₂, h₃), with h pseudo-random in [0, 1)
-/// (hashed from its rank in the group) and δ = 2⁻²⁰ × the extent of everything.
+/// Boxes for the *builder* in which ties are broken: every box is moved by δ·(h₁, h₂, h₃),
+/// and each member of a group of g bitwise-identical boxes by δ·∛g·(h₁, h₂, h₃), with h
+/// pseudo-random in [0, 1) (hashed from the box's position in the list, or its rank in the
+/// group) and δ = 2⁻²⁰ × the extent of everything.
 ///
 /// PLOC pairs nodes that are each other's cheapest merge (by the surface area of the union).
 /// Among identical boxes every merge costs the same, obvhs breaks ties towards the farthest
 /// candidate, few pairs are mutual, and the tree degenerates into a chain: n copies of one
 /// triangle gave depth n/7 and a quadratic build (20,000 copies: 14 s), and obvhs's recursive
 /// BVH2→CWBVH conversion would overflow the stack for a few hundred thousand. Evenly spaced
-/// copies are no better (equal distances tie again); scattered at random they form an
-/// ordinary cloud (20,000 copies: a few ms). Only the topology depends on these boxes: the
-/// node boxes are recomputed from the real ones.
-fn spread_duplicates(boxes: &[OAabb]) -> Option<Vec<OAabb>> {
+/// boxes tie the same way (each box's two neighbours cost the same): 20,000 instances in a
+/// row took 6 s, 200,000 more than a minute, until every box was moved by a hair as well.
+/// Only the topology depends on these boxes: the node boxes are recomputed from the real ones.
+fn spread_for_the_builder(boxes: &[OAabb]) -> Vec<OAabb> {
     // A 64-bit fingerprint of the six coordinates' bits stands for the box. Two different
     // boxes sharing one (odds ~n²/2⁶⁵) would merely be spread too, which only moves the
     // builder's view of them by a hair.
@@ -269,16 +270,11 @@ fn spread_duplicates(boxes: &[OAabb]) -> Option<Vec<OAabb>> {
     let mut groups: HashMap<u64, (u32, u32), BuildHasherDefault<PassThrough>> =
         HashMap::with_capacity_and_hasher(boxes.len(), Default::default());
     let (mut lo, mut hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
-    let mut any = false;
     for b in boxes {
         let g = groups.entry(key(b)).or_insert((0, 0));
         g.0 += 1;
-        any |= g.0 > 1;
         lo = lo.min(b.min);
         hi = hi.max(b.max);
-    }
-    if !any {
-        return None;
     }
     let extent = (hi - lo).max_element();
     let magnitude = lo.abs().max(hi.abs()).max_element();
@@ -295,23 +291,24 @@ fn spread_duplicates(boxes: &[OAabb]) -> Option<Vec<OAabb>> {
         z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
         ((z ^ (z >> 31)) >> 40) as f32 / (1u64 << 24) as f32
     };
-    Some(
-        boxes
-            .iter()
-            .map(|b| {
-                let g = groups.get_mut(&key(b)).expect("counted above");
-                let (size, rank) = (g.0, g.1);
-                g.1 += 1;
-                if size == 1 {
-                    return *b;
-                }
-                let k = u64::from(rank);
-                let s =
-                    Vec3A::new(unit(k, 1), unit(k, 2), unit(k, 3)) * (delta * (size as f32).cbrt());
-                OAabb::new(b.min + s, b.max + s)
-            })
-            .collect(),
-    )
+    boxes
+        .iter()
+        .enumerate()
+        .map(|(i, b)| {
+            let g = groups.get_mut(&key(b)).expect("counted above");
+            let (size, rank) = (g.0, g.1);
+            g.1 += 1;
+            // A lone box hashed by its place in the list, a group's member by its rank in the
+            // group (on other hash streams, so the two kinds of offset are unrelated).
+            let (k, scale, axes) = if size == 1 {
+                (i as u64, delta, [4, 5, 6])
+            } else {
+                (u64::from(rank), delta * (size as f32).cbrt(), [1, 2, 3])
+            };
+            let s = Vec3A::new(unit(k, axes[0]), unit(k, axes[1]), unit(k, axes[2])) * scale;
+            OAabb::new(b.min + s, b.max + s)
+        })
+        .collect()
 }
 
 /// A hasher for keys that are already well-mixed 64-bit fingerprints.
@@ -1420,5 +1417,32 @@ mod tests {
         let p = OAabb::new(Vec3A::ONE, Vec3A::ONE);
         let bvh = build(&vec![p; 5000], &BvhBuildParams::fast_build());
         assert!(bvh.max_depth < 20, "depth {}", bvh.max_depth);
+    }
+
+    /// Boxes evenly spaced along a line (instances in a row) tie as identical ones do: each
+    /// box's two neighbours make equally cheap merges, few pairs form per round, and the build
+    /// was quadratic (20,000 boxes: 6.4 s; 200,000: about ten minutes, by that rate). Built on
+    /// a thread of its own, so that a return of the quadratic build fails within a minute
+    /// instead of hanging the suite; it now takes well under a second.
+    #[test]
+    fn evenly_spaced_boxes_build_without_a_quadratic_search() {
+        let (done, finished) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let boxes: Vec<OAabb> = (0..200_000)
+                .map(|i| {
+                    let x = 3.0 * i as f32;
+                    OAabb::new(
+                        Vec3A::new(x - 0.5, -0.5, -0.5),
+                        Vec3A::new(x + 0.5, 0.5, 0.5),
+                    )
+                })
+                .collect();
+            let bvh = build(&boxes, &BvhBuildParams::medium_build());
+            let _ = done.send(leaves(&bvh, Vec3::new(-1.0, 0.0, 0.0), Vec3::X, 0.0, 1e7).len());
+        });
+        let reached = finished
+            .recv_timeout(std::time::Duration::from_secs(60))
+            .expect("200,000 boxes in a row not built within a minute: the ties are unbroken");
+        assert_eq!(reached, 200_000);
     }
 }

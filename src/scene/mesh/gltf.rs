@@ -110,6 +110,15 @@ fn parse_root(bytes: &[u8]) -> Result<json::Root, String> {
     let Ok(mut value) = json::deserialize::from_slice::<json::Value>(bytes) else {
         return Err(first);
     };
+    // A glTF 1.0 document fails the 2.0 schema somewhere unrelated to its version (its
+    // `scenes` are a map): say what it is instead.
+    if let Some(version) = value.pointer("/asset/version").and_then(|v| v.as_str())
+        && !version.starts_with("2.")
+    {
+        return Err(format!(
+            "glTF version {version} is not supported (only glTF 2.0)"
+        ));
+    }
     let mut patched = false;
     if let Some(scenes) = value.get_mut("scenes").and_then(|s| s.as_array_mut()) {
         for scene in scenes.iter_mut().filter_map(|s| s.as_object_mut()) {
@@ -309,7 +318,7 @@ fn read_uri(uri: &str, base: &Path) -> Result<(Vec<u8>, Option<String>), String>
     }
     let decoded = percent_decode(path_part).ok_or_else(|| format!("invalid URI {uri:?}"))?;
     let path: PathBuf = base.join(&decoded);
-    std::fs::read(&path)
+    crate::scene::read::read(&path)
         .map(|b| (b, None))
         .map_err(|e| format!("cannot read {}: {e}", path.display()))
 }
@@ -800,6 +809,30 @@ impl Cx<'_> {
                     tris.extend(indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]]));
                 }
             }
+            // glTF 2.0 §3.7.2.1: "When normals are not specified, client implementations MUST
+            // calculate flat normals". Each triangle's corners become vertices of their own
+            // (every attribute copied) that carry the face's normal; a smooth average over
+            // shared vertices would round a box's edges.
+            let flat = normals.is_none();
+            let (positions, uvs, uvs1, colors, file_tangents) = if flat {
+                if base + 3 * tris.len() > u32::MAX as usize {
+                    return fail(pos_place, "the mesh has more than 2³² vertices");
+                }
+                let split = (
+                    unweld(&positions, &tris),
+                    uvs.map(|v| unweld(&v, &tris)),
+                    uvs1.map(|v| unweld(&v, &tris)),
+                    colors.map(|v| unweld(&v, &tris)),
+                    file_tangents.map(|v| unweld(&v, &tris)),
+                );
+                for (k, t) in tris.iter_mut().enumerate() {
+                    let first = 3 * k as u32;
+                    *t = [first, first + 1, first + 2];
+                }
+                split
+            } else {
+                (positions, uvs, uvs1, colors, file_tangents)
+            };
             let pos: Vec<Vec3> = positions.iter().map(|&p| Vec3::from_array(p)).collect();
             let nrm = match normals {
                 Some(n) => {
@@ -812,6 +845,7 @@ impl Cx<'_> {
                     }
                     n
                 }
+                // (the corners of a triangle share no vertex with another's: flat)
                 None => vertex_normals(&pos, &tris),
             };
             let material = material_of(prim);
@@ -1587,6 +1621,11 @@ fn component_u32(ct: ComponentType, b: &[u8]) -> u32 {
         ComponentType::U16 | ComponentType::I16 => u32::from(u16::from_le_bytes([b[0], b[1]])),
         ComponentType::U32 | ComponentType::F32 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
     }
+}
+
+/// The values of `v` at each corner of each triangle, in order: three per triangle.
+fn unweld<T: Copy>(v: &[T], tris: &[[u32; 3]]) -> Vec<T> {
+    tris.iter().flat_map(|t| t.map(|i| v[i as usize])).collect()
 }
 
 #[cfg(test)]

@@ -11,9 +11,12 @@
 //! - Triangles wind counter-clockwise seen from the front, as in all three formats; polygons
 //!   (OBJ, PLY) are split by ear clipping in their best-fit plane, so concave polygons keep
 //!   their shape.
-//! - Normals are per vertex and unit length. When the file has none (or a vertex's normal is
-//!   zero or not finite) they are the normalised sum of the adjacent faces' area-weighted
-//!   normals.
+//! - Normals are per vertex and unit length. A glTF primitive without normals gets flat ones,
+//!   as glTF 2.0 requires: each triangle's corners become vertices of their own with the
+//!   face's normal. An OBJ or PLY mesh without normals, and any vertex whose normal is zero or
+//!   not finite, gets the normalised sum of the adjacent faces' area-weighted normals.
+//! - Files are read only when they are regular files ([`crate::scene::read`]): a path that
+//!   leads to a device or a pipe is an error (a missing material library, a warning).
 //! - Texture coordinates follow glTF: (0, 0) is the top-left corner of the image. OBJ and PLY
 //!   store v upwards, so their v is flipped (v ↦ 1 − v) while loading.
 //! - Colours are linear RGB. Texture texels are decoded by their use: colour textures (base
@@ -384,7 +387,7 @@ pub fn load(path: &Path) -> Result<MeshAsset, MeshError> {
             });
         }
     };
-    let bytes = std::fs::read(path).map_err(|error| MeshError::Io {
+    let bytes = crate::scene::read::read(path).map_err(|error| MeshError::Io {
         file: path.to_path_buf(),
         error,
     })?;

@@ -353,13 +353,10 @@ fn parse(
                 match words.len() {
                     3 => {}
                     4 => {
-                        let w: f32 = words[3]
-                            .parse()
-                            .map_err(|_| (ln, format!("`v`: cannot read w = {:?}", words[3])))?;
-                        if w == 0.0 {
-                            return Err((ln, "`v`: w is 0".into()));
-                        }
-                        xyz = xyz.map(|c| c / w);
+                        // w is the weight of rational curves and surfaces (the OBJ spec's
+                        // `v x y z w`); polygon vertices ignore it, as tinyobjloader and
+                        // Blender do. It must still be a number.
+                        number(words[3], "w ")?;
                     }
                     6 => {
                         for w in &words[3..] {
@@ -688,7 +685,7 @@ impl Libraries {
             }
         }
         for f in files {
-            match std::fs::read(&f) {
+            match crate::scene::read::read(&f) {
                 Ok(bytes) => {
                     for m in parse_mtl(&bytes, &f, &mut self.warnings) {
                         self.by_name.insert(m.name.clone(), self.materials.len());
@@ -895,7 +892,7 @@ fn resolve(dir: &Path, name: &str) -> PathBuf {
 }
 
 fn load_texture(path: &Path, wrap: Wrap) -> Result<super::Texture, String> {
-    let bytes = std::fs::read(path).map_err(|e| e.to_string())?;
+    let bytes = crate::scene::read::read(path).map_err(|e| e.to_string())?;
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())

@@ -369,10 +369,13 @@ fn lenient_header(bytes: &[u8]) -> Option<(Vec<u8>, usize)> {
 
 /// The parser's message without its own `Line N:` prefix (the error carries the line).
 fn strip_line(s: &str) -> String {
-    match s.strip_prefix("Line ").and_then(|r| r.split_once(": ")) {
-        Some((n, rest)) if n.chars().all(|c| c.is_ascii_digit()) => rest.to_string(),
-        _ => s.to_string(),
-    }
+    let s = match s.strip_prefix("Line ").and_then(|r| r.split_once(": ")) {
+        Some((n, rest)) if n.chars().all(|c| c.is_ascii_digit()) => rest,
+        _ => s,
+    };
+    // ply-rs follows its first line with the offending text and its parser's state (tabs,
+    // newlines, Rust debug output): an error stays one line, the first.
+    s.lines().next().unwrap_or("").trim().to_string()
 }
 
 /// The fewest bytes one element takes in a binary file (lists counted empty).
