@@ -758,11 +758,17 @@ fn implicit_empty_and_huge_expressions() {
     );
     // a 100 000-term sum: the tree depth limit
     let long = vec!["x"; 100_000].join("+");
-    expect_error(
+    let message = expect_error(
         &scene(&format!(
             "    objects: [\n        (shape: «Implicit(expr: \"{long}\")»),\n    ],\n"
         )),
         &["expression"],
+    );
+    // The error quotes the expression's start, not 200 KB of it.
+    assert!(
+        message.len() < 1000 && message.contains("x+x+x") && message.contains('…'),
+        "{}",
+        &message[..message.len().min(300)]
     );
 }
 
@@ -1738,4 +1744,15 @@ fn command_line_errors_are_one_line() {
     let o = hytrace(&[os("render"), os("--help")]);
     assert!(o.status.success());
     assert!(String::from_utf8_lossy(&o.stdout).contains("Usage:"));
+}
+
+/// A decimal number where a whole number goes is named as such, at the decimal point (the
+/// parser's own message was "Expected comma").
+#[test]
+fn decimal_where_a_whole_number_goes() {
+    let message = expect_error(
+        &scene("    image: (width: 64«.5», height: 8),\n"),
+        &["whole number"],
+    );
+    assert!(!message.contains("comma"), "{message}");
 }

@@ -121,7 +121,8 @@ mod shipped_scenes {
 
 /// implicit.ron at its own image size: rays that skim its quartic torus before entering it
 /// spend hundreds of Hart steps where f/λ falls to 10⁻⁴, and with a budget of 512 steps
-/// fifteen of them missed the torus (the 96×72 image above has none of them).
+/// fifteen of them missed the torus (the 96×72 image above has none of them); the scene now
+/// asks for 1024.
 #[test]
 fn implicit_at_its_own_size() {
     let scene = shipped("implicit").unwrap();

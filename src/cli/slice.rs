@@ -83,7 +83,11 @@ pub fn run(args: SliceArgs) -> Result<()> {
         height: args.height,
         size: args.size,
         center,
-        spacing: args.spacing.unwrap_or(args.size / 10.0),
+        // (a tenth of a size near the smallest float rounds to 0: kept positive, so that the
+        // size's own check speaks, not one of a --spacing the user never gave)
+        spacing: args
+            .spacing
+            .unwrap_or((args.size / 10.0).max(f32::MIN_POSITIVE)),
     };
     if let Err(e) = opts.validate() {
         bail!("{e}");

@@ -431,7 +431,13 @@ impl Scene {
                 file: path.to_path_buf(),
                 line: e.span.start.line,
                 column: e.span.start.col,
-                message: parse_message(&e.code),
+                message: if e.code == ron::Error::ExpectedComma
+                    && decimal_point_at(source, e.span.start)
+                {
+                    "a whole number goes here, without a decimal point".to_string()
+                } else {
+                    parse_message(&e.code)
+                },
             })?;
         // The field itself, else its enclosing section, else the file's start.
         let top = |path: &[&str]| {
@@ -822,12 +828,24 @@ impl Scene {
     }
 }
 
+/// Whether the parser stopped at a decimal point that follows digits: `width: 800.5`, where a
+/// whole number goes, is read as 800 followed by something that is not a comma.
+fn decimal_point_at(source: &str, at: ron::error::Position) -> bool {
+    let Some(line) = source.lines().nth(at.line.saturating_sub(1)) else {
+        return false;
+    };
+    let chars: Vec<char> = line.chars().collect();
+    let i = at.col.saturating_sub(1);
+    i > 0 && chars.get(i) == Some(&'.') && chars[i - 1].is_ascii_digit()
+}
+
 /// The parser's message, with advice meant for Rust developers turned into advice for users.
 fn parse_message(code: &ron::Error) -> String {
     match code {
         ron::Error::ExceededRecursionLimit => {
-            "the file nests more than 128 levels deep; flatten the tree (e.g. one Union with \
-             many shapes instead of nested Unions)"
+            "the file nests more than 128 levels deep (an SDF node inside another takes about \
+             three: some 40 nested nodes); flatten the tree (e.g. one Union with many shapes \
+             instead of nested Unions)"
                 .to_string()
         }
         other => other.to_string(),

@@ -495,16 +495,16 @@ impl Context<'_> {
             } => {
                 let e = expr::parse(source)
                     .map_err(|e| {
-                        self.field_error("expr", format!("in expression `{source}`: {e}"))
+                        self.field_error("expr", format!("in expression `{}`: {e}", quoted(source)))
                     })?
                     .fold_constants();
                 check_defined(&e, half_extents.0).map_err(|m| {
-                    self.field_error("expr", format!("in expression `{source}`: {m}"))
+                    self.field_error("expr", format!("in expression `{}`: {m}", quoted(source)))
                 })?;
                 let lambda = match lipschitz {
                     Some(l) => l.0,
                     None => estimate_lipschitz(&e, half_extents.0).map_err(|m| {
-                        self.field_error("expr", format!("in expression `{source}`: {m}"))
+                        self.field_error("expr", format!("in expression `{}`: {m}", quoted(source)))
                     })?,
                 };
                 let d = implicit::clipped(b, &e, p, half_extents.0, lambda);
@@ -524,3 +524,16 @@ impl Context<'_> {
 fn fmt3(v: Vec3) -> String {
     format!("({}, {}, {})", v.x, v.y, v.z)
 }
+
+/// An expression as an error quotes it: whole when short, else its first [`QUOTED`]
+/// characters and an ellipsis (a generated expression made error lines of 10 KB; a parse
+/// error's column still counts in the whole text).
+fn quoted(source: &str) -> String {
+    match source.char_indices().nth(QUOTED) {
+        Some((end, _)) => format!("{}…", &source[..end]),
+        None => source.to_string(),
+    }
+}
+
+/// Most characters of an expression an error quotes.
+const QUOTED: usize = 60;
