@@ -387,10 +387,7 @@ impl Scene {
     /// `$NAME` is unset left out); none when the text does not parse. For a viewer that
     /// watches the files of a scene that failed to load (a mesh not written yet).
     pub fn mesh_files_named(source: &str, path: &Path, options: &LoadOptions) -> Vec<PathBuf> {
-        let Ok(file) = ron::Options::default()
-            .with_default_extension(ron::extensions::Extensions::IMPLICIT_SOME)
-            .from_str::<SceneFile>(source)
-        else {
+        let Ok(file) = parse_scene_file(scene_text(source)) else {
             return Vec::new();
         };
         (file.objects.iter())
@@ -411,9 +408,7 @@ impl Scene {
         path: &Path,
         options: &LoadOptions,
     ) -> Result<Scene, SceneError> {
-        // A byte-order mark (some Windows editors write one) is not part of the text: places
-        // are counted from after it, as the editor shows them.
-        let source = source.strip_prefix('\u{feff}').unwrap_or(source);
+        let source = scene_text(source);
         let at = |offset: usize, message: String| {
             let p = locate::place_of(source, offset);
             SceneError::At {
@@ -423,22 +418,18 @@ impl Scene {
                 message,
             }
         };
-        // `implicit_some` lets optional fields be written plainly (`fov: 40`, not `Some(40)`).
-        let file: SceneFile = ron::Options::default()
-            .with_default_extension(ron::extensions::Extensions::IMPLICIT_SOME)
-            .from_str(source)
-            .map_err(|e| SceneError::At {
-                file: path.to_path_buf(),
-                line: e.span.start.line,
-                column: e.span.start.col,
-                message: if e.code == ron::Error::ExpectedComma
-                    && decimal_point_at(source, e.span.start)
-                {
-                    "a whole number goes here, without a decimal point".to_string()
-                } else {
-                    parse_message(&e.code)
-                },
-            })?;
+        let file = parse_scene_file(source).map_err(|e| SceneError::At {
+            file: path.to_path_buf(),
+            line: e.span.start.line,
+            column: e.span.start.col,
+            message: if e.code == ron::Error::ExpectedComma
+                && decimal_point_at(source, e.span.start)
+            {
+                "a whole number goes here, without a decimal point".to_string()
+            } else {
+                parse_message(&e.code)
+            },
+        })?;
         // The field itself, else its enclosing section, else the file's start.
         let top = |path: &[&str]| {
             (1..=path.len())
@@ -826,6 +817,20 @@ impl Scene {
     pub fn material_table(&self) -> Vec<sdf::tape::MaterialVec> {
         self.materials.iter().map(|m| m.to_vec()).collect()
     }
+}
+
+/// A scene file's text without its byte-order mark, if it has one (some Windows editors write
+/// one): what every parse reads and every place in an error counts in, as the editor shows it.
+fn scene_text(source: &str) -> &str {
+    source.strip_prefix('\u{feff}').unwrap_or(source)
+}
+
+/// Parses a scene file's text (see [`scene_text`]). `implicit_some` lets optional fields be
+/// written plainly (`fov: 40`, not `Some(40)`).
+fn parse_scene_file(text: &str) -> Result<SceneFile, ron::error::SpannedError> {
+    ron::Options::default()
+        .with_default_extension(ron::extensions::Extensions::IMPLICIT_SOME)
+        .from_str(text)
 }
 
 /// Whether the parser stopped at a decimal point that follows digits: `width: 800.5`, where a
