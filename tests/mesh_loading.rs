@@ -1637,3 +1637,90 @@ fn gltf_1_documents_are_named_as_such() {
     let e = load(&path).unwrap_err().to_string();
     assert!(e.contains("glTF version 1.0 is not supported"), "{e}");
 }
+
+/// A one-triangle glTF whose JSON `edit` changes (a `data:` buffer of three float positions).
+fn triangle_gltf(dir: &Path, edit: impl FnOnce(&mut serde_json::Value)) -> PathBuf {
+    let mut doc = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "scene": 0, "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "buffers": [{"byteLength": 36, "uri": "data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAA"}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                       "min": [0, 0, 0], "max": [1, 1, 0]}]
+    });
+    edit(&mut doc);
+    let path = dir.join("triangle.gltf");
+    std::fs::write(&path, doc.to_string()).unwrap();
+    path
+}
+
+/// glTF 2.0's MUSTs the loader holds a file to, each refused with the place it is broken:
+/// the major version, POSITION's float components (integers only with KHR_mesh_quantization),
+/// buffer views inside their buffer's byteLength; a camera with an impossible field of view is
+/// skipped with a warning.
+#[test]
+fn gltf_files_breaking_the_specification_are_refused_by_place() {
+    let dir = tempfile::tempdir().unwrap();
+    let error = |edit: &dyn Fn(&mut serde_json::Value)| {
+        load(&triangle_gltf(dir.path(), edit))
+            .unwrap_err()
+            .to_string()
+    };
+    assert_eq!(
+        load(&triangle_gltf(dir.path(), |_| {}))
+            .unwrap()
+            .triangle_count(),
+        1
+    );
+
+    let e = error(&|d| d["asset"]["version"] = "3.0".into());
+    assert!(
+        e.contains("asset.version: glTF version 3.0 is not supported"),
+        "{e}"
+    );
+    let e = error(&|d| d["asset"]["minVersion"] = "2.1".into());
+    assert!(e.contains("asset.minVersion"), "{e}");
+
+    let e = error(&|d| d["accessors"][0]["componentType"] = 5121.into());
+    assert!(
+        e.contains("attributes.POSITION") && e.contains("UNSIGNED_BYTE") && e.contains("FLOAT"),
+        "{e}"
+    );
+    // the same bytes read as quantized positions, where the file says it uses them
+    let quantized = triangle_gltf(dir.path(), |d| {
+        d["accessors"][0]["componentType"] = 5121.into();
+        d["extensionsUsed"] = serde_json::json!(["KHR_mesh_quantization"]);
+    });
+    assert!(load(&quantized).is_ok());
+
+    let e = error(&|d| d["buffers"][0]["byteLength"] = 10.into());
+    assert!(
+        e.contains("bufferViews[0]") && e.contains("byteLength is 10"),
+        "{e}"
+    );
+
+    for camera in [
+        serde_json::json!({"type": "perspective", "perspective": {"yfov": 0.0, "znear": 0.1}}),
+        serde_json::json!({"type": "perspective", "perspective": {"yfov": 1000.0, "znear": 0.1}}),
+        serde_json::json!({"type": "perspective",
+                           "perspective": {"yfov": 0.8, "aspectRatio": 0.0, "znear": 0.1}}),
+        serde_json::json!({"type": "orthographic",
+                           "orthographic": {"xmag": 0.0, "ymag": 1.0, "znear": 0.0, "zfar": 1.0}}),
+    ] {
+        let path = triangle_gltf(dir.path(), |d| {
+            d["nodes"] = serde_json::json!([{"mesh": 0, "camera": 0}]);
+            d["cameras"] = serde_json::json!([camera]);
+        });
+        let a = load(&path).unwrap();
+        assert!(a.cameras.is_empty(), "{camera} kept");
+        assert!(
+            a.warnings
+                .iter()
+                .any(|w| w.contains("cameras[0]") && w.contains("skipped")),
+            "{camera}: {:?}",
+            a.warnings
+        );
+    }
+}

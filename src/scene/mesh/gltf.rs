@@ -47,6 +47,7 @@ pub(super) fn load(file: &Path, bytes: &[u8]) -> Result<MeshAsset, MeshError> {
         (&bytes[start..], None)
     };
     let mut root = parse_root(json_bytes).map_err(|m| err("", m))?;
+    check_version(&root).map_err(|(place, m)| err(&place, m))?;
     precheck(&root).map_err(|(place, m)| err(&place, m))?;
     let relaxed = relax_bounds(&mut root);
     // Quantized attributes are read like any other accessor here.
@@ -198,6 +199,40 @@ fn split_glb(bytes: &[u8]) -> Result<(&[u8], Option<&[u8]>), String> {
     Ok((json, bin))
 }
 
+/// glTF 2.0 §3.2: a loader reads the major version it knows (a `minVersion`, when given, is
+/// the least it must know); `gltf-json` parses any version string.
+fn check_version(root: &json::Root) -> Result<(), Fail> {
+    let read = |v: &str| {
+        let (major, minor) = v.split_once('.')?;
+        Some((major.parse::<u32>().ok()?, minor.parse::<u32>().ok()?))
+    };
+    let version = &root.asset.version;
+    match read(version) {
+        Some((2, _)) => {}
+        Some(_) => {
+            return fail(
+                "asset.version",
+                format!("glTF version {version} is not supported (only glTF 2.0)"),
+            );
+        }
+        None => {
+            return fail(
+                "asset.version",
+                format!("{version:?} is not a glTF version (\"<major>.<minor>\", as \"2.0\")"),
+            );
+        }
+    }
+    if let Some(min) = &root.asset.min_version
+        && read(min).is_none_or(|(major, minor)| (major, minor) > (2, 0))
+    {
+        return fail(
+            "asset.minVersion",
+            format!("the file needs glTF {min}; this loader reads glTF 2.0"),
+        );
+    }
+    Ok(())
+}
+
 /// Checks what the `gltf` crate's validation would index without checking: the accessor
 /// indices of mesh primitives.
 fn precheck(root: &json::Root) -> Result<(), Fail> {
@@ -292,6 +327,10 @@ fn load_buffers(
                 ),
             );
         }
+        // The buffer is its first byteLength bytes (a GLB chunk or a file may be padded
+        // past them): a buffer view reaching beyond is refused where it is read.
+        let mut data = data;
+        data.truncate(want as usize);
         out.push(data);
     }
     Ok(out)
@@ -530,11 +569,45 @@ impl Cx<'_> {
                 return fail(place, format!("camera {} does not exist", c.value()));
             };
             let projection = match (cam.type_, &cam.perspective, &cam.orthographic) {
+                // glTF 2.0 §5.13: yfov and aspectRatio are > 0 (a field of view is < π);
+                // xmag and ymag are not 0. A camera that breaks them is skipped.
+                (Checked::Valid(json::camera::Type::Perspective), Some(p), _)
+                    if !(p.yfov > 0.0 && p.yfov < std::f32::consts::PI)
+                        || p.aspect_ratio.is_some_and(|a| !(a > 0.0 && a.is_finite())) =>
+                {
+                    let problem = if p.yfov > 0.0 && p.yfov < std::f32::consts::PI {
+                        format!(
+                            "aspectRatio {:?} is not positive",
+                            p.aspect_ratio.unwrap_or(0.0)
+                        )
+                    } else {
+                        format!("yfov {} is not in (0, π) radians", p.yfov)
+                    };
+                    self.warn(format!(
+                        "cameras[{}].perspective: {problem}; camera skipped",
+                        c.value()
+                    ));
+                    return Ok(());
+                }
                 (Checked::Valid(json::camera::Type::Perspective), Some(p), _) => {
                     CameraProjection::Perspective {
                         yfov_radians: p.yfov,
                         aspect: p.aspect_ratio,
                     }
+                }
+                (Checked::Valid(json::camera::Type::Orthographic), _, Some(o))
+                    if !(o.xmag.is_finite() && o.ymag.is_finite())
+                        || o.xmag == 0.0
+                        || o.ymag == 0.0 =>
+                {
+                    self.warn(format!(
+                        "cameras[{}].orthographic: xmag {} and ymag {} must be finite and not \
+                         0; camera skipped",
+                        c.value(),
+                        o.xmag,
+                        o.ymag
+                    ));
+                    return Ok(());
                 }
                 (Checked::Valid(json::camera::Type::Orthographic), _, Some(o)) => {
                     CameraProjection::Orthographic {
@@ -719,6 +792,25 @@ impl Cx<'_> {
             let Some(pos_acc) = attr(Semantic::Positions) else {
                 return fail(pos_place, "missing (every primitive needs POSITION)");
             };
+            // glTF 2.0 §3.7.2.1: POSITION is VEC3 float; KHR_mesh_quantization allows
+            // integers (read like any other accessor)
+            if let Ok((_, ct)) = self.types(pos_acc, &pos_place)
+                && ct != ComponentType::F32
+                && !self
+                    .root
+                    .extensions_used
+                    .iter()
+                    .any(|e| e == "KHR_mesh_quantization")
+            {
+                return fail(
+                    pos_place,
+                    format!(
+                        "accessors[{pos_acc}] has {} components; POSITION must be FLOAT \
+                         (integer positions need KHR_mesh_quantization in extensionsUsed)",
+                        component_name(ct)
+                    ),
+                );
+            }
             let positions: Vec<[f32; 3]> = self.read_vecs(pos_acc, &pos_place)?;
             if let Some(k) = positions
                 .iter()
@@ -1305,7 +1397,7 @@ impl Cx<'_> {
             _ => fail(
                 format!("bufferViews[{v}]"),
                 format!(
-                    "bytes {off}..{} lie outside buffer {b} ({} bytes)",
+                    "bytes {off}..{} lie outside buffer {b} (its byteLength is {})",
                     off.saturating_add(len),
                     buf.len()
                 ),
