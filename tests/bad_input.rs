@@ -742,6 +742,19 @@ fn implicit_error_line_is_the_expression_line() {
     );
 }
 
+/// A box past the coordinates the trees take is named as such, not as a NaN the sampling of
+/// the box made.
+#[test]
+fn implicit_box_beyond_the_trees_reach() {
+    let message = expect_error(
+        &scene(
+            "    objects: [\n        (\n            shape: Implicit(\n                expr: \"x*x + y*y + z*z - 1\",\n                «half_extents: (3e38, 3e38, 3e38)»,\n            ),\n        ),\n    ],\n",
+        ),
+        &["half_extents", "3e38", "1e18"],
+    );
+    assert!(!message.contains("NaN"), "{message}");
+}
+
 #[test]
 fn implicit_empty_and_huge_expressions() {
     expect_error(

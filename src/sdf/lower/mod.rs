@@ -498,6 +498,18 @@ impl Context<'_> {
                         self.field_error("expr", format!("in expression `{}`: {e}", quoted(source)))
                     })?
                     .fold_constants();
+                // (the sampling below would overflow: points of a box past f32's range are NaN)
+                let limit = crate::geom::LARGEST_TREE_COORDINATE;
+                if half_extents.0.max_element() > limit {
+                    return Err(self.field_error(
+                        "half_extents",
+                        format!(
+                            "({:e}, {:e}, {:e}) reaches beyond ±{limit:e}, the largest \
+                             coordinate the renderer builds its trees over",
+                            half_extents.0.x, half_extents.0.y, half_extents.0.z
+                        ),
+                    ));
+                }
                 check_defined(&e, half_extents.0).map_err(|m| {
                     self.field_error("expr", format!("in expression `{}`: {m}", quoted(source)))
                 })?;
