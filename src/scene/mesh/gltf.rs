@@ -114,11 +114,9 @@ fn parse_root(bytes: &[u8]) -> Result<json::Root, String> {
     // A glTF 1.0 document fails the 2.0 schema somewhere unrelated to its version (its
     // `scenes` are a map): say what it is instead.
     if let Some(version) = value.pointer("/asset/version").and_then(|v| v.as_str())
-        && !version.starts_with("2.")
+        && version_numbers(version).is_none_or(|(major, _)| major != 2)
     {
-        return Err(format!(
-            "glTF version {version} is not supported (only glTF 2.0)"
-        ));
+        return Err(unsupported_version(version));
     }
     let mut patched = false;
     if let Some(scenes) = value.get_mut("scenes").and_then(|s| s.as_array_mut()) {
@@ -199,22 +197,24 @@ fn split_glb(bytes: &[u8]) -> Result<(&[u8], Option<&[u8]>), String> {
     Ok((json, bin))
 }
 
+/// A glTF version string's major and minor numbers ("2.0": (2, 0)).
+fn version_numbers(version: &str) -> Option<(u32, u32)> {
+    let (major, minor) = version.split_once('.')?;
+    Some((major.parse().ok()?, minor.parse().ok()?))
+}
+
+/// The error for a document of another major version than 2.
+fn unsupported_version(version: &str) -> String {
+    format!("glTF version {version} is not supported (only glTF 2.0)")
+}
+
 /// glTF 2.0 §3.2: a loader reads the major version it knows (a `minVersion`, when given, is
 /// the least it must know); `gltf-json` parses any version string.
 fn check_version(root: &json::Root) -> Result<(), Fail> {
-    let read = |v: &str| {
-        let (major, minor) = v.split_once('.')?;
-        Some((major.parse::<u32>().ok()?, minor.parse::<u32>().ok()?))
-    };
     let version = &root.asset.version;
-    match read(version) {
+    match version_numbers(version) {
         Some((2, _)) => {}
-        Some(_) => {
-            return fail(
-                "asset.version",
-                format!("glTF version {version} is not supported (only glTF 2.0)"),
-            );
-        }
+        Some(_) => return fail("asset.version", unsupported_version(version)),
         None => {
             return fail(
                 "asset.version",
@@ -223,7 +223,7 @@ fn check_version(root: &json::Root) -> Result<(), Fail> {
         }
     }
     if let Some(min) = &root.asset.min_version
-        && read(min).is_none_or(|(major, minor)| (major, minor) > (2, 0))
+        && version_numbers(min).is_none_or(|(major, minor)| (major, minor) > (2, 0))
     {
         return fail(
             "asset.minVersion",
@@ -231,6 +231,32 @@ fn check_version(root: &json::Root) -> Result<(), Fail> {
         );
     }
     Ok(())
+}
+
+/// What makes a camera's projection impossible, if anything (glTF 2.0 §5.13: yfov and
+/// aspectRatio are > 0, and a field of view is < π; xmag and ymag are not 0).
+fn impossible_projection(cam: &json::Camera) -> Option<String> {
+    use json::camera::Type;
+    if let (Checked::Valid(Type::Perspective), Some(p)) = (cam.type_, &cam.perspective) {
+        if !(p.yfov > 0.0 && p.yfov < std::f32::consts::PI) {
+            return Some(format!(
+                "perspective: yfov {} is not in (0, π) radians",
+                p.yfov
+            ));
+        }
+        if let Some(a) = p.aspect_ratio.filter(|a| !(*a > 0.0 && a.is_finite())) {
+            return Some(format!("perspective: aspectRatio {a} is not positive"));
+        }
+    }
+    if let (Checked::Valid(Type::Orthographic), Some(o)) = (cam.type_, &cam.orthographic)
+        && (!(o.xmag.is_finite() && o.ymag.is_finite()) || o.xmag == 0.0 || o.ymag == 0.0)
+    {
+        return Some(format!(
+            "orthographic: xmag {} and ymag {} must be finite and not 0",
+            o.xmag, o.ymag
+        ));
+    }
+    None
 }
 
 /// Checks what the `gltf` crate's validation would index without checking: the accessor
@@ -568,46 +594,16 @@ impl Cx<'_> {
             let Some(cam) = root.cameras.get(c.value()) else {
                 return fail(place, format!("camera {} does not exist", c.value()));
             };
+            if let Some(problem) = impossible_projection(cam) {
+                self.warn(format!("cameras[{}].{problem}; camera skipped", c.value()));
+                return Ok(());
+            }
             let projection = match (cam.type_, &cam.perspective, &cam.orthographic) {
-                // glTF 2.0 §5.13: yfov and aspectRatio are > 0 (a field of view is < π);
-                // xmag and ymag are not 0. A camera that breaks them is skipped.
-                (Checked::Valid(json::camera::Type::Perspective), Some(p), _)
-                    if !(p.yfov > 0.0 && p.yfov < std::f32::consts::PI)
-                        || p.aspect_ratio.is_some_and(|a| !(a > 0.0 && a.is_finite())) =>
-                {
-                    let problem = if p.yfov > 0.0 && p.yfov < std::f32::consts::PI {
-                        format!(
-                            "aspectRatio {:?} is not positive",
-                            p.aspect_ratio.unwrap_or(0.0)
-                        )
-                    } else {
-                        format!("yfov {} is not in (0, π) radians", p.yfov)
-                    };
-                    self.warn(format!(
-                        "cameras[{}].perspective: {problem}; camera skipped",
-                        c.value()
-                    ));
-                    return Ok(());
-                }
                 (Checked::Valid(json::camera::Type::Perspective), Some(p), _) => {
                     CameraProjection::Perspective {
                         yfov_radians: p.yfov,
                         aspect: p.aspect_ratio,
                     }
-                }
-                (Checked::Valid(json::camera::Type::Orthographic), _, Some(o))
-                    if !(o.xmag.is_finite() && o.ymag.is_finite())
-                        || o.xmag == 0.0
-                        || o.ymag == 0.0 =>
-                {
-                    self.warn(format!(
-                        "cameras[{}].orthographic: xmag {} and ymag {} must be finite and not \
-                         0; camera skipped",
-                        c.value(),
-                        o.xmag,
-                        o.ymag
-                    ));
-                    return Ok(());
                 }
                 (Checked::Valid(json::camera::Type::Orthographic), _, Some(o)) => {
                     CameraProjection::Orthographic {
