@@ -742,6 +742,28 @@ fn implicit_error_line_is_the_expression_line() {
     );
 }
 
+/// A hexadecimal (or binary, octal) number is named as such, with its decimal value, wherever
+/// the parser stops on it: a positive radius read as 0, a vector's component.
+#[test]
+fn non_decimal_numbers_are_named() {
+    expect_error(
+        &scene("    objects: [\n        (shape: Sphere(radius: «0x10»)),\n    ],\n"),
+        &["`0x10`", "decimal", "16"],
+    );
+    expect_error(
+        &scene("    objects: [\n        (shape: Box(half_extents: (1, «0b11», 1))),\n    ],\n"),
+        &["`0b11`", "decimal", "3"],
+    );
+    // where the parser stops after the 0, at the x
+    let message = expect_error(
+        &scene(
+            "    objects: [\n        (shape: Transform(translate: («0x2», 0, 0), shape: Sphere(radius: 1))),\n    ],\n",
+        ),
+        &["`0x2`", "decimal", "2"],
+    );
+    assert!(!message.contains("Expected comma"), "{message}");
+}
+
 /// A box past the coordinates the trees take is named as such, not as a NaN the sampling of
 /// the box made.
 #[test]

@@ -422,8 +422,9 @@ impl Scene {
             file: path.to_path_buf(),
             line: e.span.start.line,
             column: e.span.start.col,
-            message: if e.code == ron::Error::ExpectedComma
-                && decimal_point_at(source, e.span.start)
+            message: if let Some(message) = non_decimal_number_at(source, e.span.start) {
+                message
+            } else if e.code == ron::Error::ExpectedComma && decimal_point_at(source, e.span.start)
             {
                 "a whole number goes here, without a decimal point".to_string()
             } else {
@@ -842,6 +843,48 @@ fn decimal_point_at(source: &str, at: ron::error::Position) -> bool {
     let chars: Vec<char> = line.chars().collect();
     let i = at.col.saturating_sub(1);
     i > 0 && chars.get(i) == Some(&'.') && chars[i - 1].is_ascii_digit()
+}
+
+/// When the parser stopped in or at a hexadecimal, binary or octal literal (`0x10`: it reads
+/// the 0 as a number, then fails on what follows or takes the value 0), the message that says
+/// so.
+fn non_decimal_number_at(source: &str, at: ron::error::Position) -> Option<String> {
+    let line: Vec<char> = source
+        .lines()
+        .nth(at.line.checked_sub(1)?)?
+        .chars()
+        .collect();
+    // back to the start of the word the position is in (with its sign)
+    let mut start = at.col.checked_sub(1)?.min(line.len());
+    while start > 0 && (line[start - 1].is_ascii_alphanumeric() || line[start - 1] == '_') {
+        start -= 1;
+    }
+    if start > 0 && matches!(line[start - 1], '-' | '+') {
+        start -= 1;
+    }
+    let rest: String = line[start..].iter().collect();
+    let digits = rest.trim_start_matches(['-', '+']);
+    let radix = match digits.get(..2)? {
+        "0x" | "0X" => 16,
+        "0b" | "0B" => 2,
+        "0o" | "0O" => 8,
+        _ => return None,
+    };
+    let literal: String = rest
+        .chars()
+        .take_while(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '+' | '_'))
+        .collect();
+    let body: String = (digits[2..].chars())
+        .take_while(|c| c.is_digit(radix) || *c == '_')
+        .filter(|c| *c != '_')
+        .collect();
+    let sign = if rest.starts_with('-') { "-" } else { "" };
+    Some(match u64::from_str_radix(&body, radix) {
+        Ok(v) => {
+            format!("`{literal}`: numbers are written in decimal here (this one is {sign}{v})")
+        }
+        Err(_) => format!("`{literal}`: numbers are written in decimal here"),
+    })
 }
 
 /// The parser's message, with advice meant for Rust developers turned into advice for users.
