@@ -1194,6 +1194,32 @@ pub struct Region<'a> {
     pub cell: Option<Cell<'a>>,
 }
 
+/// [`ObjectField::compile_native`] for many fields at once, each within `shares[i]` (in
+/// (0, 1]) of [`NATIVE_CODE_BYTES`] (see [`ObjectField::build_shared`]). Their tapes are
+/// compiled together so that small objects share executable buffers
+/// ([`crate::sdf::jit::compile_grouped`] says why).
+pub fn compile_native(fields: &mut [ObjectField], shares: &[f64]) {
+    let budgets: Vec<usize> = fields
+        .iter()
+        .enumerate()
+        .map(|(i, _)| {
+            let share = shares.get(i).copied().unwrap_or(1.0).clamp(0.0, 1.0);
+            (NATIVE_CODE_BYTES as f64 * share) as usize
+        })
+        .collect();
+    let mut tapes: Vec<(&mut Tape, usize)> = fields
+        .iter_mut()
+        .enumerate()
+        .flat_map(|(group, field)| {
+            let octree = field.octree.iter_mut().flat_map(|o| o.tapes.iter_mut());
+            std::iter::once(&mut field.whole)
+                .chain(octree)
+                .map(move |tape| (tape, group))
+        })
+        .collect();
+    crate::sdf::jit::compile_grouped(&mut tapes, &budgets);
+}
+
 impl ObjectField {
     /// The field of an object from its lowering: an octree over `region` (the cube around
     /// the object's bounds, or its bounds clipped to a finite box for an unbounded object)
@@ -1203,7 +1229,7 @@ impl ObjectField {
     }
 
     /// [`Self::build`] within `share` (in (0, 1]) of an object's budgets ([`MAX_NODES`],
-    /// [`MAX_INSTRUCTIONS`], and [`NATIVE_CODE_BYTES`] in [`Self::compile_native_shared`]):
+    /// [`MAX_INSTRUCTIONS`], and [`NATIVE_CODE_BYTES`] in [`compile_native`]):
     /// the parts of an object split into several share its budgets, so that the object's
     /// fields together stay within them (a union of 100,000 spheres made 1,021 parts whose
     /// octrees, each within a whole budget, took 352 MB).
@@ -1223,17 +1249,7 @@ impl ObjectField {
     /// the CPU runs it ([`crate::sdf::jit`]): the same values, without the interpreter's
     /// dispatch, within [`NATIVE_CODE_BYTES`] of code per object.
     pub fn compile_native(&mut self) {
-        self.compile_native_shared(1.0);
-    }
-
-    /// [`Self::compile_native`] within `share` (in (0, 1]) of [`NATIVE_CODE_BYTES`] (see
-    /// [`Self::build_shared`]).
-    pub fn compile_native_shared(&mut self, share: f64) {
-        let mut budget = (NATIVE_CODE_BYTES as f64 * share.clamp(0.0, 1.0)) as usize;
-        budget -= crate::sdf::jit::compile_all(std::slice::from_mut(&mut self.whole), budget);
-        if let Some(tree) = &mut self.octree {
-            crate::sdf::jit::compile_all(&mut tree.tapes, budget);
-        }
+        compile_native(std::slice::from_mut(self), &[1.0]);
     }
 
     /// The whole tapes only, marched without shortcuts: the reference the octree and the

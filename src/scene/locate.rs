@@ -130,8 +130,19 @@ fn tokens(source: &str) -> Vec<Token> {
                 i += 1;
                 continue;
             }
+            c if c.is_ascii_digit() || matches!(c, b'.' | b'+' | b'-') => {
+                // a number (`-1.5e-3`, `0x10`) as one token: a file of many objects is mostly
+                // numbers, and a token per character made its token list 24 bytes per byte
+                while i < bytes.len()
+                    && (bytes[i].is_ascii_alphanumeric()
+                        || matches!(bytes[i], b'.' | b'+' | b'-' | b'_'))
+                {
+                    i += 1;
+                }
+                Kind::Other
+            }
             _ => {
-                // numbers, signs and any other character (UTF-8 continuation bytes included)
+                // any other character (UTF-8 continuation bytes included)
                 i += 1;
                 while i < bytes.len() && !source.is_char_boundary(i) {
                     i += 1;
@@ -152,7 +163,11 @@ fn tokens(source: &str) -> Vec<Token> {
 /// is a `name:` (or a map's `"name":`) one bracket level below the previous one, starting inside the top-level
 /// `Scene( … )`. `None` when the file does not spell the field out (it took its default).
 pub fn field(source: &str, path: &[&str]) -> Option<usize> {
-    let toks = tokens(source);
+    field_in(source, &tokens(source), path)
+}
+
+/// [`field`] over the tokens of `source`.
+fn field_in(source: &str, toks: &[Token], path: &[&str]) -> Option<usize> {
     let mut depth = 0usize;
     let mut keys: Vec<Option<&str>> = vec![None];
     for (i, t) in toks.iter().enumerate() {
@@ -189,7 +204,7 @@ pub fn field(source: &str, path: &[&str]) -> Option<usize> {
 /// Byte ranges of the elements of the top-level list field `name` (e.g. `objects`).
 pub fn list_elements(source: &str, name: &str) -> Vec<(usize, usize)> {
     let toks = tokens(source);
-    let Some(value) = field(source, &[name]) else {
+    let Some(value) = field_in(source, &toks, &[name]) else {
         return Vec::new();
     };
     let Some(open) = toks.iter().position(|t| t.start == value) else {
@@ -396,6 +411,20 @@ mod tests {
         );
         let node = follow(src, 0, &[Nav::Field("shape"), Nav::Index(1)]);
         assert_eq!(place_of(src, node).line, 3);
+    }
+
+    #[test]
+    fn a_number_is_one_token() {
+        let text = "(a: -1.5e-3, b: [0x10, +2, .5])";
+        let texts: Vec<&str> = tokens(text).iter().map(|t| &text[t.start..t.end]).collect();
+        assert_eq!(
+            texts,
+            [
+                "(", "a", ":", "-1.5e-3", ",", "b", ":", "[", "0x10", ",", "+2", ",", ".5", "]",
+                ")"
+            ]
+        );
+        assert_eq!(field(text, &["b"]), text.find('['));
     }
 
     #[test]

@@ -11,7 +11,7 @@
 //! the straight-line program (Belady's rule: evict the value used farthest in the future,
 //! which is optimal for a known sequence of uses) spills the others to a scratch area of 256
 //! eight-lane slots, one per tape register. The tape stays the program: native code is a
-//! derived cache of it, made when an object's field is built ([`compile_all`]), within a
+//! derived cache of it, made when the scene's fields are built ([`compile_grouped`]), within a
 //! budget of code bytes per object (`accel::field::NATIVE_CODE_BYTES`).
 //!
 //! Every operation performs exactly the instructions the AVX2 lanes of [`crate::sdf::simd`]
@@ -66,31 +66,37 @@ const MAX_CODE_BYTES_PER_TAPE: usize = 64;
 /// would not fit is left to the interpreter, which gives the same values. Returns the bytes
 /// used. Does nothing where [`available`] is false.
 pub fn compile_all(tapes: &mut [Tape], max_bytes: usize) -> usize {
-    #[cfg(target_arch = "x86_64")]
-    if available() {
-        return x86::compile_all(tapes, max_bytes);
-    }
-    let _ = (tapes, max_bytes);
-    0
+    let mut grouped: Vec<(&mut Tape, usize)> = tapes.iter_mut().map(|t| (t, 0)).collect();
+    compile_grouped(&mut grouped, &[max_bytes])[0]
 }
 
-/// Bytes of machine code holding the native code of `tapes` (each buffer counted once).
-pub fn code_bytes(tapes: &[Tape]) -> usize {
+/// [`compile_all`] for the tapes of many owners at once: each tape comes with the index of
+/// its group in `budgets`, each group's code stays within its own budget, and the tapes of
+/// all groups share executable buffers. Returns the bytes each group used.
+///
+/// Why together: an executable buffer is at least one page of its own mapping, made
+/// executable by an `mprotect` that takes the process's memory-map lock. Compiled object by
+/// object, a scene of 20,000 small SDF objects spent most of its build in that lock (both
+/// threads queued on it, with TLB shootdowns between them) and held 40,000 mappings of a few
+/// hundred bytes of code each; at about 32,000 objects such a scene passes Linux's default
+/// limit of 65,530 mappings, and every later object silently stayed interpreted.
+pub fn compile_grouped(tapes: &mut [(&mut Tape, usize)], budgets: &[usize]) -> Vec<usize> {
     #[cfg(target_arch = "x86_64")]
-    {
-        let mut seen = std::collections::HashSet::new();
-        tapes
-            .iter()
-            .filter_map(|t| t.native.as_ref())
-            .filter(|n| seen.insert(n.buffer_address()))
-            .map(|n| n.buffer_len())
-            .sum()
+    if available() {
+        return x86::compile_grouped(tapes, budgets);
     }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        let _ = tapes;
-        0
-    }
+    let _ = tapes;
+    vec![0; budgets.len()]
+}
+
+/// Bytes of machine code of `tapes` (each tape's own code; tapes compiled together share
+/// buffers, whose pages hold the code of many objects).
+pub fn code_bytes(tapes: &[Tape]) -> usize {
+    tapes
+        .iter()
+        .filter_map(|t| t.native.as_ref())
+        .map(|n| n.code_len())
+        .sum()
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -116,53 +122,62 @@ mod x86 {
     /// "Never read again".
     const NEVER: usize = usize::MAX;
 
-    pub(super) fn compile_all(tapes: &mut [Tape], max_bytes: usize) -> usize {
+    pub(super) fn compile_grouped(
+        tapes: &mut [(&mut Tape, usize)],
+        budgets: &[usize],
+    ) -> Vec<usize> {
         // Blocks of consecutive tapes of about BLOCK_INSTRUCTIONS each.
-        let mut blocks: Vec<&mut [Tape]> = Vec::new();
+        let mut blocks: Vec<&mut [(&mut Tape, usize)]> = Vec::new();
         let mut rest = tapes;
         while !rest.is_empty() {
             let mut n = 0;
             let mut len = 0;
-            while n < rest.len() && (n == 0 || len + rest[n].len() <= BLOCK_INSTRUCTIONS) {
-                len += rest[n].len();
+            while n < rest.len() && (n == 0 || len + rest[n].0.len() <= BLOCK_INSTRUCTIONS) {
+                len += rest[n].0.len();
                 n += 1;
             }
             let (block, tail) = rest.split_at_mut(n);
             blocks.push(block);
             rest = tail;
         }
-        let used = AtomicUsize::new(0);
+        let used: Vec<AtomicUsize> = budgets.iter().map(|_| AtomicUsize::new(0)).collect();
         blocks
             .into_par_iter()
-            .for_each(|block| compile_block(block, &used, max_bytes));
-        used.into_inner()
+            .for_each(|block| compile_block(block, &used, budgets));
+        used.into_iter().map(AtomicUsize::into_inner).collect()
     }
 
     fn compilable(tape: &Tape) -> bool {
         tape.native.is_none() && tape.instrs().iter().all(|i| !i.op().is_material())
     }
 
-    /// Compiles one block of tapes into one buffer, while the bytes `used` by every block
-    /// leave room for the next tape's worst case within `max_bytes`.
-    fn compile_block(tapes: &mut [Tape], used: &AtomicUsize, max_bytes: usize) {
+    /// Compiles one block of tapes into one buffer, each tape while the bytes its group has
+    /// `used` (in every block) leave room for its worst case within the group's budget.
+    fn compile_block(tapes: &mut [(&mut Tape, usize)], used: &[AtomicUsize], budgets: &[usize]) {
+        if !tapes.iter().any(|(t, _)| compilable(t)) {
+            return; // no mapping for a block with nothing to compile
+        }
         let Ok(mut ops) = Assembler::new() else {
             return; // no executable memory: the tapes stay interpreted
         };
-        let mut entries: Vec<Option<AssemblyOffset>> = Vec::with_capacity(tapes.len());
-        for tape in tapes.iter() {
+        let mut entries: Vec<Option<(AssemblyOffset, usize)>> = Vec::with_capacity(tapes.len());
+        for (tape, group) in tapes.iter() {
             if !compilable(tape) {
                 entries.push(None);
                 continue;
             }
+            let (used, max_bytes) = (&used[*group], budgets[*group]);
             let worst = MAX_CODE_BYTES_PER_TAPE + MAX_CODE_BYTES_PER_INSTRUCTION * tape.len();
             let reserved = used.fetch_add(worst, Ordering::Relaxed);
             if reserved + worst > max_bytes {
                 used.fetch_sub(worst, Ordering::Relaxed);
-                break;
+                entries.push(None); // interpreted; a shorter tape after it may still fit
+                continue;
             }
             let start = ops.offset().0;
-            entries.push(Some(emit_tape(&mut ops, tape)));
+            let at = emit_tape(&mut ops, tape);
             let bytes = ops.offset().0 - start;
+            entries.push(Some((at, bytes)));
             debug_assert!(
                 bytes <= worst,
                 "{bytes} bytes for {} instructions",
@@ -170,20 +185,22 @@ mod x86 {
             );
             used.fetch_sub(worst - bytes.min(worst), Ordering::Relaxed);
         }
+        if entries.iter().all(Option::is_none) {
+            return;
+        }
         let Ok(code) = ops.finalize() else {
             return;
         };
         let code = Arc::new(code);
-        for (tape, entry) in tapes.iter_mut().zip(entries) {
-            // (tapes past a `break` above are left without code)
-            if let Some(at) = entry {
+        for ((tape, _), entry) in tapes.iter_mut().zip(entries) {
+            if let Some((at, len)) = entry {
                 // SAFETY: `at` is the start of a function emitted by `emit_tape` with the
                 // `Entry` signature and the System V calling convention.
                 let entry: Entry = unsafe { std::mem::transmute(code.ptr(at)) };
                 // SAFETY: as above; `emit_tape` reads and writes only the slots of the tape's
                 // registers and stashes, all below 256 (`native::SLOTS`), and the code was made
-                // only where AVX2 was detected (`compile_all`).
-                tape.native = Some(unsafe { Native::new(code.clone(), entry) });
+                // only where AVX2 was detected (`compile_grouped`).
+                tape.native = Some(unsafe { Native::new(code.clone(), entry, len) });
             }
         }
     }
@@ -806,6 +823,20 @@ mod tests {
         }
     }
 
+    /// Each of `native` (compiled or not) gives the bits of its interpreted twin in `tapes`.
+    fn same_values_at_8_points(tapes: &[Tape], native: &[Tape], rng: &mut Rng) {
+        let pts: Vec<Vec3> = (0..8).map(|_| rng.vec3_in(-2.0, 2.0)).collect();
+        let mut regs = PacketRegisters::new();
+        let xyz: [[f32; 8]; 3] = std::array::from_fn(|a| std::array::from_fn(|i| pts[i][a]));
+        for (t, n) in tapes.iter().zip(native) {
+            let got = eval8(SimdLevel::Avx2, n, &xyz[0], &xyz[1], &xyz[2], &mut regs);
+            for (i, p) in pts.iter().enumerate() {
+                let want = t.eval(*p);
+                assert!(got[i].to_bits() == want.to_bits() || (got[i].is_nan() && want.is_nan()));
+            }
+        }
+    }
+
     #[test]
     fn tapes_compiled_together_keep_their_own_code_within_the_budget() {
         if !runs_native() {
@@ -824,15 +855,55 @@ mod tests {
         assert!(used <= budget, "{used} bytes for a budget of {budget}");
         let compiled = native.iter().filter(|t| t.is_native()).count();
         assert!((2..40).contains(&compiled), "{compiled} of 40 compiled");
-        let pts: Vec<Vec3> = (0..8).map(|_| rng.vec3_in(-2.0, 2.0)).collect();
-        let mut regs = PacketRegisters::new();
-        let xyz: [[f32; 8]; 3] = std::array::from_fn(|a| std::array::from_fn(|i| pts[i][a]));
-        for (t, n) in tapes.iter().zip(&native) {
-            let got = eval8(SimdLevel::Avx2, n, &xyz[0], &xyz[1], &xyz[2], &mut regs);
-            for (i, p) in pts.iter().enumerate() {
-                let want = t.eval(*p);
-                assert!(got[i].to_bits() == want.to_bits() || (got[i].is_nan() && want.is_nan()));
-            }
+        same_values_at_8_points(&tapes, &native, &mut rng);
+    }
+
+    #[test]
+    fn tapes_of_many_groups_share_buffers_each_group_within_its_budget() {
+        if !runs_native() {
+            return;
         }
+        let mut rng = Rng::new(5);
+        let tapes: Vec<Tape> = (0..60).map(|_| random_program(&mut rng, 20)).collect();
+        let mut native = tapes.clone();
+        let worst = |t: &Tape| MAX_CODE_BYTES_PER_TAPE + MAX_CODE_BYTES_PER_INSTRUCTION * t.len();
+        // group 0 (every third tape) has room for the first tape's worst case, groups 1 and 2 for all
+        let budgets = [worst(&tapes[0]), usize::MAX, usize::MAX];
+        let mut grouped: Vec<(&mut Tape, usize)> = native
+            .iter_mut()
+            .enumerate()
+            .map(|(i, t)| (t, i % 3))
+            .collect();
+        let used = compile_grouped(&mut grouped, &budgets);
+        assert!(
+            used[0] <= budgets[0],
+            "{} bytes for {}",
+            used[0],
+            budgets[0]
+        );
+        let compiled = |g: usize| {
+            native
+                .iter()
+                .skip(g)
+                .step_by(3)
+                .filter(|t| t.is_native())
+                .count()
+        };
+        assert!(
+            (1..20).contains(&compiled(0)),
+            "group 0: {} of 20",
+            compiled(0)
+        );
+        assert_eq!((compiled(1), compiled(2)), (20, 20));
+        let buffers: std::collections::HashSet<usize> = native
+            .iter()
+            .filter_map(|t| t.native_code().map(|n| n.buffer_address()))
+            .collect();
+        assert_eq!(
+            buffers.len(),
+            1,
+            "small tapes in one block share one buffer"
+        );
+        same_values_at_8_points(&tapes, &native, &mut rng);
     }
 }

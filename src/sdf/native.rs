@@ -16,10 +16,14 @@ pub type Entry = unsafe extern "sysv64" fn(*const f32, *const f32, *const f32, *
 /// compiled together.
 #[derive(Clone)]
 pub struct Native {
+    /// The buffer `entry` points into, kept alive while the tape can call it.
     #[cfg(target_arch = "x86_64")]
     code: Arc<dynasmrt::ExecutableBuffer>,
     #[cfg(target_arch = "x86_64")]
     entry: Entry,
+    /// Bytes of this tape's own code in the buffer.
+    #[cfg(target_arch = "x86_64")]
+    len: usize,
     #[cfg(not(target_arch = "x86_64"))]
     _never: std::convert::Infallible,
 }
@@ -38,18 +42,19 @@ impl PartialEq for Native {
 }
 
 impl Native {
-    /// The handle of the function at `entry` in `code`.
+    /// The handle of the function at `entry` in `code`, `len` bytes long.
     ///
     /// # Safety
     /// `entry` must point into `code` at a function with the [`Entry`] signature that reads 8
     /// floats at each of its first three arguments, at most [`SLOTS`] slots of 8 floats at the
     /// fourth and writes 8 floats at the fifth, using only instructions this CPU runs.
     #[cfg(target_arch = "x86_64")]
-    pub unsafe fn new(code: Arc<dynasmrt::ExecutableBuffer>, entry: Entry) -> Self {
-        Native { code, entry }
+    pub unsafe fn new(code: Arc<dynasmrt::ExecutableBuffer>, entry: Entry, len: usize) -> Self {
+        Native { code, entry, len }
     }
 
-    /// The address of the buffer holding the code (shared by the tapes compiled together).
+    /// The address of the executable buffer holding the code, shared by the tapes compiled
+    /// together (of one object or many).
     pub fn buffer_address(&self) -> usize {
         #[cfg(target_arch = "x86_64")]
         {
@@ -59,11 +64,11 @@ impl Native {
         match self._never {}
     }
 
-    /// Bytes of the buffer holding the code.
-    pub fn buffer_len(&self) -> usize {
+    /// Bytes of this tape's code (the buffer it shares with other tapes is larger).
+    pub fn code_len(&self) -> usize {
         #[cfg(target_arch = "x86_64")]
         {
-            self.code.len()
+            self.len
         }
         #[cfg(not(target_arch = "x86_64"))]
         match self._never {}

@@ -376,6 +376,11 @@ impl Tape {
         self.native.is_some()
     }
 
+    /// The tape's native code, if it has any.
+    pub fn native_code(&self) -> Option<&crate::sdf::native::Native> {
+        self.native.as_ref()
+    }
+
     /// The same program without its native code: what the interpreter runs.
     pub fn interpreted(&self) -> Tape {
         Tape {

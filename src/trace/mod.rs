@@ -148,23 +148,23 @@ pub fn field_region(object: &SdfObject, scene_box: &Aabb) -> Aabb {
 pub fn build_fields(scene: &Scene, specialise: bool, native: bool) -> Vec<ObjectField> {
     let scene_box = scene.finite_bounds();
     let shares = budget_shares(scene);
-    scene
+    let mut fields: Vec<ObjectField> = scene
         .objects
         .par_iter()
-        .zip(shares)
-        .map(|(o, share)| {
+        .zip(&shares)
+        .map(|(o, &share)| {
             let l = &o.lowered;
-            let mut field = if specialise {
+            if specialise {
                 ObjectField::build_shared(l, field_region(o, &scene_box), share)
             } else {
                 ObjectField::whole(&l.distance, &l.shading)
-            };
-            if native {
-                field.compile_native_shared(share);
             }
-            field
         })
-        .collect()
+        .collect();
+    if native {
+        crate::accel::field::compile_native(&mut fields, &shares);
+    }
+    fields
 }
 
 /// Each object's share of an object's budgets for its field ([`ObjectField::build_shared`]):
