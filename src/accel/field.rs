@@ -15,7 +15,8 @@
 //! refraction rays share it (screen tiles would serve camera rays only).
 //!
 //! The tree is built top down (Keeter 2020, §4; fidget and libfive subdivide the same way):
-//! the top [`CULL_DEPTH`] levels are split regardless (cells proven empty or full are culled
+//! the top [`CULL_DEPTH`] levels of a tape of [`MIN_SPLIT_TAPE`] instructions or more are
+//! split regardless (cells proven empty or full are culled
 //! there), and below them a box is split in eight while its children's tapes are markedly
 //! shorter, down to [`MAX_DEPTH`]. Finer empty boxes near the surface would save a ray little
 //! (sphere-tracing steps there are short anyway) and cost it lookups, so emptiness alone
@@ -54,10 +55,21 @@ pub const NATIVE_CODE_BYTES: usize = 64 << 20;
 /// Most instructions over an object's distinct specialised tapes (8 bytes each): 128 MiB.
 pub const MAX_INSTRUCTIONS: usize = 1 << 24;
 
-/// Tapes shorter than this gain too little from specialisation to pay for a split.
+/// The unit of the split rule's tape lengths: a tape of fewer than two of it is never split
+/// ([`MIN_SPLIT_TAPE`]), and one of four or more splits for a quarter of it saved (`propose`).
 pub const MIN_TAPE: usize = 12;
 
-/// Levels split regardless of what their children gain.
+/// Tapes shorter than this are not split at all, not even in the top levels: below them only
+/// a tape of at least this length can gain a split (see `propose`), so the top levels of a
+/// shorter one would only sort its boxes into empty, full and crossed, and on a tape this
+/// short that saved no measurable time. It cost the build: 10,000 small objects (spheres,
+/// rotated boxes, tori, capsules of 4 to 22 instructions, `hytrace generate`) took 7.4 s to
+/// build their octrees of up to 489 nodes, 77 ms as single leaves, with frames the same
+/// (63–65 ms at 640×360), as were the shipped scenes' (BENCHMARKS.md, "Many small objects").
+pub const MIN_SPLIT_TAPE: usize = 2 * MIN_TAPE;
+
+/// Levels split regardless of what their children gain (for tapes of at least
+/// [`MIN_SPLIT_TAPE`] instructions).
 pub const CULL_DEPTH: u32 = 3;
 
 /// Relative amount by which [`Leaf::fall`] rounds its bound up (four ulps: the three products
@@ -844,7 +856,7 @@ enum Top {
 fn build_top(job: Job) -> Top {
     let splits = job.depth < PARALLEL_DEPTH
         && job.sp.verdict == Verdict::Surface
-        && job.sp.len >= MIN_TAPE
+        && job.sp.len >= MIN_SPLIT_TAPE
         && job.nodes >= 8;
     if !splits {
         return Top::Subtree(build_subtree(job));
@@ -1039,7 +1051,7 @@ fn build_subtree(job: Job) -> SubTree {
 /// Whether a candidate box at `depth` gains from a split, from its children's tapes.
 fn propose(c: Candidate, depth: u32, simplifier: &mut Simplifier) -> Proposal {
     let len = c.sp.len;
-    if c.sp.verdict != Verdict::Surface || depth >= MAX_DEPTH || len < MIN_TAPE {
+    if c.sp.verdict != Verdict::Surface || depth >= MAX_DEPTH || len < MIN_SPLIT_TAPE {
         return Proposal::Leaf(c);
     }
     let children: [Specialised; 8] = std::array::from_fn(|i| {
@@ -1066,9 +1078,8 @@ fn propose(c: Candidate, depth: u32, simplifier: &mut Simplifier) -> Proposal {
         .map(|k| k.len)
         .collect();
     let (n, total) = (crossed.len(), crossed.iter().sum::<usize>());
-    let shorter = n > 0
-        && ((len >= 4 * MIN_TAPE && 4 * total <= 3 * n * len)
-            || (len >= 2 * MIN_TAPE && 2 * total <= n * len));
+    let shorter =
+        n > 0 && ((len >= 4 * MIN_TAPE && 4 * total <= 3 * n * len) || 2 * total <= n * len);
     // The top levels split regardless: intervals over large boxes decide little (a union
     // folded one shape at a time keeps every shape over an eighth of a spiral of spheres),
     // and their children would not show the gain their grandchildren have.

@@ -1335,8 +1335,8 @@ mod tests {
     #[test]
     fn hart_walks_the_leaves_only_where_they_save_much_of_the_tape() {
         // a torus: every crossed leaf keeps its whole short tape, marched whole; fidget's
-        // gyroid sphere: its leaves drop the sphere and the box (19 of 41 instructions), and
-        // 64 tiles: a long tape; both walked leaf by leaf
+        // gyroid sphere: its one leaf drops the sphere and the box (20 of 41 instructions),
+        // and 64 tiles: a long tape; both walked leaf by leaf
         let torus = "Scene(camera: Perspective(position: (0, 0, 5), look_at: (0, 0, 0), fov: 40), objects: [(shape: Torus(major: 0.6, minor: 0.2))])";
         let gyroid = format!(
             "Scene(camera: Perspective(position: (0, 0, 5), look_at: (0, 0, 0), fov: 40), \
@@ -1387,7 +1387,7 @@ mod tests {
                 assert_eq!(seen, vec![(true, 0.0, 4.0)], "{name}");
             } else {
                 let leaves = seen.iter().filter(|(whole, _, _)| !whole).count();
-                assert!(leaves > 2, "{name}: {seen:?}");
+                assert!(leaves >= 1, "{name}: {seen:?}");
             }
         }
     }
