@@ -1210,10 +1210,8 @@ pub struct Region<'a> {
 /// compiled together so that small objects share executable buffers
 /// ([`crate::sdf::jit::compile_grouped`] says why).
 pub fn compile_native(fields: &mut [ObjectField], shares: &[f64]) {
-    let budgets: Vec<usize> = fields
-        .iter()
-        .enumerate()
-        .map(|(i, _)| {
+    let budgets: Vec<usize> = (0..fields.len())
+        .map(|i| {
             let share = shares.get(i).copied().unwrap_or(1.0).clamp(0.0, 1.0);
             (NATIVE_CODE_BYTES as f64 * share) as usize
         })
@@ -1762,6 +1760,38 @@ pub(crate) mod tests {
     /// to box: many shapes, each near few of the others.
     fn tiles(nx: usize, ny: usize) -> crate::sdf::LoweredSdf {
         tiles_scene(nx, ny).objects[0].lowered.clone()
+    }
+
+    #[test]
+    fn a_tape_too_short_to_gain_a_split_is_one_leaf_and_a_longer_one_is_split() {
+        let object = |shape: &str| {
+            let src = format!(
+                "Scene(camera: Orthographic(position: (0, 0, 3), look_at: (0, 0, 0), height: 2),
+                       objects: [(rotate: (0, 37, 0), shape: {shape})])"
+            );
+            let scene = crate::scene::Scene::from_source(&src, std::path::Path::new("t.ron"))
+                .unwrap_or_else(|e| panic!("{e}"));
+            let o = &scene.objects[0];
+            (
+                o.lowered.distance.len(),
+                ObjectField::build(&o.lowered, o.bounds()),
+            )
+        };
+        // a rotated box: its top levels would hold 489 nodes and 124 tapes, all marched past
+        let (len, field) = object("Box(half_extents: (0.5, 0.3, 0.2))");
+        assert!(
+            (MIN_TAPE..MIN_SPLIT_TAPE).contains(&len),
+            "{len} instructions"
+        );
+        let stats = field.octree.as_ref().expect("an octree").stats();
+        assert_eq!((stats.nodes, stats.leaves), (1, 1), "{stats:?}");
+        // a box with a sphere cut from it: long enough, its top levels are split
+        let (len, field) = object(
+            "Subtraction(base: Box(half_extents: (0.5, 0.3, 0.2)), cut: Sphere(radius: 0.4))",
+        );
+        assert!(len >= MIN_SPLIT_TAPE, "{len} instructions");
+        let stats = field.octree.as_ref().expect("an octree").stats();
+        assert!(stats.nodes > 73, "{stats:?}");
     }
 
     /// [`tiles`] as a scene of one object traced as one field, for the tracer's tests (the
