@@ -1780,7 +1780,7 @@ pub(crate) mod tests {
         // a rotated box: its top levels would hold 489 nodes and 124 tapes, all marched past
         let (len, field) = object("Box(half_extents: (0.5, 0.3, 0.2))");
         assert!(
-            (MIN_TAPE..MIN_SPLIT_TAPE).contains(&len),
+            (MIN_TAPE..2 * MIN_TAPE).contains(&len),
             "{len} instructions"
         );
         let stats = field.octree.as_ref().expect("an octree").stats();
