@@ -1777,7 +1777,7 @@ pub(crate) mod tests {
                 ObjectField::build(&o.lowered, o.bounds()),
             )
         };
-        // a rotated box: its top levels would hold 489 nodes and 124 tapes, all marched past
+        // a rotated box: its top levels held hundreds of nodes, which its march passed by
         let (len, field) = object("Box(half_extents: (0.5, 0.3, 0.2))");
         assert!(
             (MIN_TAPE..2 * MIN_TAPE).contains(&len),
