@@ -47,7 +47,7 @@ pub const MAX_DEPTH: u32 = 8;
 /// Most nodes per object (4 bytes each, plus a 40-byte [`Leaf`] per leaf): 88 MiB at most.
 pub const MAX_NODES: usize = 1 << 21;
 
-/// Most bytes of native code per object ([`ObjectField::compile_native`]): 64 MiB, room for
+/// Most bytes of native code per object ([`compile_native`]): 64 MiB, room for
 /// about 3 M instructions at the measured 20 bytes each (a 1,000-box union's octree takes 52
 /// MiB). Tapes past it are interpreted.
 pub const NATIVE_CODE_BYTES: usize = 64 << 20;
@@ -368,7 +368,7 @@ pub struct OctreeStats {
     pub mean_surface_tape: f64,
     /// Bytes held.
     pub bytes: usize,
-    /// Bytes of native code of the tapes ([`ObjectField::compile_native`]).
+    /// Bytes of native code of the tapes ([`compile_native`]).
     pub native_bytes: usize,
 }
 
@@ -1205,10 +1205,11 @@ pub struct Region<'a> {
     pub cell: Option<Cell<'a>>,
 }
 
-/// [`ObjectField::compile_native`] for many fields at once, each within `shares[i]` (in
-/// (0, 1]) of [`NATIVE_CODE_BYTES`] (see [`ObjectField::build_shared`]). Their tapes are
-/// compiled together so that small objects share executable buffers
-/// ([`crate::sdf::jit::compile_grouped`] says why).
+/// Compiles the fields' distance tapes (each field's whole one, then its octree's) to native
+/// code where the CPU runs it ([`crate::sdf::jit`]): the same values, without the
+/// interpreter's dispatch, each field within `shares[i]` (in (0, 1]) of [`NATIVE_CODE_BYTES`]
+/// (see [`ObjectField::build_shared`]). The tapes of all fields are compiled together so that
+/// small objects share executable buffers ([`crate::sdf::jit::compile_grouped`] says why).
 pub fn compile_native(fields: &mut [ObjectField], shares: &[f64]) {
     let budgets: Vec<usize> = (0..fields.len())
         .map(|i| {
@@ -1252,13 +1253,6 @@ impl ObjectField {
             outside,
             slopes: slopes_of(outside).filter(|_| lowered.convex),
         }
-    }
-
-    /// Compiles the distance tapes (the whole one, then the octree's) to native code where
-    /// the CPU runs it ([`crate::sdf::jit`]): the same values, without the interpreter's
-    /// dispatch, within [`NATIVE_CODE_BYTES`] of code per object.
-    pub fn compile_native(&mut self) {
-        compile_native(std::slice::from_mut(self), &[1.0]);
     }
 
     /// The whole tapes only, marched without shortcuts: the reference the octree and the
