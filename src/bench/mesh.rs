@@ -611,7 +611,7 @@ pub fn run(opts: &BenchOptions) -> anyhow::Result<MeshReport> {
             "{:?} ({})",
             opts.bvh,
             if opts.bvh.binned() {
-                "binned SAH, eight children per node built directly, on the rayon pool"
+                "binned SAH splits on the rayon pool, collapsed to eight children per node by the SAH"
             } else {
                 "obvhs's PLOC with reinsertion"
             }

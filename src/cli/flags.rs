@@ -107,7 +107,7 @@ mirror_enum! {
 mirror_enum! {
     /// `--bvh`: the mesh BVH build quality.
     pub enum BvhArg mirrors BuildQuality {
-        /// Binned SAH, eight children per node built directly, in parallel.
+        /// Binned SAH splits in parallel, collapsed to eight children per node by the SAH.
         Fast,
         /// As `fast`, with spatial pre-splits of large triangles (the default).
         Medium,

@@ -422,8 +422,8 @@ pub enum NormalMethod {
 /// `accel::bvh`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Deserialize)]
 pub enum BuildQuality {
-    /// Binned SAH, eight children per node built directly, in parallel (the approach of
-    /// Embree's builder), without spatial pre-splits.
+    /// Binned SAH splits in parallel (the approach of Embree's builder), collapsed to eight
+    /// children per node by the SAH, without spatial pre-splits.
     Fast,
     /// As `Fast`, with spatial pre-splits of large triangles (a triangle may sit in several
     /// leaves; the split boxes are padded to stay conservative). Traces as fast as `Highest`
