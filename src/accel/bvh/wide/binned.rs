@@ -479,9 +479,10 @@ enum Built {
 /// k roots from the left child and i − k from the right. A wide node's children are its
 /// best eight roots. The same dynamic programme as obvhs's `bvh2_to_cwbvh`, run here as the
 /// splits return, on the rayon pool with them. Measured against the largest-surface rule
-/// on the bench's rays (one thread, best of 0.3 s windows, rounds in turns): 2–7 % faster on
-/// the CAD models' primary, shadow, AO and incoherent rays, within 2 % on the bunny, 0–4 %
-/// on MetalRoughSpheres; build times within the machine's noise.
+/// on the bench's rays (one thread, best of 0.3 s windows, in turns): 2–7 % faster on the
+/// CAD models, 4–12 % on MetalRoughSpheres, within 2 % on the bunny, for 3–9 % more build
+/// time on three of the four and none on the largest (BENCHMARKS.md, "A node's eight
+/// children chosen by the SAH").
 struct Bin {
     bounds: Bounds,
     /// The first primitive (an index into the whole reference array) and how many.
