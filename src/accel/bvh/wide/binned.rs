@@ -5,12 +5,13 @@
 //! eight children per node, one pass after another; its collapse alone, sequential, is a third
 //! of its build, and its parallel PLOC cuts the work into chunks by thread count, so the tree
 //! (and the order in which equally near triangles are met) would change with the machine.
-//! This builder makes the 8-wide nodes top-down: a run of primitives is split in two by the surface area heuristic over binned
-//! centroids (Wald, "On fast Construction of SAH-based Bounding Volume Hierarchies", IEEE RT
-//! 2007), each half again down to runs of at most [`MAX_LEAF`], and the binary tree of these
-//! splits is collapsed to eight children per node by the SAH as its splits return (see
-//! [`Bin`]). Subtrees of more than [`PARALLEL_MIN`] primitives are built in parallel; each
-//! split depends only on its own primitives, so the tree is the same on one thread or many.
+//! This builder makes the 8-wide nodes top-down: a run of primitives is split in two by the
+//! surface area heuristic over binned centroids (Wald, "On fast Construction of SAH-based
+//! Bounding Volume Hierarchies", IEEE RT 2007), each half again down to runs of at most
+//! [`MAX_LEAF`], and the binary tree of these splits is collapsed to eight children per node
+//! by the SAH as its splits return (see [`Bin`]). Subtrees of more than [`PARALLEL_MIN`]
+//! primitives are built in parallel; each split depends only on its own primitives, so the
+//! tree is the same on one thread or many.
 //!
 //! The child boxes are the exact `f32` unions of the primitive boxes below them, as in
 //! [`super::build`]'s decoding of obvhs's trees, so the node test's conservativeness argument
@@ -477,12 +478,12 @@ enum Built {
 /// i = 1..8 roots: as one leaf (`area·count·C_PRIM`, only for at most [`MAX_LEAF`]
 /// primitives), as one wide node (`area·C_NODE` plus its best eight roots), or, for i > 1,
 /// k roots from the left child and i − k from the right. A wide node's children are its
-/// best eight roots. The same dynamic programme as obvhs's `bvh2_to_cwbvh`, run here as the
-/// splits return, on the rayon pool with them. Measured against the largest-surface rule
-/// on the bench's rays (one thread, best of 0.3 s windows, in turns): 2–7 % faster on the
-/// CAD models, 4–12 % on MetalRoughSpheres, within 2 % on the bunny, for 3–9 % more build
-/// time on three of the four and none on the largest (BENCHMARKS.md, "A node's eight
-/// children chosen by the SAH").
+/// best eight roots. (obvhs's `bvh2_to_cwbvh` implements the same paper over its PLOC
+/// trees; here the programme runs as the splits return, on the rayon pool with them.)
+/// Measured against the largest-surface rule on the bench's rays (one thread, best of 0.3 s
+/// windows, in turns): 2–7 % faster on the CAD models, 4–12 % on MetalRoughSpheres, within
+/// 2 % on the bunny, for 3–9 % more build time on three of the four and none on the largest
+/// (BENCHMARKS.md, "A node's eight children chosen by the SAH").
 struct Bin {
     bounds: Bounds,
     /// The first primitive (an index into the whole reference array) and how many.
