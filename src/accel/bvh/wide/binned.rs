@@ -620,6 +620,8 @@ pub(crate) fn build(boxes: &[OAabb]) -> WideBvh {
     let run = Run::of_parallel(&refs);
     let (root, _) = build_bin(&mut refs, 0, run);
     let built = collapse(&root);
+    // The binary tree is no longer needed: freed before the nodes are laid out.
+    drop(root);
     let root = match built {
         // A root that is one leaf is a node with one leaf child.
         leaf @ Built::Leaf { .. } => vec![(run.bounds, leaf)],
