@@ -693,6 +693,84 @@ impl MeshBvh {
         found
     }
 
+    /// Bytes of the tree as the walk reads them: nodes and leaf blocks with their ids.
+    fn walked_bytes(&self) -> usize {
+        self.nodes.len() * size_of::<WideNode>()
+            + self.leaves.blocks.len() * size_of::<leaf::TriBlock>()
+            + self.leaves.ids.len() * size_of::<[u32; 8]>()
+            + self.leaves.slots.len()
+    }
+
+    /// Whether the tree is large enough for its single rays to be walked two at a time
+    /// ([`INTERLEAVE_BYTES`]; see [`InstanceBvh::walks_pairs`]).
+    pub(crate) fn interleaves(&self) -> bool {
+        self.walked_bytes() >= INTERLEAVE_BYTES
+    }
+
+    /// [`Self::closest_in`] of two rays, their walks interleaved: the same answers.
+    fn closest_in_pair(
+        &self,
+        shears: [&mut Shear; 2],
+        nrs: [&NodeRay; 2],
+        tmin: f32,
+        mut tmax: [f32; 2],
+        accept: Accept<'_>,
+    ) -> [Option<MeshHit>; 2] {
+        let tmin = wide::query_tmin(tmin);
+        let mut best = [None; 2];
+        let [s0, s1] = shears;
+        let mut shears = [s0, s1];
+        wide::traverse_grouped_pair::<true>(
+            &self.nodes,
+            nrs,
+            tmin,
+            &mut tmax,
+            |k, meta, slots, tmax| {
+                self.closest_in_leaves(
+                    shears[k].get(),
+                    meta,
+                    slots,
+                    tmin,
+                    tmax,
+                    &mut best[k],
+                    accept,
+                );
+                ControlFlow::Continue(())
+            },
+        );
+        best
+    }
+
+    /// [`Self::any_in`] of two rays, their walks interleaved: the same answers.
+    fn any_in_pair(
+        &self,
+        shears: [&mut Shear; 2],
+        nrs: [&NodeRay; 2],
+        tmin: f32,
+        mut tmax: [f32; 2],
+        accept: Accept<'_>,
+    ) -> [bool; 2] {
+        let tmin = wide::query_tmin(tmin);
+        let mut found = [false; 2];
+        let [s0, s1] = shears;
+        let mut shears = [s0, s1];
+        wide::traverse_grouped_pair::<false>(
+            &self.nodes,
+            nrs,
+            tmin,
+            &mut tmax,
+            |k, meta, slots, tmax| {
+                found[k] = self.any_in_leaves(shears[k].get(), meta, slots, tmin, *tmax, accept);
+                if found[k] {
+                    ControlFlow::Break(())
+                } else {
+                    ControlFlow::Continue(())
+                }
+            },
+        );
+        found
+    }
+
     /// The nodes as the walk reads them (root at 0; none for an empty mesh); leaf children
     /// point at blocks of [`MeshBvh::leaf_blocks`].
     #[cfg(feature = "gpu")]
@@ -1083,10 +1161,30 @@ impl PacketQuery for Any {
     }
 }
 
+/// The index of the lowest set bit of `mask`, cleared.
+#[inline(always)]
+fn take_lowest(mask: &mut u32) -> usize {
+    let i = mask.trailing_zeros() as usize;
+    *mask &= *mask - 1;
+    i
+}
+
 /// The largest spread of a lane walk's ray origins, as a fraction of the scene's extent (see
 /// [`InstanceBvh::near_origins`]). Measured on the bench's AO rays, a tenth and a quarter
 /// gave the same speed; incoherent rays (origins across the whole scene) are far above both.
 const LANE_REACH: f32 = 0.25;
+
+/// Trees of at least this many bytes (nodes and leaf blocks) are walked two rays at a time by
+/// the batch queries' single rays ([`wide::traverse_grouped_pair`]): past the caches the two
+/// walks overlap their waits on memory, within them the switching only costs. Measured one
+/// thread, the bench's ray sets, both ways in one process in turns (incoherent rays, pairs
+/// over one by one): Suzanne and the cow (under 1 MB) 2–3 % slower, the bunny (4 MB) 2 %
+/// faster, the saw's merged tree (10 MB, beside its other instances) within ±4 %, the bunny
+/// subdivided to 278 thousand triangles (18 MB) 9–13 % faster, to 1.1 million (70 MB) 8–14 %,
+/// MetalRoughSpheres (68 MB) 15–16 % (its AO rays 7–15 %); other ray kinds within the noise.
+/// AMD EPYC (Zen 4): 1 MB of L2 cache per core, 32 MB of L3 (BENCHMARKS.md, "Two walks at
+/// once").
+pub(crate) const INTERLEAVE_BYTES: usize = 16 << 20;
 
 /// A top-level BVH over instances of [`MeshBvh`]es (a two-level BVH: instances of one mesh
 /// share its tree).
@@ -1364,8 +1462,28 @@ impl InstanceBvh {
         tmax: f32,
         filter: &impl HitFilter,
     ) -> Option<InstanceHit> {
-        let mut best: Option<InstanceHit> = None;
+        self.closest_hit_after(meshes, ray, tmin, tmax, filter, (u32::MAX, None))
+    }
+
+    /// [`Self::closest_hit_filtered`] of a ray whose nearest hit within `tmax` in one instance
+    /// is already known: `known` is that instance's index and hit, and the other instances are
+    /// walked for a better one. The same answer, as each instance's walk finds its own
+    /// nearest hit within the limit it is given and [`beats`] orders hits totally.
+    fn closest_hit_after(
+        &self,
+        meshes: &[MeshBvh],
+        ray: &Ray,
+        tmin: f32,
+        tmax: f32,
+        filter: &impl HitFilter,
+        known: (u32, Option<InstanceHit>),
+    ) -> Option<InstanceHit> {
+        let (done, mut best) = known;
+        let tmax = best.map_or(tmax, |b| b.t);
         self.walk::<true>(meshes, ray, tmin, tmax, |p, mesh, shear, nr, tmax| {
+            if p.index == done {
+                return ControlFlow::Continue(());
+            }
             let test = |t: u32, u: f32, v: f32| filter.accept(p.index, t, u, v);
             let accept: Accept<'_> = self.filtered(p, filter).then_some(&test);
             if let Some(h) = mesh.closest_in(shear, nr, tmin, *tmax, accept) {
@@ -1391,7 +1509,9 @@ impl InstanceBvh {
     /// when they are coherent (same octant, none parallel to an axis: neighbouring primary rays
     /// of a camera, shadow rays towards one light); otherwise, on CPUs with AVX-512 or AVX2,
     /// sixteen at a time in lane walks when they start close together (AO and diffuse rays of
-    /// neighbouring pixels, see `wide::lanes`); the rest one by one.
+    /// neighbouring pixels, see `wide::lanes`); the rest one by one, or two at a time with
+    /// their walks interleaved on a scene of one tree far larger than the caches
+    /// ([`Self::walks_pairs`]).
     ///
     /// # Panics
     /// When the three slices differ in length.
@@ -1441,9 +1561,31 @@ impl InstanceBvh {
                         *tmax = h.t;
                     }
                 });
+            if let Some((p, mesh)) = self.interleaved(meshes) {
+                let others = self.placed.len() > 1;
+                while alone & alone.wrapping_sub(1) != 0 {
+                    let pair = [take_lowest(&mut alone), take_lowest(&mut alone)];
+                    let rays_of = pair.map(|i| &rays[i]);
+                    let hits =
+                        self.closest_pair(p, mesh, rays_of, tmin, pair.map(|i| tmax[i]), filter);
+                    for (&i, hit) in pair.iter().zip(hits) {
+                        out[i] = if others {
+                            self.closest_hit_after(
+                                meshes,
+                                &rays[i],
+                                tmin,
+                                tmax[i],
+                                filter,
+                                (p.index, hit),
+                            )
+                        } else {
+                            hit
+                        };
+                    }
+                }
+            }
             while alone != 0 {
-                let i = alone.trailing_zeros() as usize;
-                alone &= alone - 1;
+                let i = take_lowest(&mut alone);
                 out[i] = self.closest_hit_filtered(meshes, &rays[i], tmin, tmax[i], filter);
             }
         }
@@ -1493,12 +1635,112 @@ impl InstanceBvh {
                         *tmax = f32::NEG_INFINITY;
                     }
                 });
+            if let Some((p, mesh)) = self.interleaved(meshes) {
+                let others = self.placed.len() > 1;
+                while alone & alone.wrapping_sub(1) != 0 {
+                    let pair = [take_lowest(&mut alone), take_lowest(&mut alone)];
+                    let rays_of = pair.map(|i| &rays[i]);
+                    let found =
+                        self.any_pair(p, mesh, rays_of, tmin, pair.map(|i| tmax[i]), filter);
+                    for (&i, found) in pair.iter().zip(found) {
+                        out[i] = found
+                            || others
+                                && self.any_hit_after(
+                                    meshes, &rays[i], tmin, tmax[i], filter, p.index,
+                                );
+                    }
+                }
+            }
             while alone != 0 {
-                let i = alone.trailing_zeros() as usize;
-                alone &= alone - 1;
+                let i = take_lowest(&mut alone);
                 out[i] = self.any_hit_filtered(meshes, &rays[i], tmin, tmax[i], filter);
             }
         }
+    }
+
+    /// Whether the batch queries ([`Self::closest_hits`], [`Self::any_hits`]) walk the rays
+    /// they trace one by one two at a time, their walks interleaved, through the scene's main
+    /// tree (its only instance, or its merged meshes) when that tree is larger than the caches
+    /// ([`INTERLEAVE_BYTES`]). The same answers either way.
+    pub fn walks_pairs(&self, meshes: &[MeshBvh]) -> bool {
+        self.interleaved(meshes).is_some()
+    }
+
+    /// The instance whose tree single rays walk two at a time ([`MeshBvh::interleaves`]), and
+    /// its mesh: the scene's only instance, or else its merged meshes (the other instances
+    /// are then walked ray by ray after it, see [`Self::closest_hit_after`]).
+    fn interleaved<'m>(&self, meshes: &'m [MeshBvh]) -> Option<(&PlacedInstance, &'m MeshBvh)> {
+        let p = match self.placed.as_slice() {
+            [p] => p,
+            all => all.iter().find(|p| p.index == self.merged_index)?,
+        };
+        let mesh = meshes.get(p.mesh as usize)?;
+        mesh.interleaves().then_some((p, mesh))
+    }
+
+    /// The rays in the object space of `p`, as [`Self::walk`] maps them.
+    #[inline(always)]
+    fn object_rays(p: &PlacedInstance, rays: [&Ray; 2]) -> [(Vec3, Vec3); 2] {
+        rays.map(|r| {
+            if p.identity {
+                (r.origin, r.direction)
+            } else {
+                (
+                    p.world_to_object.transform_point3(r.origin),
+                    p.world_to_object.transform_vector3(r.direction),
+                )
+            }
+        })
+    }
+
+    /// [`Self::closest_hit_filtered`] of two rays of a scene of the one instance `p` (see
+    /// [`Self::interleaved`]): the same answers.
+    fn closest_pair(
+        &self,
+        p: &PlacedInstance,
+        mesh: &MeshBvh,
+        rays: [&Ray; 2],
+        tmin: f32,
+        tmax: [f32; 2],
+        filter: &impl HitFilter,
+    ) -> [Option<InstanceHit>; 2] {
+        let [(o0, d0), (o1, d1)] = Self::object_rays(p, rays);
+        let nrs = [NodeRay::new(o0, d0), NodeRay::new(o1, d1)];
+        let (mut s0, mut s1) = (Shear::new(o0, d0), Shear::new(o1, d1));
+        let test = |t: u32, u: f32, v: f32| filter.accept(p.index, t, u, v);
+        let accept: Accept<'_> = self.filtered(p, filter).then_some(&test);
+        let hits = mesh.closest_in_pair([&mut s0, &mut s1], [&nrs[0], &nrs[1]], tmin, tmax, accept);
+        hits.map(|h| {
+            h.map(|h| {
+                let (instance, triangle) = self.scene_ids(p, h.triangle);
+                InstanceHit {
+                    t: h.t,
+                    instance,
+                    triangle,
+                    u: h.u,
+                    v: h.v,
+                }
+            })
+        })
+    }
+
+    /// [`Self::any_hit_filtered`] of two rays of a scene of the one instance `p` (see
+    /// [`Self::interleaved`]): the same answers.
+    fn any_pair(
+        &self,
+        p: &PlacedInstance,
+        mesh: &MeshBvh,
+        rays: [&Ray; 2],
+        tmin: f32,
+        tmax: [f32; 2],
+        filter: &impl HitFilter,
+    ) -> [bool; 2] {
+        let [(o0, d0), (o1, d1)] = Self::object_rays(p, rays);
+        let nrs = [NodeRay::new(o0, d0), NodeRay::new(o1, d1)];
+        let (mut s0, mut s1) = (Shear::new(o0, d0), Shear::new(o1, d1));
+        let test = |t: u32, u: f32, v: f32| filter.accept(p.index, t, u, v);
+        let accept: Accept<'_> = self.filtered(p, filter).then_some(&test);
+        mesh.any_in_pair([&mut s0, &mut s1], [&nrs[0], &nrs[1]], tmin, tmax, accept)
     }
 
     /// Whether `rays` start close enough together for a lane walk to pay: within a box at most
@@ -1792,8 +2034,25 @@ impl InstanceBvh {
         tmax: f32,
         filter: &impl HitFilter,
     ) -> bool {
+        self.any_hit_after(meshes, ray, tmin, tmax, filter, u32::MAX)
+    }
+
+    /// [`Self::any_hit_filtered`] of a ray known to hit nothing in the instance `done`: the
+    /// other instances are walked.
+    fn any_hit_after(
+        &self,
+        meshes: &[MeshBvh],
+        ray: &Ray,
+        tmin: f32,
+        tmax: f32,
+        filter: &impl HitFilter,
+        done: u32,
+    ) -> bool {
         let mut found = false;
         self.walk::<false>(meshes, ray, tmin, tmax, |p, mesh, shear, nr, tmax| {
+            if p.index == done {
+                return ControlFlow::Continue(());
+            }
             let test = |t: u32, u: f32, v: f32| filter.accept(p.index, t, u, v);
             let accept: Accept<'_> = self.filtered(p, filter).then_some(&test);
             if mesh.any_in(shear, nr, tmin, *tmax, accept) {
