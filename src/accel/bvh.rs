@@ -710,7 +710,7 @@ impl MeshBvh {
     /// [`Self::closest_in`] of two rays, their walks interleaved: the same answers.
     fn closest_in_pair(
         &self,
-        shears: [&mut Shear; 2],
+        mut shears: [&mut Shear; 2],
         nrs: [&NodeRay; 2],
         tmin: f32,
         mut tmax: [f32; 2],
@@ -718,8 +718,6 @@ impl MeshBvh {
     ) -> [Option<MeshHit>; 2] {
         let tmin = wide::query_tmin(tmin);
         let mut best = [None; 2];
-        let [s0, s1] = shears;
-        let mut shears = [s0, s1];
         wide::traverse_grouped_pair::<true>(
             &self.nodes,
             nrs,
@@ -744,7 +742,7 @@ impl MeshBvh {
     /// [`Self::any_in`] of two rays, their walks interleaved: the same answers.
     fn any_in_pair(
         &self,
-        shears: [&mut Shear; 2],
+        mut shears: [&mut Shear; 2],
         nrs: [&NodeRay; 2],
         tmin: f32,
         mut tmax: [f32; 2],
@@ -752,8 +750,6 @@ impl MeshBvh {
     ) -> [bool; 2] {
         let tmin = wide::query_tmin(tmin);
         let mut found = [false; 2];
-        let [s0, s1] = shears;
-        let mut shears = [s0, s1];
         wide::traverse_grouped_pair::<false>(
             &self.nodes,
             nrs,
@@ -1180,8 +1176,9 @@ const LANE_REACH: f32 = 0.25;
 /// thread, the bench's ray sets, both ways in one process in turns (incoherent rays, pairs
 /// over one by one): Suzanne and the cow (under 1 MB) 2–3 % slower, the bunny (4 MB) 2 %
 /// faster, the saw's merged tree (10 MB, beside its other instances) within ±4 %, the bunny
-/// subdivided to 278 thousand triangles (18 MB) 9–13 % faster, to 1.1 million (70 MB) 8–14 %,
-/// MetalRoughSpheres (68 MB) 15–16 % (its AO rays 7–15 %); other ray kinds within the noise.
+/// subdivided to 278 thousand triangles (18 MB) 5–26 % faster, to 1.1 million (70 MB) 8–14 %
+/// (in two sittings of three), MetalRoughSpheres (68 MB) 15–16 % (its AO rays 5–15 %); other
+/// ray kinds within the noise.
 /// AMD EPYC (Zen 4): 1 MB of L2 cache per core, 32 MB of L3 (BENCHMARKS.md, "Two walks at
 /// once").
 pub(crate) const INTERLEAVE_BYTES: usize = 16 << 20;
