@@ -1200,6 +1200,9 @@ pub struct InstanceBvh {
     mesh_count: usize,
     /// The merged mesh's instance index (the number of scene instances), or `u32::MAX`.
     merged_index: u32,
+    /// The slot in `placed` of the scene's main tree: its only instance, or else its merged
+    /// meshes (see [`Self::interleaved`]).
+    main: Option<usize>,
     /// Per triangle of the merged mesh, its scene instance and triangle.
     origin: Vec<(u32, u32)>,
     stats: BuildStats,
@@ -1341,6 +1344,10 @@ impl InstanceBvh {
         wide::one_primitive_per_leaf(&mut tree, &boxes);
         let placed: Vec<PlacedInstance> = tree.order.iter().map(|&k| placed[k as usize]).collect();
         let merged_in = placed.iter().any(|p| p.index == merged_index);
+        let main = match placed.as_slice() {
+            [_] => Some(0),
+            all => all.iter().position(|p| p.index == merged_index),
+        };
         let merged_count = left_out.iter().filter(|&&l| l).count();
         // Scene instances traced: those in the tree and those merged into its merged mesh.
         stats.kept =
@@ -1356,6 +1363,7 @@ impl InstanceBvh {
             origin_margin,
             mesh_count: meshes.len(),
             merged_index,
+            main,
             origin,
             stats,
         }
@@ -1507,7 +1515,7 @@ impl InstanceBvh {
     /// of a camera, shadow rays towards one light); otherwise, on CPUs with AVX-512 or AVX2,
     /// sixteen at a time in lane walks when they start close together (AO and diffuse rays of
     /// neighbouring pixels, see `wide::lanes`); the rest one by one, or two at a time with
-    /// their walks interleaved on a scene of one tree far larger than the caches
+    /// their walks interleaved through a scene's main tree far larger than the caches
     /// ([`Self::walks_pairs`]).
     ///
     /// # Panics
@@ -1558,7 +1566,8 @@ impl InstanceBvh {
                         *tmax = h.t;
                     }
                 });
-            if let Some((p, mesh)) = self.interleaved(meshes) {
+            let pairs = alone & alone.wrapping_sub(1) != 0;
+            if let Some((p, mesh)) = self.interleaved(meshes).filter(|_| pairs) {
                 let others = self.placed.len() > 1;
                 while alone & alone.wrapping_sub(1) != 0 {
                     let pair = [take_lowest(&mut alone), take_lowest(&mut alone)];
@@ -1632,7 +1641,8 @@ impl InstanceBvh {
                         *tmax = f32::NEG_INFINITY;
                     }
                 });
-            if let Some((p, mesh)) = self.interleaved(meshes) {
+            let pairs = alone & alone.wrapping_sub(1) != 0;
+            if let Some((p, mesh)) = self.interleaved(meshes).filter(|_| pairs) {
                 let others = self.placed.len() > 1;
                 while alone & alone.wrapping_sub(1) != 0 {
                     let pair = [take_lowest(&mut alone), take_lowest(&mut alone)];
@@ -1667,10 +1677,7 @@ impl InstanceBvh {
     /// its mesh: the scene's only instance, or else its merged meshes (the other instances
     /// are then walked ray by ray after it, see [`Self::closest_hit_after`]).
     fn interleaved<'m>(&self, meshes: &'m [MeshBvh]) -> Option<(&PlacedInstance, &'m MeshBvh)> {
-        let p = match self.placed.as_slice() {
-            [p] => p,
-            all => all.iter().find(|p| p.index == self.merged_index)?,
-        };
+        let p = &self.placed[self.main?];
         let mesh = meshes.get(p.mesh as usize)?;
         mesh.interleaves().then_some((p, mesh))
     }
@@ -1690,8 +1697,8 @@ impl InstanceBvh {
         })
     }
 
-    /// [`Self::closest_hit_filtered`] of two rays of a scene of the one instance `p` (see
-    /// [`Self::interleaved`]): the same answers.
+    /// [`Self::closest_hit_filtered`] of two rays within the instance `p` alone (the scene's
+    /// main tree, see [`Self::interleaved`]): the same answers there.
     fn closest_pair(
         &self,
         p: &PlacedInstance,
@@ -1721,8 +1728,8 @@ impl InstanceBvh {
         })
     }
 
-    /// [`Self::any_hit_filtered`] of two rays of a scene of the one instance `p` (see
-    /// [`Self::interleaved`]): the same answers.
+    /// [`Self::any_hit_filtered`] of two rays within the instance `p` alone (the scene's main
+    /// tree, see [`Self::interleaved`]): the same answers there.
     fn any_pair(
         &self,
         p: &PlacedInstance,
