@@ -1551,49 +1551,41 @@ impl InstanceBvh {
             .zip(out.chunks_mut(PACKET))
         {
             out.fill(None);
-            let mut alone =
-                self.chunk::<Closest>(meshes, rays, tmin, tmax, filter, |p, i, h, tmax| {
-                    let Some(h) = h else { return };
-                    let (instance, triangle) = self.scene_ids(p, h.triangle);
-                    if beats(&out[i], h.t, instance, triangle) {
-                        out[i] = Some(InstanceHit {
-                            t: h.t,
-                            instance,
-                            triangle,
-                            u: h.u,
-                            v: h.v,
-                        });
-                        *tmax = h.t;
-                    }
-                });
-            let pairs = alone & alone.wrapping_sub(1) != 0;
-            if let Some((p, mesh)) = self.interleaved(meshes).filter(|_| pairs) {
-                let others = self.placed.len() > 1;
-                while alone & alone.wrapping_sub(1) != 0 {
-                    let pair = [take_lowest(&mut alone), take_lowest(&mut alone)];
-                    let rays_of = pair.map(|i| &rays[i]);
-                    let hits =
-                        self.closest_pair(p, mesh, rays_of, tmin, pair.map(|i| tmax[i]), filter);
-                    for (&i, hit) in pair.iter().zip(hits) {
-                        out[i] = if others {
-                            self.closest_hit_after(
-                                meshes,
-                                &rays[i],
-                                tmin,
-                                tmax[i],
-                                filter,
-                                (p.index, hit),
-                            )
-                        } else {
-                            hit
-                        };
-                    }
+            let alone = self.chunk::<Closest>(meshes, rays, tmin, tmax, filter, |p, i, h, tmax| {
+                let Some(h) = h else { return };
+                let (instance, triangle) = self.scene_ids(p, h.triangle);
+                if beats(&out[i], h.t, instance, triangle) {
+                    out[i] = Some(InstanceHit {
+                        t: h.t,
+                        instance,
+                        triangle,
+                        u: h.u,
+                        v: h.v,
+                    });
+                    *tmax = h.t;
                 }
-            }
-            while alone != 0 {
-                let i = take_lowest(&mut alone);
-                out[i] = self.closest_hit_filtered(meshes, &rays[i], tmin, tmax[i], filter);
-            }
+            });
+            let others = self.placed.len() > 1;
+            self.trace_alone(
+                meshes,
+                alone,
+                out,
+                |p, mesh, pair| {
+                    let (pair_rays, pair_tmax) = (pair.map(|i| &rays[i]), pair.map(|i| tmax[i]));
+                    let hits = self.closest_pair(p, mesh, pair_rays, tmin, pair_tmax, filter);
+                    let after = |k: usize, hit| {
+                        let (ray, tmax) = (&rays[pair[k]], tmax[pair[k]]);
+                        self.closest_hit_after(meshes, ray, tmin, tmax, filter, (p.index, hit))
+                    };
+                    let [a, b] = hits;
+                    if others {
+                        [after(0, a), after(1, b)]
+                    } else {
+                        [a, b]
+                    }
+                },
+                |i| self.closest_hit_filtered(meshes, &rays[i], tmin, tmax[i], filter),
+            );
         }
     }
 
@@ -1633,35 +1625,58 @@ impl InstanceBvh {
             .zip(out.chunks_mut(PACKET))
         {
             out.fill(false);
-            let mut alone =
-                self.chunk::<Any>(meshes, rays, tmin, tmax, filter, |_, i, hit, tmax| {
-                    if hit {
-                        out[i] = true;
-                        // Retired: the walk drops the ray.
-                        *tmax = f32::NEG_INFINITY;
-                    }
-                });
-            let pairs = alone & alone.wrapping_sub(1) != 0;
-            if let Some((p, mesh)) = self.interleaved(meshes).filter(|_| pairs) {
-                let others = self.placed.len() > 1;
-                while alone & alone.wrapping_sub(1) != 0 {
-                    let pair = [take_lowest(&mut alone), take_lowest(&mut alone)];
-                    let rays_of = pair.map(|i| &rays[i]);
-                    let found =
-                        self.any_pair(p, mesh, rays_of, tmin, pair.map(|i| tmax[i]), filter);
-                    for (&i, found) in pair.iter().zip(found) {
-                        out[i] = found
-                            || others
-                                && self.any_hit_after(
-                                    meshes, &rays[i], tmin, tmax[i], filter, p.index,
-                                );
-                    }
+            let alone = self.chunk::<Any>(meshes, rays, tmin, tmax, filter, |_, i, hit, tmax| {
+                if hit {
+                    out[i] = true;
+                    // Retired: the walk drops the ray.
+                    *tmax = f32::NEG_INFINITY;
                 }
+            });
+            let others = self.placed.len() > 1;
+            self.trace_alone(
+                meshes,
+                alone,
+                out,
+                |p, mesh, pair| {
+                    let (pair_rays, pair_tmax) = (pair.map(|i| &rays[i]), pair.map(|i| tmax[i]));
+                    let found = self.any_pair(p, mesh, pair_rays, tmin, pair_tmax, filter);
+                    let after = |k: usize| {
+                        let (ray, tmax) = (&rays[pair[k]], tmax[pair[k]]);
+                        others && self.any_hit_after(meshes, ray, tmin, tmax, filter, p.index)
+                    };
+                    [found[0] || after(0), found[1] || after(1)]
+                },
+                |i| self.any_hit_filtered(meshes, &rays[i], tmin, tmax[i], filter),
+            );
+        }
+    }
+
+    /// Traces the rays of `alone` (bits of a chunk) that the packet and lane walks left: two
+    /// at a time by `two` (given the main tree's instance and mesh and the two rays' indices)
+    /// where the scene's main tree is walked in pairs ([`Self::interleaved`]), the rest one by
+    /// one by `one`; each answer goes to its ray's slot of `out`.
+    #[inline(always)]
+    fn trace_alone<'m, T>(
+        &self,
+        meshes: &'m [MeshBvh],
+        mut alone: u32,
+        out: &mut [T],
+        two: impl Fn(&PlacedInstance, &'m MeshBvh, [usize; 2]) -> [T; 2],
+        one: impl Fn(usize) -> T,
+    ) {
+        if alone & alone.wrapping_sub(1) != 0
+            && let Some((p, mesh)) = self.interleaved(meshes)
+        {
+            while alone & alone.wrapping_sub(1) != 0 {
+                let pair = [take_lowest(&mut alone), take_lowest(&mut alone)];
+                let [a, b] = two(p, mesh, pair);
+                out[pair[0]] = a;
+                out[pair[1]] = b;
             }
-            while alone != 0 {
-                let i = take_lowest(&mut alone);
-                out[i] = self.any_hit_filtered(meshes, &rays[i], tmin, tmax[i], filter);
-            }
+        }
+        while alone != 0 {
+            let i = take_lowest(&mut alone);
+            out[i] = one(i);
         }
     }
 
