@@ -9,8 +9,9 @@
 //! lengthened by how slowly the field can fall along the ray there ([`Leaf::fall`]). Outside
 //! the octree's box the whole tape is used; where that tape is short ([`SHORT_TAPE`]), the
 //! CPU evaluates it everywhere but in Hart's march, which walks the leaves only where they
-//! save at least half of it ([`FieldOctree::marched_whole`], on both backends). The structure
-//! depends
+//! save at least half of it ([`FieldOctree::marched_whole`], on both backends); a tree whose
+//! leaves save less is kept as one leaf, and is not built at all where cells sampled on the
+//! surface already keep much of the tape ([`surface_sample_tape`]). The structure depends
 //! only on the object, so camera, shadow, ambient-occlusion, penumbra, reflection and
 //! refraction rays share it (screen tiles would serve camera rays only).
 //!
@@ -485,7 +486,9 @@ impl FieldOctree {
     }
 
     /// The tree over [lo, hi] within `nodes` nodes and `instructions` instructions (the whole
-    /// shading tape, stored for the leaves that are not crossed, counted against them).
+    /// shading tape, stored for the leaves that are not crossed, counted against them); one
+    /// leaf where Hart's march would take the whole tape ([`Self::marched_whole`]), known
+    /// before the build from sampled surface cells ([`surface_sample_tape`]) or after it.
     ///
     /// The top [`PARALLEL_DEPTH`] levels are split first (they always are: see
     /// [`CULL_DEPTH`]), the budget shared among their boxes in proportion to their tapes;
@@ -493,6 +496,33 @@ impl FieldOctree {
     /// and the subtrees are stored in box order, so the tree does not depend on the thread
     /// count.
     fn build_within(
+        program: &SsaTape,
+        lo: Vec3,
+        hi: Vec3,
+        nodes: usize,
+        instructions: usize,
+    ) -> FieldOctree {
+        let whole_len = program.distance_only().live_len();
+        if (MIN_SPLIT_TAPE..=SHORT_TAPE).contains(&whole_len)
+            && surface_sample_tape(program, lo, hi)
+                .is_some_and(|kept| kept >= SAMPLED_WHOLE * whole_len as f64)
+        {
+            return Self::grow(program, lo, hi, 1, instructions);
+        }
+        let tree = Self::grow(program, lo, hi, nodes, instructions);
+        if tree.marched_whole && tree.nodes.len() > 1 {
+            // Hart's march takes the whole tape here, and the leaves would serve lookups
+            // alone (normals, shading, the other marches), which saved no measurable time
+            // (BENCHMARKS.md, "Octrees whose march takes the whole tape"); they cost memory
+            // and native code: 3,000 small CSG objects (a box less a sphere, ...) held 300 MiB
+            // of leaf tapes and 280 MiB of their code. One leaf, as a short tape gets.
+            return Self::grow(program, lo, hi, 1, instructions);
+        }
+        tree
+    }
+
+    /// [`Self::build_within`] whatever its march takes.
+    fn grow(
         program: &SsaTape,
         lo: Vec3,
         hi: Vec3,
@@ -831,6 +861,95 @@ fn uniform_leaf(program: &SsaTape, verdict: Verdict, min_value: f32) -> LeafBuil
 /// Leaves whose shading tape is the whole one, in a [`SubTree`] (stored as 0 in the tree).
 const WHOLE_SHADING: u32 = u32::MAX;
 
+/// Grid points per axis at which [`surface_sample_tape`] looks for the surface.
+const SAMPLE_GRID: usize = 9;
+
+/// Most surface points [`surface_sample_tape`] specialises the program around.
+const SAMPLE_POINTS: usize = 24;
+
+/// The depth of the cells [`surface_sample_tape`] specialises the program to.
+const SAMPLE_DEPTH: u32 = 6;
+
+/// The share of the whole tape that the sampled cells' tapes ([`surface_sample_tape`]) keep
+/// from which a tree is not built: its leaves would keep more than half of it, and Hart's
+/// march would take the whole tape ([`FieldOctree::marched_whole`]).
+const SAMPLED_WHOLE: f64 = 0.4;
+
+/// The mean length of `program`'s distance tape specialised to cells of the octree over
+/// [lo, hi] ([`SAMPLE_DEPTH`] levels down) that hold sampled surface points, or `None` when
+/// fewer than eight points were found (a surface finer than the grid). The surface is found
+/// where the whole tape changes sign along the edges of a coarse grid, and then by bisection.
+///
+/// A tree's crossed leaves are rarely finer than these cells, and keep about what they keep
+/// or more: over the shipped scenes and the SDF peer's models, the trees whose leaves saved
+/// more than half of the tape (walked by Hart's march) had cells keeping 22–29 % of it, those
+/// marched whole 26–67 %, their leaves 1.0–2.4 times as long as the cells' tapes
+/// (`sampled_cells_skip_only_trees_marched_whole` checks every one of them). Cells keeping
+/// [`SAMPLED_WHOLE`] of it or more mark a tree not worth building; below, the tree is built
+/// and its leaves decide. The samples cost 0.1–0.5 ms an object, the trees they spare 1–7
+/// ms.
+fn surface_sample_tape(program: &SsaTape, lo: Vec3, hi: Vec3) -> Option<f64> {
+    let tape = program.compile_distance().ok()?;
+    let n = SAMPLE_GRID;
+    let at = |i: usize, j: usize, k: usize| {
+        lo + (hi - lo) * Vec3::new(i as f32, j as f32, k as f32) / (n - 1) as f32
+    };
+    let mut values = vec![0.0f32; n * n * n];
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                values[(k * n + j) * n + i] = tape.eval(at(i, j, k));
+            }
+        }
+    }
+    let inside = |v: f32| v <= 0.0;
+    // the grid edges whose ends the surface separates
+    let mut edges: Vec<(Vec3, Vec3)> = Vec::new();
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                let v = values[(k * n + j) * n + i];
+                for (di, dj, dk) in [(1, 0, 0), (0, 1, 0), (0, 0, 1)] {
+                    let (a, b, c) = (i + di, j + dj, k + dk);
+                    if a < n && b < n && c < n {
+                        let w = values[(c * n + b) * n + a];
+                        if v.is_finite() && w.is_finite() && inside(v) != inside(w) {
+                            edges.push((at(i, j, k), at(a, b, c)));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let cells = (1u32 << SAMPLE_DEPTH) as f32;
+    let size = (hi - lo) / cells;
+    let mut simplifier = Simplifier::new();
+    let (mut count, mut sum) = (0usize, 0usize);
+    let step = edges.len().div_ceil(SAMPLE_POINTS).max(1);
+    for &(mut a, mut b) in edges.iter().step_by(step) {
+        let a_inside = inside(tape.eval(a));
+        for _ in 0..12 {
+            let m = 0.5 * (a + b);
+            if inside(tape.eval(m)) == a_inside {
+                a = m;
+            } else {
+                b = m;
+            }
+        }
+        let p = 0.5 * (a + b);
+        let cell = ((p - lo) / size)
+            .floor()
+            .clamp(Vec3::ZERO, Vec3::splat(cells - 1.0));
+        let (clo, chi) = (lo + cell * size, lo + (cell + Vec3::ONE) * size);
+        let sp = simplifier.specialise(program, clo, chi);
+        if sp.verdict == Verdict::Surface {
+            count += 1;
+            sum += sp.program.compile_distance().ok()?.len();
+        }
+    }
+    (count >= 8).then(|| sum as f64 / count as f64)
+}
+
 /// A box whose subtree is built on one thread, with what it may spend.
 struct Job {
     sp: Specialised,
@@ -945,7 +1064,7 @@ fn build_subtree(job: Job) -> SubTree {
     while !level.is_empty() {
         let mut proposals: Vec<Proposal> = level
             .into_iter()
-            .map(|c| propose(c, depth, &mut simplifier))
+            .map(|c| propose(c, depth, budget.nodes >= 8, &mut simplifier))
             .collect();
         // Longest tapes first; ties in node order (the order of the boxes).
         proposals.sort_by_key(|p| match p {
@@ -1048,10 +1167,11 @@ fn build_subtree(job: Job) -> SubTree {
     sub
 }
 
-/// Whether a candidate box at `depth` gains from a split, from its children's tapes.
-fn propose(c: Candidate, depth: u32, simplifier: &mut Simplifier) -> Proposal {
+/// Whether a candidate box at `depth` gains from a split, from its children's tapes (none
+/// are made when the budget has no `room` for them).
+fn propose(c: Candidate, depth: u32, room: bool, simplifier: &mut Simplifier) -> Proposal {
     let len = c.sp.len;
-    if c.sp.verdict != Verdict::Surface || depth >= MAX_DEPTH || len < MIN_SPLIT_TAPE {
+    if !room || c.sp.verdict != Verdict::Surface || depth >= MAX_DEPTH || len < MIN_SPLIT_TAPE {
         return Proposal::Leaf(c);
     }
     let children: [Specialised; 8] = std::array::from_fn(|i| {
@@ -1779,13 +1899,115 @@ pub(crate) mod tests {
         );
         let stats = field.octree.as_ref().expect("an octree").stats();
         assert_eq!((stats.nodes, stats.leaves), (1, 1), "{stats:?}");
-        // a box with a sphere cut from it: long enough, its top levels are split
+        // a box with a scoop and a bore taken out: long enough, and its leaves save more than
+        // half of it, so its top levels are split and its march walks them
         let (len, field) = object(
-            "Subtraction(base: Box(half_extents: (0.5, 0.3, 0.2)), cut: Sphere(radius: 0.4))",
+            "Subtraction(base: Box(half_extents: (0.65, 0.65, 0.65)), cut: Union([
+                Transform(translate: (0.65, 0.65, 0.65), shape: Sphere(radius: 0.6)),
+                Transform(rotate: (90, 0, 0), shape: Cylinder(half_height: 1, radius: 0.3))]))",
         );
         assert!(len >= MIN_SPLIT_TAPE, "{len} instructions");
-        let stats = field.octree.as_ref().expect("an octree").stats();
-        assert!(stats.nodes > 73, "{stats:?}");
+        let tree = field.octree.as_ref().expect("an octree");
+        assert!(tree.stats().nodes > 73, "{:?}", tree.stats());
+        assert!(!tree.marched_whole());
+    }
+
+    /// The sampled surface cells never keep a tree from being built whose march would walk its
+    /// leaves: over every object of the shipped scenes and of the SDF peer's models with a
+    /// tape that may be marched whole, a tree the samples skip is, built, marched whole (or
+    /// one leaf all the same).
+    #[test]
+    fn sampled_cells_skip_only_trees_marched_whole() {
+        let mut scenes = crate::scene::shipped_scenes();
+        for (name, src) in crate::bench::peer::generated() {
+            let scene = crate::scene::Scene::from_source(&src, std::path::Path::new(&name))
+                .unwrap_or_else(|e| panic!("{name}: {e}"));
+            scenes.push((name, scene));
+        }
+        let (mut skipped, mut walked, mut built_whole) = (0, 0, 0);
+        for (name, scene) in &scenes {
+            for (i, o) in scene.objects.iter().enumerate() {
+                let l = &o.lowered;
+                let whole = l.program.distance_only().live_len();
+                let finite = l.bounds.min.is_finite() && l.bounds.max.is_finite();
+                if !(MIN_SPLIT_TAPE..=SHORT_TAPE).contains(&whole) || !finite {
+                    continue;
+                }
+                let pad = Vec3::splat(1e-4 * (l.bounds.max - l.bounds.min).max_element() + 1e-6);
+                let (lo, hi) = (l.bounds.min - pad, l.bounds.max + pad);
+                let tree = FieldOctree::grow(&l.program, lo, hi, MAX_NODES, MAX_INSTRUCTIONS);
+                let kept = surface_sample_tape(&l.program, lo, hi);
+                if kept.is_some_and(|k| k >= SAMPLED_WHOLE * whole as f64) {
+                    skipped += 1;
+                    // (a tree of one leaf anyway, as fidget's gyroid sphere is, loses nothing)
+                    assert!(
+                        tree.marched_whole() || tree.stats().nodes == 1,
+                        "{name}, object {i}: skipped ({kept:?} of {whole}) but walked: {:?}",
+                        tree.stats()
+                    );
+                } else if tree.marched_whole() {
+                    built_whole += 1;
+                } else {
+                    walked += 1;
+                }
+            }
+        }
+        // the check has teeth: trees walked and trees skipped both occur
+        assert!(
+            skipped >= 10 && walked >= 4,
+            "{skipped} skipped, {walked} walked, {built_whole} built and marched whole"
+        );
+    }
+
+    /// A tree whose march would take the whole tape (its leaves keeping more than half of it)
+    /// is one leaf: a box with a sphere cut from it, found so by its sampled surface cells
+    /// before any of the tree is built, and by the built tree where the samples are not sure.
+    #[test]
+    fn a_tree_marched_whole_is_one_leaf() {
+        let lowered = |shape: &str| {
+            let node = crate::sdf::conformance::parse_node(shape);
+            crate::sdf::lower(&node, &|_| Some(0), 0).unwrap_or_else(|e| panic!("{e}"))
+        };
+        let l = lowered(
+            "Transform(rotate: (10, 37, -20), shape: Subtraction(
+                base: Box(half_extents: (0.5, 0.3, 0.2)), cut: Sphere(radius: 0.4)))",
+        );
+        let whole = l.program.distance_only().live_len();
+        assert!((MIN_SPLIT_TAPE..=SHORT_TAPE).contains(&whole), "{whole}");
+        let pad = Vec3::splat(1e-3);
+        let (lo, hi) = (l.bounds.min - pad, l.bounds.max + pad);
+        let grown = FieldOctree::grow(&l.program, lo, hi, MAX_NODES, MAX_INSTRUCTIONS);
+        assert!(
+            grown.marched_whole() && grown.stats().nodes > 73,
+            "{:?}",
+            grown.stats()
+        );
+        let kept = surface_sample_tape(&l.program, lo, hi).expect("surface samples");
+        assert!(kept >= SAMPLED_WHOLE * whole as f64, "{kept} of {whole}");
+        let tree = FieldOctree::build_within(&l.program, lo, hi, MAX_NODES, MAX_INSTRUCTIONS);
+        assert_eq!(tree.stats().nodes, 1);
+        assert!(tree.marched_whole());
+        // where the samples say nothing, the tree is built and then found marched whole
+        let l = lowered(
+            "SmoothUnion(k: 0.05, shapes: [Box(half_extents: (0.3, 0.3, 0.3)),
+            Transform(translate: (0.2, 0.3, 0), shape: Sphere(radius: 0.2))])",
+        );
+        let whole = l.program.distance_only().live_len();
+        let (lo, hi) = (l.bounds.min - pad, l.bounds.max + pad);
+        let kept = surface_sample_tape(&l.program, lo, hi);
+        let grown = FieldOctree::grow(&l.program, lo, hi, MAX_NODES, MAX_INSTRUCTIONS);
+        let tree = FieldOctree::build_within(&l.program, lo, hi, MAX_NODES, MAX_INSTRUCTIONS);
+        assert!(
+            kept.is_some_and(|k| k < SAMPLED_WHOLE * whole as f64),
+            "{kept:?} of {whole}"
+        );
+        assert!(
+            grown.marched_whole() && grown.stats().nodes > 73,
+            "{:?}",
+            grown.stats()
+        );
+        assert_eq!(tree.stats().nodes, 1);
+        assert!(tree.marched_whole());
     }
 
     /// [`tiles`] as a scene of one object traced as one field, for the tracer's tests (the

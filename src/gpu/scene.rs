@@ -671,14 +671,18 @@ mod tests {
     use crate::rng::Rng;
     use std::path::Path;
 
-    /// A gyroid sphere (a long tape, so a deep octree pays) beside a plain sphere (whose tape is
-    /// too short to split: an octree of one leaf).
+    /// A twisted, bent composite (a tape whose leaves save most of it, so a deep octree pays)
+    /// beside a plain sphere (whose tape is too short to split: an octree of one leaf).
     fn scene() -> Scene {
         let src = "Scene(
             camera: Perspective(position: (0, 0, 5), look_at: (0, 0, 0), fov: 40),
             objects: [
                 (shape: Sphere(radius: 0.5), translate: (3, 0, 0)),
-                (shape: Implicit(expr: \"max(sqrt(x*x + y*y + z*z) - 1, abs(sin(6*x)*cos(6*y) + sin(6*y)*cos(6*z) + sin(6*z)*cos(6*x)) - 0.3)\", lipschitz: 20, half_extents: (1, 1, 1))),
+                (shape: Bend(rate: 0.5, shape: Twist(rate: 2.5, shape: Union([
+                    Subtraction(base: RoundBox(half_extents: (0.28, 0.75, 0.28), radius: 0.04),
+                        cut: Cylinder(half_height: 0.9, radius: 0.14)),
+                    Transform(translate: (0, 0.4, 0), shape: Torus(major: 0.36, minor: 0.05)),
+                    Transform(translate: (0, -0.4, 0), shape: Torus(major: 0.36, minor: 0.05))])))),
             ],
         )";
         Scene::from_source(src, Path::new("gpu-fields.ron")).unwrap_or_else(|e| panic!("{e}"))

@@ -12,6 +12,22 @@ use std::path::Path;
 /// jittered grid over a ground plane, each its own object so that the SDF acceleration
 /// structure has `n` bounds to sort through. Deterministic: the same `n` gives the same text.
 pub fn many_objects(n: usize) -> String {
+    many_objects_of(n, Shapes::Primitives)
+}
+
+/// What [`many_objects_of`] scatters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Shapes {
+    /// Spheres, boxes, tori and capsules in turn (tapes of 4 to 22 instructions).
+    Primitives,
+    /// Small CSG trees in turn, each turned about all three axes: a box less a sphere, a box
+    /// smoothly joined to a torus, a box and a sphere together (tapes of 24 to 50
+    /// instructions, long enough to be worth an octree's split).
+    Csg,
+}
+
+/// [`many_objects`] of the given shapes.
+pub fn many_objects_of(n: usize, shapes: Shapes) -> String {
     let side = (n as f64).sqrt().ceil().max(1.0) as usize;
     let spacing = 1.0;
     let half = 0.5 * spacing * side as f64;
@@ -41,17 +57,38 @@ pub fn many_objects(n: usize) -> String {
         let (gx, gz) = ((i % side) as f64, (i / side) as f64);
         let x = (gx + 0.5) * spacing - half + 0.3 * next();
         let z = (gz + 0.5) * spacing - half + 0.3 * next();
-        let shape = match i % 4 {
-            0 => "Sphere(radius: 0.25)".to_string(),
-            1 => "Box(half_extents: (0.2, 0.2, 0.2))".to_string(),
-            2 => "Torus(major: 0.2, minor: 0.07)".to_string(),
-            _ => "Capsule(a: (0, -0.15, 0), b: (0, 0.15, 0), radius: 0.1)".to_string(),
+        let shape = match (shapes, i % 4) {
+            (Shapes::Primitives, 0) => "Sphere(radius: 0.25)",
+            (Shapes::Primitives, 1) => "Box(half_extents: (0.2, 0.2, 0.2))",
+            (Shapes::Primitives, 2) => "Torus(major: 0.2, minor: 0.07)",
+            (Shapes::Primitives, _) => "Capsule(a: (0, -0.15, 0), b: (0, 0.15, 0), radius: 0.1)",
+            (Shapes::Csg, 0 | 3) => {
+                "Subtraction(base: Box(half_extents: (0.2, 0.2, 0.2)), \
+                 cut: Transform(translate: (0.1, 0.1, 0.1), shape: Sphere(radius: 0.18)))"
+            }
+            (Shapes::Csg, 1) => {
+                "SmoothUnion(k: 0.08, shapes: [Box(half_extents: (0.15, 0.1, 0.15)), \
+                 Transform(translate: (0, 0.1, 0), shape: Torus(major: 0.18, minor: 0.05))])"
+            }
+            (Shapes::Csg, _) => {
+                "Union([Box(half_extents: (0.15, 0.15, 0.15)), \
+                 Transform(translate: (0.1, 0.12, 0), shape: Sphere(radius: 0.12))])"
+            }
+        };
+        // primitives turn about y; CSG trees about all three axes (an arbitrary rotation)
+        let rotate = match shapes {
+            Shapes::Primitives => format!("0, {:.1}, 0", (i * 37 % 360) as f64),
+            Shapes::Csg => format!(
+                "{:.1}, {:.1}, {:.1}",
+                (i * 23 % 80) as f64 - 40.0,
+                (i * 37 % 360) as f64,
+                (i * 53 % 80) as f64 - 40.0
+            ),
         };
         let material = if i % 3 == 0 { "a" } else { "b" };
         let _ = writeln!(
             s,
-            "        (shape: {shape}, translate: ({x:.4}, 0, {z:.4}), rotate: (0, {:.1}, 0), material: \"{material}\"),",
-            (i * 37 % 360) as f64
+            "        (shape: {shape}, translate: ({x:.4}, 0, {z:.4}), rotate: ({rotate}), material: \"{material}\"),"
         );
     }
     s.push_str(
@@ -97,6 +134,15 @@ mod tests {
             let scene = crate::scene::Scene::from_source(&src, std::path::Path::new("gen.ron"))
                 .unwrap_or_else(|e| panic!("{e}"));
             assert_eq!(scene.objects.len(), n + 1);
+            // the CSG trees: a union of two shapes is traced as its two members
+            let src = super::many_objects_of(n, super::Shapes::Csg);
+            let scene = crate::scene::Scene::from_source(&src, std::path::Path::new("gen.ron"))
+                .unwrap_or_else(|e| panic!("{e}"));
+            let unions = (0..n).filter(|i| i % 4 == 2).count();
+            assert_eq!(scene.objects.len(), n + 1 + unions);
+            // long enough for the field octree's split rule (24 instructions or more)
+            let longest = scene.objects.iter().map(|o| o.lowered.distance.len()).max();
+            assert!(longest >= Some(24), "{longest:?}");
         }
     }
 }
