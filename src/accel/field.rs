@@ -9,9 +9,9 @@
 //! lengthened by how slowly the field can fall along the ray there ([`Leaf::fall`]). Outside
 //! the octree's box the whole tape is used; where that tape is short ([`SHORT_TAPE`]), the
 //! CPU evaluates it everywhere but in Hart's march, which walks the leaves only where they
-//! save at least half of it ([`FieldOctree::marched_whole`], on both backends); a tree whose
-//! leaves save less is kept as one leaf, and is not built at all where cells sampled on the
-//! surface already keep much of the tape ([`surface_sample_tape`]). The structure depends
+//! save at least half of it ([`FieldOctree::marched_whole`], on both backends); in a scene of
+//! many objects a tree whose leaves save less is one leaf ([`Keep::Walked`]), not even built
+//! where cells sampled on the surface already keep much of the tape. The structure depends
 //! only on the object, so camera, shadow, ambient-occlusion, penumbra, reflection and
 //! refraction rays share it (screen tiles would serve camera rays only).
 //!
@@ -463,12 +463,17 @@ impl FieldOctree {
     /// for an empty or unbounded region. A short tape gets a single leaf: its gradient bound
     /// still shortens the steps (to one step on a plane).
     pub fn build(program: &SsaTape, region: Aabb) -> Option<FieldOctree> {
-        Self::build_shared(program, region, 1.0)
+        Self::build_shared(program, region, 1.0, Keep::Every)
     }
 
     /// [`Self::build`] within `share` (in (0, 1]) of an object's budget of nodes and
     /// instructions: the part of an object split into several ([`ObjectField::build_shared`]).
-    pub fn build_shared(program: &SsaTape, region: Aabb, share: f64) -> Option<FieldOctree> {
+    pub fn build_shared(
+        program: &SsaTape,
+        region: Aabb,
+        share: f64,
+        keep: Keep,
+    ) -> Option<FieldOctree> {
         if !region.min.is_finite() || !region.max.is_finite() || region.is_empty() {
             return None;
         }
@@ -482,13 +487,15 @@ impl FieldOctree {
             hi,
             of(MAX_NODES),
             of(MAX_INSTRUCTIONS),
+            keep,
         ))
     }
 
     /// The tree over [lo, hi] within `nodes` nodes and `instructions` instructions (the whole
-    /// shading tape, stored for the leaves that are not crossed, counted against them); one
-    /// leaf where Hart's march would take the whole tape ([`Self::marched_whole`]), known
-    /// before the build from sampled surface cells ([`surface_sample_tape`]) or after it.
+    /// shading tape, stored for the leaves that are not crossed, counted against them); with
+    /// [`Keep::Walked`], one leaf where Hart's march would take the whole tape
+    /// ([`Self::marched_whole`]), known before the build from sampled surface cells
+    /// ([`surface_sample_tape`]) or after it.
     ///
     /// The top [`PARALLEL_DEPTH`] levels are split first (they always are: see
     /// [`CULL_DEPTH`]), the budget shared among their boxes in proportion to their tapes;
@@ -501,7 +508,11 @@ impl FieldOctree {
         hi: Vec3,
         nodes: usize,
         instructions: usize,
+        keep: Keep,
     ) -> FieldOctree {
+        if keep == Keep::Every {
+            return Self::grow(program, lo, hi, nodes, instructions);
+        }
         let whole_len = program.distance_only().live_len();
         if (MIN_SPLIT_TAPE..=SHORT_TAPE).contains(&whole_len)
             && surface_sample_tape(program, lo, hi)
@@ -511,11 +522,7 @@ impl FieldOctree {
         }
         let tree = Self::grow(program, lo, hi, nodes, instructions);
         if tree.marched_whole && tree.nodes.len() > 1 {
-            // Hart's march takes the whole tape here, and the leaves would serve lookups
-            // alone (normals, shading, the other marches), which saved no measurable time
-            // (BENCHMARKS.md, "Octrees whose march takes the whole tape"); they cost memory
-            // and native code: 3,000 small CSG objects (a box less a sphere, ...) held 300 MiB
-            // of leaf tapes and 280 MiB of their code. One leaf, as a short tape gets.
+            // (one leaf, as a short tape gets: see `Keep::Walked`)
             return Self::grow(program, lo, hi, 1, instructions);
         }
         tree
@@ -861,6 +868,28 @@ fn uniform_leaf(program: &SsaTape, verdict: Verdict, min_value: f32) -> LeafBuil
 /// Leaves whose shading tape is the whole one, in a [`SubTree`] (stored as 0 in the tree).
 const WHOLE_SHADING: u32 = u32::MAX;
 
+/// Which octrees a build keeps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Keep {
+    /// Every tree its rules build. Where Hart's march takes the whole tape
+    /// ([`FieldOctree::marched_whole`]) the leaves still serve point evaluations: the GPU
+    /// evaluates a leaf's tape for a hit's confirmation, its normal, a penumbra or AO sample
+    /// (the CPU, the short whole tape), each step costing its instructions there.
+    Every,
+    /// Only the trees Hart's march walks: a tree it would march whole is one leaf, found
+    /// before the build from sampled surface cells ([`surface_sample_tape`]) or after it.
+    /// For scenes of many objects ([`MANY_MARCHED_WHOLE`]): 3,000 small CSG objects (a box
+    /// less a sphere, ...) built 1.9 M nodes in 7.7 s and held 295 MiB of leaf tapes and 273
+    /// MiB of their native code, for frames no faster on the CPU (BENCHMARKS.md, "Octrees
+    /// whose march takes the whole tape"); as one leaf each, 0.8 s and 4.5 MiB.
+    Walked,
+}
+
+/// Objects whose tapes could be marched whole (of [`MIN_SPLIT_TAPE`] to [`SHORT_TAPE`]
+/// instructions) that a scene may hold before its build keeps only the trees Hart's march
+/// walks ([`Keep::Walked`]): each other tree costs a few milliseconds and a few hundred KiB.
+pub const MANY_MARCHED_WHOLE: usize = 64;
+
 /// Grid points per axis at which [`surface_sample_tape`] looks for the surface.
 const SAMPLE_GRID: usize = 9;
 
@@ -1167,8 +1196,10 @@ fn build_subtree(job: Job) -> SubTree {
     sub
 }
 
-/// Whether a candidate box at `depth` gains from a split, from its children's tapes (none
-/// are made when the budget has no `room` for them).
+/// Whether a candidate box at `depth` gains from a split, from its children's tapes. Without
+/// `room` in the budget for them, none are made: the box could only become a leaf, and their
+/// eight specialisations would at most find it empty or full throughout (a tree asked to be
+/// one leaf, [`FieldOctree::build_within`], spends none).
 fn propose(c: Candidate, depth: u32, room: bool, simplifier: &mut Simplifier) -> Proposal {
     let len = c.sp.len;
     if !room || c.sp.verdict != Verdict::Surface || depth >= MAX_DEPTH || len < MIN_SPLIT_TAPE {
@@ -1355,7 +1386,7 @@ impl ObjectField {
     /// the object's bounds, or its bounds clipped to a finite box for an unbounded object)
     /// when one pays.
     pub fn build(lowered: &LoweredSdf, region: Aabb) -> Self {
-        Self::build_shared(lowered, region, 1.0)
+        Self::build_shared(lowered, region, 1.0, Keep::Every)
     }
 
     /// [`Self::build`] within `share` (in (0, 1]) of an object's budgets ([`MAX_NODES`],
@@ -1363,10 +1394,10 @@ impl ObjectField {
     /// the parts of an object split into several share its budgets, so that the object's
     /// fields together stay within them (a union of 100,000 spheres made 1,021 parts whose
     /// octrees, each within a whole budget, took 352 MB).
-    pub fn build_shared(lowered: &LoweredSdf, region: Aabb, share: f64) -> Self {
+    pub fn build_shared(lowered: &LoweredSdf, region: Aabb, share: f64, keep: Keep) -> Self {
         let outside = gradient_everywhere(&lowered.program);
         ObjectField {
-            octree: FieldOctree::build_shared(&lowered.program, region, share),
+            octree: FieldOctree::build_shared(&lowered.program, region, share, keep),
             whole: lowered.distance.clone(),
             whole_shading: lowered.shading.clone(),
             convex: lowered.convex.then(|| RoundingModel::of(&lowered.distance)),
@@ -1984,10 +2015,13 @@ pub(crate) mod tests {
         );
         let kept = surface_sample_tape(&l.program, lo, hi).expect("surface samples");
         assert!(kept >= SAMPLED_WHOLE * whole as f64, "{kept} of {whole}");
-        let tree = FieldOctree::build_within(&l.program, lo, hi, MAX_NODES, MAX_INSTRUCTIONS);
+        let build =
+            |keep| FieldOctree::build_within(&l.program, lo, hi, MAX_NODES, MAX_INSTRUCTIONS, keep);
+        let tree = build(Keep::Walked);
         assert_eq!(tree.stats().nodes, 1);
         assert!(tree.marched_whole());
-        // where the samples say nothing, the tree is built and then found marched whole
+        assert_eq!(build(Keep::Every).stats(), grown.stats());
+        // where the sampled cells keep less, the tree is built, and then found marched whole
         let l = lowered(
             "SmoothUnion(k: 0.05, shapes: [Box(half_extents: (0.3, 0.3, 0.3)),
             Transform(translate: (0.2, 0.3, 0), shape: Sphere(radius: 0.2))])",
@@ -1996,7 +2030,14 @@ pub(crate) mod tests {
         let (lo, hi) = (l.bounds.min - pad, l.bounds.max + pad);
         let kept = surface_sample_tape(&l.program, lo, hi);
         let grown = FieldOctree::grow(&l.program, lo, hi, MAX_NODES, MAX_INSTRUCTIONS);
-        let tree = FieldOctree::build_within(&l.program, lo, hi, MAX_NODES, MAX_INSTRUCTIONS);
+        let tree = FieldOctree::build_within(
+            &l.program,
+            lo,
+            hi,
+            MAX_NODES,
+            MAX_INSTRUCTIONS,
+            Keep::Walked,
+        );
         assert!(
             kept.is_some_and(|k| k < SAMPLED_WHOLE * whole as f64),
             "{kept:?} of {whole}"
@@ -2237,7 +2278,14 @@ pub(crate) mod tests {
         let lowered = tiles(24, 12);
         let (lo, hi) = (lowered.bounds.min, lowered.bounds.max);
         let build = |instructions| {
-            FieldOctree::build_within(&lowered.program, lo, hi, MAX_NODES, instructions)
+            FieldOctree::build_within(
+                &lowered.program,
+                lo,
+                hi,
+                MAX_NODES,
+                instructions,
+                Keep::Every,
+            )
         };
         let full = build(MAX_INSTRUCTIONS);
         let full_stats = full.stats();

@@ -12,7 +12,7 @@ pub mod step;
 pub use step::{TraceResult, epsilon_at};
 
 use crate::accel::bvh::BuildQuality;
-use crate::accel::field::{FieldCursor, ObjectField};
+use crate::accel::field::{self, FieldCursor, ObjectField};
 use crate::accel::{MeshAccel, SdfAccel};
 use crate::geom::{Aabb, Ray};
 use crate::scene::material::MaterialParams;
@@ -148,6 +148,7 @@ pub fn field_region(object: &SdfObject, scene_box: &Aabb) -> Aabb {
 pub fn build_fields(scene: &Scene, specialise: bool, native: bool) -> Vec<ObjectField> {
     let scene_box = scene.finite_bounds();
     let shares = budget_shares(scene);
+    let keep = trees_to_keep(scene);
     let mut fields: Vec<ObjectField> = scene
         .objects
         .par_iter()
@@ -155,7 +156,7 @@ pub fn build_fields(scene: &Scene, specialise: bool, native: bool) -> Vec<Object
         .map(|(o, &share)| {
             let l = &o.lowered;
             if specialise {
-                ObjectField::build_shared(l, field_region(o, &scene_box), share)
+                ObjectField::build_shared(l, field_region(o, &scene_box), share, keep)
             } else {
                 ObjectField::whole(&l.distance, &l.shading)
             }
@@ -165,6 +166,23 @@ pub fn build_fields(scene: &Scene, specialise: bool, native: bool) -> Vec<Object
         crate::accel::field::compile_native(&mut fields, &shares);
     }
     fields
+}
+
+/// Which field octrees the scene's build keeps: every one, unless the scene holds more than
+/// [`field::MANY_MARCHED_WHOLE`] objects whose trees Hart's march might take whole (tapes of
+/// [`field::MIN_SPLIT_TAPE`] to [`field::SHORT_TAPE`] instructions); then those it walks.
+fn trees_to_keep(scene: &Scene) -> field::Keep {
+    let range = field::MIN_SPLIT_TAPE..=field::SHORT_TAPE;
+    let candidates = scene
+        .objects
+        .par_iter()
+        .filter(|o| range.contains(&o.lowered.program.distance_only().live_len()))
+        .count();
+    if candidates > field::MANY_MARCHED_WHOLE {
+        field::Keep::Walked
+    } else {
+        field::Keep::Every
+    }
 }
 
 /// Each object's share of an object's budgets for its field ([`ObjectField::build_shared`]):
